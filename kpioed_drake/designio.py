@@ -1,0 +1,181 @@
+"""Reading and writing design and result files, with validation and atomic writes.
+
+A design file is a CSV with a header and one row per pose, columns ``q1_deg`` ... ``q6_deg``
+(other columns are kept but ignored). Errors name the file, the row (1-based, header = row 1)
+and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.models import N_JOINTS, Robot
+
+Q_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_json(path: str | Path, data) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
+    """Read a CSV file with a header; check that ``required`` columns are present exactly once.
+
+    Returns:
+        header and the data rows (strings).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    text = path.read_text(encoding="utf-8-sig", errors="replace")
+    rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
+    if not rows:
+        raise InputError(f"{path}: the file is empty (expected a header with {', '.join(required)})")
+    header = [h.strip() for h in rows[0]]
+    dup = sorted({h for h in header if header.count(h) > 1 and h})
+    if dup:
+        raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
+    missing = [c for c in required if c not in header]
+    if missing:
+        hint = ""
+        for m in missing:
+            close = [h for h in header if h.lower().replace(" ", "") == m.lower() or _near(h, m)]
+            if close:
+                hint = f" (found {close[0]!r}; expected exactly {m!r})"
+                break
+        raise InputError(f"{path}: row 1 (header): missing column {missing[0]!r}{hint}")
+    data = rows[1:]
+    for k, r in enumerate(data, start=2):
+        if len(r) != len(header):
+            raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}")
+    return header, data
+
+
+def _near(a: str, b: str) -> bool:
+    a, b = a.lower(), b.lower()
+    if abs(len(a) - len(b)) > 1:
+        return False
+    return sum(x != y for x, y in zip(a, b)) + abs(len(a) - len(b)) <= 1
+
+
+def parse_float_column(path, header, data, column: str) -> np.ndarray:
+    """Column ``column`` as floats; text, empty cells, NaN and infinities are errors."""
+    j = header.index(column)
+    out = np.empty(len(data))
+    for k, r in enumerate(data, start=2):
+        cell = r[j].strip()
+        try:
+            v = float(cell)
+        except ValueError:
+            raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a number") from None
+        if not np.isfinite(v):
+            raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a finite number")
+        out[k - 2] = v
+    return out
+
+
+def check_joint_angles(path, q_deg: np.ndarray, robot: Robot, *, first_row: int = 2) -> None:
+    """Angles within the robot's limits; a table that looks like radians gets a hint."""
+    lo, up = np.rad2deg(robot.lower), np.rad2deg(robot.upper)
+    if q_deg.size and np.all(np.abs(q_deg) <= np.pi + 1e-9) and np.ptp(q_deg) > 0 and len(q_deg) > 3:
+        raise InputError(
+            f"{path}: every joint value is within +-pi: the angles look like radians; "
+            "columns q*_deg must hold degrees"
+        )
+    tol = 1e-6
+    for k, row in enumerate(q_deg):
+        for j in range(N_JOINTS):
+            if not lo[j] - tol <= row[j] <= up[j] + tol:
+                raise InputError(
+                    f"{path}: row {k + first_row}, column {Q_COLUMNS[j]!r}: {row[j]:g} deg is outside "
+                    f"the joint range [{lo[j]:g}, {up[j]:g}] of {robot.name}"
+                )
+
+
+def read_design(path: str | Path, robot: Robot, *, check_limits: bool = True) -> np.ndarray:
+    """Read a design CSV.
+
+    Returns:
+        q: (n, 6) joint angles [rad].
+
+    Raises:
+        InputError: missing file or column, text or NaN in a cell, angles outside the limits.
+    """
+    header, data = read_csv_table(path, Q_COLUMNS)
+    if not data:
+        raise InputError(f"{path}: no poses (the file has only a header)")
+    q_deg = np.stack([parse_float_column(path, header, data, c) for c in Q_COLUMNS], axis=1)
+    if check_limits:
+        check_joint_angles(path, q_deg, robot)
+    return np.deg2rad(q_deg)
+
+
+def design_csv_text(q: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> str:
+    """CSV text of (n, 6) poses [rad] in degrees, with optional extra columns."""
+    q_deg = np.rad2deg(np.atleast_2d(q))
+    cols = list(Q_COLUMNS) + list(extra or {})
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for k, row in enumerate(q_deg):
+        vals = [f"{v:.6f}" for v in row]
+        for name in extra or {}:
+            x = extra[name][k]
+            vals.append(str(x) if not isinstance(x, float | np.floating) else f"{x:.6g}")
+        w.writerow(vals)
+    return buf.getvalue()
+
+
+def write_design(path: str | Path, q: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> None:
+    """Write (n, 6) poses [rad] as a design CSV in degrees, atomically."""
+    atomic_write_text(path, design_csv_text(q, extra))
+
+
+def parse_q_work(text: str, robot: Robot) -> np.ndarray:
+    """``--q-work q1,...,q6`` in degrees -> (6,) [rad], checked against the joint limits."""
+    try:
+        vals = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise InputError(f"--q-work: expected 6 comma-separated numbers in degrees, got {text!r}") from None
+    if vals.shape != (N_JOINTS,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"--q-work: expected 6 finite comma-separated numbers in degrees, got {text!r}")
+    lo, up = np.rad2deg(robot.lower), np.rad2deg(robot.upper)
+    for j in range(N_JOINTS):
+        if not lo[j] <= vals[j] <= up[j]:
+            raise InputError(
+                f"--q-work: joint {j + 1} = {vals[j]:g} deg is outside [{lo[j]:g}, {up[j]:g}] of {robot.name}"
+            )
+    return np.deg2rad(vals)

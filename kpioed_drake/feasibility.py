@@ -1,0 +1,139 @@
+"""Independent feasibility check of measurement poses (paper eq. 24b), optimiser-free.
+
+For every pose: joint limits, the laser incidence angle (paper eq. 4), and the clearance of every
+checked capsule pair computed by Drake's own signed-distance query
+(``QueryObject.ComputeSignedDistancePairwiseClosestPoints``) on the MultibodyPlant + SceneGraph built
+from the model files: robot vs floor, wall, mount and car, and the robot self pairs of the model.
+The laser beam changes with the pose and is not SceneGraph geometry; its clearance to the robot
+links and the car is a segment-segment distance (:func:`kpioed_drake.geometry.segment_distance`,
+itself tested against Drake's capsule-capsule distance).
+
+A pose is feasible if every clearance is ``>= -tol_mm`` and every angle is within its limit up to
+``tol_deg`` (defaults: 1 micrometre, 1e-6 degree: the optimiser's feasibility tolerance).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.geometry import segment_distance
+from kpioed_drake.kinematics import flange_point, forward_kinematics
+from kpioed_drake.models import N_JOINTS, Cell, Robot
+from kpioed_drake.plant import MM, Scene, build_scene
+
+TOL_MM = 1e-3
+TOL_DEG = 1e-6
+
+
+@dataclasses.dataclass
+class PoseReport:
+    """Feasibility of one pose.
+
+    Attributes:
+        index: 0-based pose index.
+        feasible: all checks passed.
+        failures: list of ``{"check", "name", "value", "limit", "violation"}``; ``check`` is one of
+            ``joint_limit`` [deg], ``incidence`` [deg], ``collision`` [mm], ``beam`` [mm].
+        min_clearance_mm: smallest clearance over all checked pairs (robot and beam) [mm].
+        min_clearance_pair: the pair that has it.
+        incidence_deg: the incidence angle [deg].
+    """
+
+    index: int
+    feasible: bool
+    failures: list
+    min_clearance_mm: float
+    min_clearance_pair: str
+    incidence_deg: float
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class FeasibilityChecker:
+    """Checks poses of ``robot`` in ``cell`` with Drake geometry queries.
+
+    Args:
+        robot, cell: the models (the cell as loaded for this robot, i.e. with its car shift).
+        collision: check robot-vs-world and self clearances.
+        beam: check the laser beam clearances.
+    """
+
+    def __init__(self, robot: Robot, cell: Cell, *, tol_mm: float = TOL_MM, tol_deg: float = TOL_DEG):
+        self.robot, self.cell = robot, cell
+        self.tol_mm, self.tol_deg = tol_mm, tol_deg
+        self.scene: Scene = build_scene(robot, cell)
+        self._beam_caps = [c for c in robot.capsules if c.frame in robot.beam_links]
+        self._beam_obs = [o for o in cell.obstacles if o.moves_with_car]
+
+    def clearances(self, q) -> dict[str, float]:
+        """All pair clearances [mm] of one pose: Drake pairs and the beam pairs."""
+        q = np.asarray(q, dtype=float)
+        sc = self.scene
+        sc.set_q(q)
+        out = {}
+        for pr in sc.query_object().ComputeSignedDistancePairwiseClosestPoints(max_distance=100.0):
+            a, b = sc.geometry_names[pr.id_A], sc.geometry_names[pr.id_B]
+            if sc.geometry_link[pr.id_A] == -1 or (
+                sc.geometry_link[pr.id_B] != -1 and sc.geometry_link[pr.id_A] > sc.geometry_link[pr.id_B]
+            ):
+                a, b = b, a
+            out[f"{a} vs {b}"] = pr.distance / MM
+        fr = forward_kinematics(self.robot, q)
+        p_Q = flange_point(fr, self.cell.p_FQ)[0]
+        for c in self._beam_caps:
+            A = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.a
+            B = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.b
+            d, _, _ = segment_distance(p_Q, self.cell.p_WT, A, B)
+            out[f"beam vs {c.name}"] = float(d) - c.radius - self.cell.beam_radius
+        for o in self._beam_obs:
+            d, _, _ = segment_distance(p_Q, self.cell.p_WT, o.a, o.b)
+            out[f"beam vs {o.name}"] = float(d) - o.radius - self.cell.beam_radius
+        return out
+
+    def incidence_deg(self, q) -> float:
+        fr = forward_kinematics(self.robot, q)
+        p = flange_point(fr, self.cell.p_FQ)[0]
+        g = self.cell.p_WT - p
+        c = float(fr.R[0, N_JOINTS][:, 2] @ g / np.linalg.norm(g))
+        return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
+
+    def check_pose(self, q, index: int = 0, *, collision: bool = True) -> PoseReport:
+        q = np.asarray(q, dtype=float)
+        fails = []
+        qd, lo, up = np.rad2deg(q), np.rad2deg(self.robot.lower), np.rad2deg(self.robot.upper)
+        for j in range(N_JOINTS):
+            if qd[j] < lo[j] - self.tol_deg or qd[j] > up[j] + self.tol_deg:
+                lim = lo[j] if qd[j] < lo[j] else up[j]
+                fails.append(
+                    dict(check="joint_limit", name=self.robot.joint_names[j], value=float(qd[j]),
+                         limit=float(lim), violation=float(abs(qd[j] - lim)))
+                )
+        inc = self.incidence_deg(q)
+        max_inc = float(np.rad2deg(self.cell.max_incidence))
+        if inc > max_inc + self.tol_deg:
+            fails.append(dict(check="incidence", name="reflector", value=inc, limit=max_inc, violation=inc - max_inc))
+        clear = self.clearances(q) if collision else {}
+        pair, cmin = ("", float("inf"))
+        for name, d in clear.items():
+            if d < cmin:
+                pair, cmin = name, d
+            if d < -self.tol_mm:
+                kind = "beam" if name.startswith("beam") else "collision"
+                fails.append(dict(check=kind, name=name, value=d, limit=0.0, violation=-d))
+        return PoseReport(index, not fails, fails, cmin, pair, inc)
+
+    def check(self, q, *, collision: bool = True) -> list[PoseReport]:
+        """Reports for (n, 6) poses [rad]."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return [self.check_pose(qi, i, collision=collision) for i, qi in enumerate(q)]
+
+
+def summarize(reports: list[PoseReport]) -> dict:
+    """Counts of failing poses per check."""
+    out = {"n_poses": len(reports), "n_infeasible": sum(not r.feasible for r in reports)}
+    for check in ("joint_limit", "incidence", "collision", "beam"):
+        out[f"n_{check}"] = sum(any(f["check"] == check for f in r.failures) for r in reports)
+    return out

@@ -1,0 +1,184 @@
+"""Capsule clearances with exact joint-angle gradients (paper section 2.2, eqs. 20-23).
+
+Every collision constraint of the design problem (paper Table 5) is a clearance that must be
+``>= 0`` [mm]:
+
+- floor and wall: for each moving robot capsule and each end point,
+  ``z - r - floor_z`` and ``x - r - wall_x`` (the extreme of a capsule against a plane is at an
+  end point, so this is exact);
+- robot capsule vs fixed obstacle capsule (mount, car), robot self pairs of non-neighbour links,
+  and the laser beam (a thin capsule from the reflector to the tracker) vs robot links and the
+  car: segment-segment distance minus the radii (eq. 20, 21).
+
+Segment-segment distances use the clamped closed form (Lumelsky; Ericson 5.1.9), vectorised
+over poses and pairs. The gradient with respect to the joint angles follows from the envelope
+theorem: with closest points ``c_A(s*)``, ``c_B(t*)`` and unit normal ``n = (c_A - c_B)/|.|``,
+``d dist/dq = n . (dc_A/dq - dc_B/dq)`` at fixed ``s*, t*``.
+
+These functions serve the optimiser. The independent feasibility check
+(:mod:`kpioed_drake.feasibility`) uses Drake's own signed-distance queries instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.kinematics import Frames, forward_kinematics, point_velocity_jacobian
+from kpioed_drake.models import Cell, Robot
+
+_EPS = 1e-12
+
+
+def segment_distance(p1, q1, p2, q2):
+    """Closest points between segments p1-q1 and p2-q2 (broadcast over leading axes).
+
+    Returns:
+        dist: (...) distance [mm]; s, t: (...) parameters of the closest points on each segment.
+    """
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a = np.einsum("...i,...i->...", d1, d1)
+    e = np.einsum("...i,...i->...", d2, d2)
+    f = np.einsum("...i,...i->...", d2, r)
+    c = np.einsum("...i,...i->...", d1, r)
+    b = np.einsum("...i,...i->...", d1, d2)
+    denom = a * e - b * b
+    a_s, e_s = np.maximum(a, _EPS), np.maximum(e, _EPS)
+    s = np.where(denom > 1e-9 * a_s * e_s, np.clip((b * f - c * e) / np.maximum(denom, _EPS), 0, 1), 0.0)
+    t = (b * s + f) / e_s
+    s = np.where(t < 0, np.clip(-c / a_s, 0, 1), np.where(t > 1, np.clip((b - c) / a_s, 0, 1), s))
+    t = np.clip(t, 0, 1)
+    # Degenerate segments (points).
+    s = np.where(a <= _EPS, 0.0, s)
+    t = np.where(e <= _EPS, 0.0, np.where(a <= _EPS, np.clip(f / e_s, 0, 1), t))
+    cA = p1 + s[..., None] * d1
+    cB = p2 + t[..., None] * d2
+    return np.linalg.norm(cA - cB, axis=-1), s, t
+
+
+@dataclasses.dataclass(frozen=True)
+class ClearanceRows:
+    """Names of the clearance rows of one pose, in evaluation order."""
+
+    names: tuple[str, ...]
+    kinds: tuple[str, ...]  # floor, wall, obstacle, self, beam
+
+
+class ClearanceModel:
+    """All clearance constraints of a robot in a cell, evaluated for many poses at once.
+
+    Args:
+        robot: robot (nominal geometry unless ``geometry`` is given at evaluation).
+        cell: measuring cell.
+        collision: include robot-vs-world and self rows.
+        beam: include laser-beam rows.
+    """
+
+    def __init__(self, robot: Robot, cell: Cell, *, collision: bool = True, beam: bool = True):
+        self.robot, self.cell = robot, cell
+        caps = list(robot.capsules)
+        moving = [k for k, c in enumerate(caps) if c.frame >= 1]
+        # Point rows (floor/wall): (capsule index, end 0/1, axis, offset)
+        pts, names, kinds = [], [], []
+        if collision:
+            for axis, off, tag in ((2, cell.floor_z, "floor"), (0, cell.wall_x, "wall")):
+                for k in moving:
+                    for end in (0, 1):
+                        pts.append((k, end, axis, off))
+                        names.append(f"{caps[k].name}.{'ab'[end]} vs {tag}")
+                        kinds.append(tag)
+        self._pts = pts
+        # Segment pairs: each side is (frame1, local1, frame2, local2), radius sum.
+        segs = []
+        if collision:
+            for k in moving:
+                for ob in cell.obstacles:
+                    segs.append(self._cap(caps[k]) + self._world(ob.a, ob.b) + (caps[k].radius + ob.radius,))
+                    names.append(f"{caps[k].name} vs {ob.name}")
+                    kinds.append("obstacle")
+            for i, j in robot.self_pairs:
+                for ci in (c for c in caps if c.frame == i):
+                    for cj in (c for c in caps if c.frame == j):
+                        segs.append(self._cap(ci) + self._cap(cj) + (ci.radius + cj.radius,))
+                        names.append(f"{ci.name} vs {cj.name}")
+                        kinds.append("self")
+        if beam:
+            beam_side = (6, np.asarray(cell.p_FQ, float), 0, np.asarray(cell.p_WT, float))
+            for c in caps:
+                if c.frame in robot.beam_links:
+                    segs.append(beam_side + self._cap(c) + (c.radius + cell.beam_radius,))
+                    names.append(f"beam vs {c.name}")
+                    kinds.append("beam")
+            for ob in cell.obstacles:
+                if ob.moves_with_car:
+                    segs.append(beam_side + self._world(ob.a, ob.b) + (ob.radius + cell.beam_radius,))
+                    names.append(f"beam vs {ob.name}")
+                    kinds.append("beam")
+        self._segs = segs
+        self.rows = ClearanceRows(tuple(names), tuple(kinds))
+        # Pre-stack arrays for vectorised evaluation.
+        if segs:
+            self._sf = np.array([[s[0], s[2], s[4], s[6]] for s in segs], dtype=int)  # (m,4)
+            self._sl = np.array([[s[1], s[3], s[5], s[7]] for s in segs], dtype=float)  # (m,4,3)
+            self._sr = np.array([s[8] for s in segs], dtype=float)
+        if pts:
+            self._pk = np.array([p[0] for p in pts], dtype=int)
+            self._pe = np.array([p[1] for p in pts], dtype=int)
+            self._pa = np.array([p[2] for p in pts], dtype=int)
+            self._po = np.array([p[3] for p in pts], dtype=float)
+            self._pf = np.array([caps[k].frame for k in self._pk], dtype=int)
+            self._pl = np.array([[caps[k].a, caps[k].b][e] for k, e in zip(self._pk, self._pe)])
+            self._prad = np.array([caps[k].radius for k in self._pk])
+
+    @staticmethod
+    def _cap(c):
+        return (c.frame, c.a, c.frame, c.b)
+
+    @staticmethod
+    def _world(a, b):
+        return (0, np.asarray(a, float), 0, np.asarray(b, float))
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.rows.names)
+
+    def evaluate(self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None):
+        """Clearances and their joint-angle Jacobian.
+
+        Args:
+            q: (n, 6) joint angles [rad].
+
+        Returns:
+            values: (n, m) clearances [mm] (>= 0 is free);
+            jac: (n, m, 6) derivative w.r.t. the pose's own joint angles [mm/rad].
+        """
+        if frames is None:
+            frames = forward_kinematics(self.robot, q, geometry)
+        n = frames.R.shape[0]
+        vals, jacs = [], []
+        if self._pts:
+            P = frames.o[:, self._pf] + np.einsum("nmij,mj->nmi", frames.R[:, self._pf], self._pl)
+            dP = point_velocity_jacobian(frames, P, self._pf)  # (n,m,6,3)
+            ax = self._pa
+            v = np.take_along_axis(P, ax[None, :, None], axis=2)[..., 0] - self._prad - self._po
+            g = np.take_along_axis(dP, ax[None, :, None, None], axis=3)[..., 0]
+            vals.append(v)
+            jacs.append(g)
+        if self._segs:
+            f, loc = self._sf, self._sl
+            E = frames.o[:, f] + np.einsum("nmkij,mkj->nmki", frames.R[:, f], loc)  # (n,m,4,3)
+            dist, s, t = segment_distance(E[:, :, 0], E[:, :, 1], E[:, :, 2], E[:, :, 3])
+            cA = E[:, :, 0] + s[..., None] * (E[:, :, 1] - E[:, :, 0])
+            cB = E[:, :, 2] + t[..., None] * (E[:, :, 3] - E[:, :, 2])
+            nrm = (cA - cB) / np.maximum(dist, _EPS)[..., None]
+            m = f.shape[0]
+            dE = point_velocity_jacobian(frames, E.reshape(n, m * 4, 3), f.reshape(-1))
+            dE = dE.reshape(n, m, 4, 6, 3)
+            w = np.stack([1 - s, s, -(1 - t), -t], axis=2)  # (n,m,4)
+            dc = np.einsum("nmk,nmkjx->nmjx", w, dE)
+            vals.append(dist - self._sr)
+            jacs.append(np.einsum("nmx,nmjx->nmj", nrm, dc))
+        if not vals:
+            return np.zeros((n, 0)), np.zeros((n, 0, 6))
+        return np.concatenate(vals, axis=1), np.concatenate(jacs, axis=1)

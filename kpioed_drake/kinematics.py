@@ -1,0 +1,205 @@
+"""Forward kinematics and the closed-form identification Jacobian, vectorised over poses.
+
+Implements paper eq. (1) with the DH/Hayati transforms of SPEC:
+
+- DH:     ``T_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``
+- Hayati: ``T_i = Rz(theta_i + q_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)``
+
+and the derivative of a point ``p_WP`` fixed in the flange frame F (frame 6) with respect to
+every kinematic parameter, in closed form: a rotation element with unit axis ``u`` through point
+``o`` contributes the column ``u x (p_WP - o)``, a translation element the column ``u``. The
+derivative of those columns with respect to the joint angles (needed for design gradients) is
+closed form too: with ``w_j = z_{j-1}`` the axis of joint j through ``o_{j-1}``,
+
+- for an element of transform i and j <= i: ``d(col)/dq_j = w_j x col`` (the whole element turns);
+- for j > i: rotation element ``u x (w_j x (p_WP - o_{j-1}))``, translation element 0.
+
+Units: millimetres and radians. Shapes: ``q`` is ``(n, 6)``; outputs carry the pose axis first.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.models import N_JOINTS, Robot
+
+
+def _rot_z(c, s):
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def _rot_x(c, s):
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def _rot_y(c, s):
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+@dataclasses.dataclass
+class Frames:
+    """Link frames and identification elements for n poses.
+
+    Attributes:
+        R: (n, 7, 3, 3) orientation of frames 0..6 in W (frame 0 = W).
+        o: (n, 7, 3) origins of frames 0..6 in W [mm].
+        elem_u: (n, 6, 4, 3) unit direction of each parameter element (joint-major, the joint's
+            own parameter order).
+        elem_o: (n, 6, 4, 3) point on the axis of rotation elements [mm] (unused for translations).
+        elem_rot: (6, 4) True for rotation elements, False for translation elements.
+    """
+
+    R: np.ndarray
+    o: np.ndarray
+    elem_u: np.ndarray
+    elem_o: np.ndarray
+    elem_rot: np.ndarray
+
+    @property
+    def joint_axes(self) -> np.ndarray:
+        """(n, 6, 3) axis of joint j (= z of frame j-1)."""
+        return self.R[:, :N_JOINTS, :, 2]
+
+    @property
+    def joint_points(self) -> np.ndarray:
+        """(n, 6, 3) a point on the axis of joint j (= origin of frame j-1) [mm]."""
+        return self.o[:, :N_JOINTS]
+
+
+def _as_poses(q) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        q = q[None, :]
+    if q.shape[-1] != N_JOINTS:
+        raise ValueError(f"q must have shape (n, 6), got {q.shape}")
+    return q
+
+
+def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> Frames:
+    """Frames of all links and the identification elements.
+
+    Args:
+        robot: the robot (its conventions; its nominal geometry unless ``geometry`` is given).
+        q: (n, 6) or (6,) joint angles [rad].
+        geometry: (6, 4) kinematic parameters in the robot's storage order [rad, mm]; defaults to
+            ``robot.geometry``.
+    """
+    q = _as_poses(q)
+    g = robot.geometry if geometry is None else np.asarray(geometry, dtype=float)
+    n = q.shape[0]
+    R = np.empty((n, N_JOINTS + 1, 3, 3))
+    o = np.empty((n, N_JOINTS + 1, 3))
+    R[:, 0] = np.eye(3)
+    o[:, 0] = 0.0
+    eu = np.empty((n, N_JOINTS, 4, 3))
+    eo = np.empty((n, N_JOINTS, 4, 3))
+    erot = np.zeros((N_JOINTS, 4), dtype=bool)
+    for i, conv in enumerate(robot.conventions):
+        Rp, op = R[:, i], o[:, i]
+        ang = g[i, 0] + q[:, i]
+        Rz = _rot_z(np.cos(ang), np.sin(ang))
+        RA = Rp @ Rz  # frame after Rz(theta + q)
+        xA = RA[..., 0]
+        zp = Rp[..., 2]
+        if conv == "dh":
+            _, d, a, alpha = g[i]
+            Rx = _rot_x(np.full(n, np.cos(alpha)), np.full(n, np.sin(alpha)))
+            oi = op + d * zp + a * xA
+            Ri = RA @ Rx
+            # theta: rot about z_{i-1} at o_{i-1}; d: along z_{i-1}; a: along x_A; alpha: rot x_A at o_i
+            eu[:, i] = np.stack([zp, zp, xA, xA], 1)
+            eo[:, i] = np.stack([op, op, oi, oi], 1)
+            erot[i] = (True, False, False, True)
+        else:
+            _, a, alpha, beta = g[i]
+            Rx = _rot_x(np.full(n, np.cos(alpha)), np.full(n, np.sin(alpha)))
+            Ry = _rot_y(np.full(n, np.cos(beta)), np.full(n, np.sin(beta)))
+            oi = op + a * xA
+            RB = RA @ Rx
+            Ri = RB @ Ry
+            yB = RB[..., 1]
+            # theta: rot z_{i-1} at o_{i-1}; a: along x_A; alpha: rot x_A at o_i; beta: rot y_B at o_i
+            eu[:, i] = np.stack([zp, xA, xA, yB], 1)
+            eo[:, i] = np.stack([op, oi, oi, oi], 1)
+            erot[i] = (True, False, True, True)
+        R[:, i + 1] = Ri
+        o[:, i + 1] = oi
+    return Frames(R=R, o=o, elem_u=eu, elem_o=eo, elem_rot=erot)
+
+
+def flange_point(frames: Frames, p_FP) -> np.ndarray:
+    """(n, 3) world position of a point given in the flange frame [mm].
+
+    ``p_FP`` is (3,) or (n, 3).
+    """
+    p_FP = np.asarray(p_FP, dtype=float)
+    return frames.o[:, N_JOINTS] + np.einsum("nij,...j->ni", frames.R[:, N_JOINTS], p_FP)
+
+
+def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
+    """Jacobian of a flange-fixed point w.r.t. the 24 joint parameters and its flange coordinates.
+
+    Args:
+        frames: result of :func:`forward_kinematics` for n poses.
+        p_FP: (3,) point in the flange frame [mm] (e.g. the reflector).
+        with_dq: also return the derivative of the Jacobian w.r.t. the joint angles.
+
+    Returns:
+        p_WP: (n, 3) [mm].
+        J: (n, 3, 27): columns 0..23 the joint parameters in storage order [mm/rad or mm/mm],
+            columns 24..26 the flange coordinates of the point [mm/mm].
+        dJ (only with ``with_dq``): (n, 6, 3, 27), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
+    """
+    p = flange_point(frames, p_FP)  # (n,3)
+    u, o = frames.elem_u, frames.elem_o  # (n,6,4,3)
+    rot = frames.elem_rot  # (6,4)
+    col_rot = np.cross(u, p[:, None, None, :] - o)
+    cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,6,4,3)
+    n = p.shape[0]
+    J = np.empty((n, 3, 27))
+    J[:, :, :24] = cols.reshape(n, 24, 3).transpose(0, 2, 1)
+    RF = frames.R[:, N_JOINTS]
+    J[:, :, 24:] = RF
+    if not with_dq:
+        return p, J
+    w = frames.joint_axes  # (n,6,3)
+    ow = frames.joint_points
+    dP = np.cross(w, p[:, None, :] - ow)  # (n,6,3): dp/dq_j
+    dJ = np.zeros((n, N_JOINTS, 3, 27))
+    # element of transform i, joint j <= i: w_j x col
+    full = np.cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,4,3)
+    # element of transform i, joint j > i: rotation: u x dP_j; translation: 0
+    part = np.cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,4,3)
+    part = np.where(rot[None, None, :, :, None], part, 0.0)
+    jj = np.arange(N_JOINTS)[:, None]
+    ii = np.arange(N_JOINTS)[None, :]
+    mask = (jj <= ii)[None, :, :, None, None]
+    d = np.where(mask, full, part)  # (n,j,i,4,3)
+    dJ[:, :, :, :24] = d.reshape(n, N_JOINTS, 24, 3).transpose(0, 1, 3, 2)
+    dJ[:, :, :, 24:] = np.cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(
+        0, 1, 3, 2
+    )
+    return p, J, dJ
+
+
+def point_velocity_jacobian(frames: Frames, p_W: np.ndarray, link: np.ndarray) -> np.ndarray:
+    """Derivative of world points attached to links w.r.t. the joint angles.
+
+    Args:
+        frames: frames for n poses.
+        p_W: (n, m, 3) world positions [mm].
+        link: (m,) index of the frame each point is attached to (-1 or 0 = fixed).
+
+    Returns:
+        (n, m, 6, 3): ``dp_W[k, i] / dq_j`` [mm/rad].
+    """
+    w = frames.joint_axes  # (n,6,3)
+    ow = frames.joint_points
+    d = np.cross(w[:, None, :, :], p_W[:, :, None, :] - ow[:, None, :, :])  # (n,m,6,3)
+    active = np.arange(1, N_JOINTS + 1)[None, :] <= np.asarray(link)[:, None]  # (m,6)
+    return d * active[None, :, :, None]
