@@ -8,6 +8,7 @@ and the column.
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import os
@@ -70,25 +71,15 @@ def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[st
         raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
     missing = [c for c in required if c not in header]
     if missing:
-        hint = ""
-        for m in missing:
-            close = [h for h in header if h.lower().replace(" ", "") == m.lower() or _near(h, m)]
-            if close:
-                hint = f" (found {close[0]!r}; expected exactly {m!r})"
-                break
+        others = [h for h in header if h not in required]
+        close = difflib.get_close_matches(missing[0], others, n=1, cutoff=0.6)
+        hint = f" (found {close[0]!r}; expected exactly {missing[0]!r})" if close else ""
         raise InputError(f"{path}: row 1 (header): missing column {missing[0]!r}{hint}")
     data = rows[1:]
     for k, r in enumerate(data, start=2):
         if len(r) != len(header):
             raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}")
     return header, data
-
-
-def _near(a: str, b: str) -> bool:
-    a, b = a.lower(), b.lower()
-    if abs(len(a) - len(b)) > 1:
-        return False
-    return sum(x != y for x, y in zip(a, b)) + abs(len(a) - len(b)) <= 1
 
 
 def parse_float_column(path, header, data, column: str) -> np.ndarray:

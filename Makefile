@@ -1,0 +1,48 @@
+# kpioed-drake. `make demo` and `make test` set everything up on a fresh machine.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: setup demo test test-slow lint format bench tables tables-quick models clean
+
+setup: $(STAMP)
+
+# Idempotent and fast when nothing changed: reinstalls only when pyproject.toml is newer.
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev,dask]'
+	touch $(STAMP)
+
+demo: setup   ## KPI design for kr16 in the default cell: heuristic vs standard vs KPI, CSV + picture
+	$(PY) -c "from kpioed_drake.design import demo; demo('out/demo')"
+
+test: setup   ## the default test run (slow studies excluded)
+	$(PY) -m pytest -q
+
+test-slow: setup   ## the slow tests only (full-size checks)
+	$(PY) -m pytest -q -m slow
+
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: setup
+	$(VENV)/bin/ruff format .
+	$(VENV)/bin/ruff check --fix .
+
+bench: setup   ## benchmark report (ratios within one run) -> bench/results.md
+	$(PY) bench/run_bench.py
+
+tables: setup   ## full study: paper Tables 6-8, Figures 7-8 -> studies/results
+	$(VENV)/bin/kpioed study --out studies/results
+
+tables-quick: setup   ## quick study (3 KUKA + 6 notional robots) -> out/tables-quick
+	$(VENV)/bin/kpioed study --quick --out out/tables-quick
+
+models: setup   ## re-author the robot model files (q_work by Drake IK)
+	$(PY) studies/make_models.py
+
+clean:
+	rm -rf out .pytest_cache .ruff_cache

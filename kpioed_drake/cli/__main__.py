@@ -1,0 +1,5 @@
+import sys
+
+from kpioed_drake.cli import main
+
+sys.exit(main())

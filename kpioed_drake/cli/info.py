@@ -1,0 +1,28 @@
+"""``kpioed info``: parameters, identifiable count, reach and working pose of a robot."""
+
+from __future__ import annotations
+
+from kpioed_drake import api
+from kpioed_drake.cli.common import add_robot, emit_json
+
+
+def register(sub) -> None:
+    p = sub.add_parser("info", help="robot parameters, identifiable count, reach, q_work")
+    add_robot(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    d = api.info(args.robot)
+    if args.json:
+        emit_json(d, True)
+        return 0
+    print(f"robot        {d['robot']}")
+    print(f"reach        {d['reach_mm']:.1f} mm")
+    print(f"q_work       {d['q_work_deg']} deg")
+    print(f"estimated    {len(d['estimated'])}: {', '.join(d['estimated'])}")
+    print(f"fixed        {', '.join(d['fixed'])} (gauge: trade exactly against tracker pose / reflector)")
+    ok = "all identifiable" if d["identifiable"] else f"NOT identifiable: {', '.join(d['unidentifiable'])}"
+    print(f"n_params     {d['n_params']} ({ok})")
+    return 0
