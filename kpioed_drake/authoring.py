@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.kinematics import forward_kinematics
-from kpioed_drake.models import Cell, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec, robot_from_spec
+from kpioed_drake.models import CapsuleSpec, Cell, JointSpec, LinkSpec, Robot, RobotSpec, robot_from_spec
 
 
 def kinematic_rows(*, d1, a1, a2, a3, d4, d6, limits_deg) -> list[JointSpec]:
@@ -35,7 +35,7 @@ def kinematic_rows(*, d1, a1, a2, a3, d4, d6, limits_deg) -> list[JointSpec]:
         JointSpec("A5", "dh", theta_deg=0.0, d_mm=0.0, a_mm=0.0, alpha_deg=-90.0),
         JointSpec("A6", "dh", theta_deg=180.0, d_mm=-d6, a_mm=0.0, alpha_deg=180.0),
     ]
-    for r, (lo, up) in zip(rows, limits_deg):
+    for r, (lo, up) in zip(rows, limits_deg, strict=True):
         r.lower_deg, r.upper_deg = float(lo), float(up)
     return rows
 
@@ -71,8 +71,17 @@ def envelope_links(rows: list[JointSpec], size: EnvelopeSize, p_FQ) -> list[Link
     d4 = rows[3].d_mm
     z = np.array([0.0, 0.0, 1.0])
     caps = {
-        0: [("base", size.r_base, _local(R[0], o[0], [0, 0, size.r_base]), _local(R[0], o[0], 0.45 * d1 * z))],
-        1: [("shoulder", size.r_shoulder, _local(R[1], o[1], (0.45 * d1 + size.r_base + 30.0) * z), _local(R[1], o[1], o[1]))],
+        0: [
+            ("base", size.r_base, _local(R[0], o[0], [0, 0, size.r_base]), _local(R[0], o[0], 0.45 * d1 * z))
+        ],
+        1: [
+            (
+                "shoulder",
+                size.r_shoulder,
+                _local(R[1], o[1], (0.45 * d1 + size.r_base + 30.0) * z),
+                _local(R[1], o[1], o[1]),
+            )
+        ],
         2: [("upper_arm", size.r_upper, _local(R[2], o[2], o[1]), _local(R[2], o[2], o[2]))],
         3: [
             (
@@ -94,8 +103,13 @@ def envelope_links(rows: list[JointSpec], size: EnvelopeSize, p_FQ) -> list[Link
     }
     links = []
     for i in range(7):
-        cs = [CapsuleSpec(n, float(r), list(map(float, a)), list(map(float, b))) for n, r, a, b in caps.get(i, [])]
-        com = (0.5 * (np.array(cs[0].a_mm) + np.array(cs[0].b_mm))).round(1).tolist() if cs else [0.0, 0.0, 0.0]
+        cs = [
+            CapsuleSpec(n, float(r), list(map(float, a)), list(map(float, b)))
+            for n, r, a, b in caps.get(i, [])
+        ]
+        com = (
+            (0.5 * (np.array(cs[0].a_mm) + np.array(cs[0].b_mm))).round(1).tolist() if cs else [0.0, 0.0, 0.0]
+        )
         links.append(LinkSpec(index=i, mass_kg=float(size.masses[i]), com_mm=com, capsules=cs))
     return links
 
@@ -111,7 +125,9 @@ def work_target(cell: Cell) -> np.ndarray:
     return p + np.array([0.0, 0.0, cab.radius + cell.work_height_above_cabin])
 
 
-def solve_q_work(robot: Robot, cell: Cell, *, seed: int = 0, n_starts: int = 30, min_clearance_mm: float = 20.0):
+def solve_q_work(
+    robot: Robot, cell: Cell, *, seed: int = 0, n_starts: int = 30, min_clearance_mm: float = 20.0
+):
     """The working configuration of SPEC by Drake inverse kinematics.
 
     Reflector at :func:`work_target`; reflector axis as close as possible to the line of sight to
@@ -139,7 +155,9 @@ def solve_q_work(robot: Robot, cell: Cell, *, seed: int = 0, n_starts: int = 30,
     flange = scene.bodies[6].body_frame()
     for _ in range(n_starts):
         ik = InverseKinematics(plant, scene.plant_context)
-        ik.AddPositionConstraint(flange, cell.p_FQ * MM, plant.world_frame(), target * MM - 1e-4, target * MM + 1e-4)
+        ik.AddPositionConstraint(
+            flange, cell.p_FQ * MM, plant.world_frame(), target * MM - 1e-4, target * MM + 1e-4
+        )
         ik.AddAngleBetweenVectorsCost(plant.world_frame(), los, flange, [0.0, 0.0, 1.0], 1.0)
         ik.AddMinimumDistanceLowerBoundConstraint(min_clearance_mm * MM, 0.1)
         q0 = rng.uniform(robot.lower, robot.upper)

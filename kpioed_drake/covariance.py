@@ -74,9 +74,7 @@ def kpi_covariance(F1p: np.ndarray, Js: np.ndarray) -> tuple[np.ndarray, np.ndar
     return Cp, Js @ Cp @ Js.T
 
 
-def criterion(
-    name: str, F1: np.ndarray, Js: np.ndarray, scale: np.ndarray, *, with_grad: bool = True
-):
+def criterion(name: str, F1: np.ndarray, Js: np.ndarray, scale: np.ndarray, *, with_grad: bool = True):
     """Design criterion of a weighted Jacobian and its derivative with respect to F1.
 
     Args:

@@ -108,13 +108,20 @@ class FeasibilityChecker:
             if qd[j] < lo[j] - self.tol_deg or qd[j] > up[j] + self.tol_deg:
                 lim = lo[j] if qd[j] < lo[j] else up[j]
                 fails.append(
-                    dict(check="joint_limit", name=self.robot.joint_names[j], value=float(qd[j]),
-                         limit=float(lim), violation=float(abs(qd[j] - lim)))
+                    dict(
+                        check="joint_limit",
+                        name=self.robot.joint_names[j],
+                        value=float(qd[j]),
+                        limit=float(lim),
+                        violation=float(abs(qd[j] - lim)),
+                    )
                 )
         inc = self.incidence_deg(q)
         max_inc = float(np.rad2deg(self.cell.max_incidence))
         if inc > max_inc + self.tol_deg:
-            fails.append(dict(check="incidence", name="reflector", value=inc, limit=max_inc, violation=inc - max_inc))
+            fails.append(
+                dict(check="incidence", name="reflector", value=inc, limit=max_inc, violation=inc - max_inc)
+            )
         clear = self.clearances(q) if collision else {}
         pair, cmin = ("", float("inf"))
         for name, d in clear.items():

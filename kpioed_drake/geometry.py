@@ -128,7 +128,7 @@ class ClearanceModel:
             self._pa = np.array([p[2] for p in pts], dtype=int)
             self._po = np.array([p[3] for p in pts], dtype=float)
             self._pf = np.array([caps[k].frame for k in self._pk], dtype=int)
-            self._pl = np.array([[caps[k].a, caps[k].b][e] for k, e in zip(self._pk, self._pe)])
+            self._pl = np.array([[caps[k].a, caps[k].b][e] for k, e in zip(self._pk, self._pe, strict=True)])
             self._prad = np.array([caps[k].radius for k in self._pk])
 
     @staticmethod

@@ -42,7 +42,13 @@ class IdentifiabilityReport:
 
 
 def check_identifiability(
-    robot: Robot, cell: Cell, *, n_poses: int = 60, seed: int = 0, rtol: float = 1e-8, all_params: bool = False
+    robot: Robot,
+    cell: Cell,
+    *,
+    n_poses: int = 60,
+    seed: int = 0,
+    rtol: float = 1e-8,
+    all_params: bool = False,
 ) -> IdentifiabilityReport:
     """Rank test of F1 at ``n_poses`` random poses drawn uniformly within the joint limits.
 

@@ -181,9 +181,7 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     mask = (jj <= ii)[None, :, :, None, None]
     d = np.where(mask, full, part)  # (n,j,i,4,3)
     dJ[:, :, :, :24] = d.reshape(n, N_JOINTS, 24, 3).transpose(0, 1, 3, 2)
-    dJ[:, :, :, 24:] = np.cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(
-        0, 1, 3, 2
-    )
+    dJ[:, :, :, 24:] = np.cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     return p, J, dJ
 
 

@@ -22,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.kinematics import Frames, forward_kinematics, point_jacobian
+from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics, point_jacobian
 from kpioed_drake.models import N_JOINTS, Cell, Robot
 
 N_FULL = 33
@@ -136,8 +136,6 @@ def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
 
 def reflector_world(model: TrackerModel, q) -> np.ndarray:
     """(n, 3) reflector position in W [mm]."""
-    from kpioed_drake.kinematics import flange_point
-
     return flange_point(model.frames(q), model.p_FQ)
 
 
@@ -164,11 +162,12 @@ def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False):
     H = np.zeros((n, 3, N_FULL))
     H[:, :, :24] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, :24])
     H[:, :, 24:27] = -R_TW
-    E = np.eye(3)
-    # d h / d r_k at the current rotation (r small, evaluated as a rotation of the tracker axes)
+    # h = Rr^T v with v = R_ref^T (p_WQ - p_WT) = Rr h, so dh/dr_k = G_k v, G_k = d(Rr^T)/dr_k.
     Rr = small_rotation(model.p[27:30])
+    G = _drot_transposed(model.p[27:30])
+    v = h @ Rr.T
     for k in range(3):
-        H[:, :, 27 + k] = _drot_column(model, h, k, Rr, E)
+        H[:, :, 27 + k] = v @ G[k].T
     H[:, :, 30:33] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, 24:27])
     if not with_dq:
         return h, H
@@ -176,47 +175,31 @@ def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False):
     dH = np.zeros((n, N_JOINTS, 3, N_FULL))
     dH[..., :24] = np.einsum("ab,njbc->njac", R_TW, dJW[..., :24])
     dH[..., 30:33] = np.einsum("ab,njbc->njac", R_TW, dJW[..., 24:27])
-    dh_dq = np.einsum("ab,nbj->nja", R_TW, JW_dq_point(frames, p_WQ))  # (n, 6, 3)
+    dh_dq = np.einsum("ab,nbj->nja", R_TW, _point_dq(frames, p_WQ))  # (n, 6, 3)
+    dv = dh_dq @ Rr.T
     for k in range(3):
-        dH[:, :, :, 27 + k] = _drot_column_dq(model, dh_dq, k, Rr)
+        dH[:, :, :, 27 + k] = dv @ G[k].T
     return h, H, dH
 
 
-def JW_dq_point(frames: Frames, p_WQ: np.ndarray) -> np.ndarray:
+def _point_dq(frames: Frames, p_WQ: np.ndarray) -> np.ndarray:
     """(n, 3, 6) derivative of a flange point w.r.t. the joint angles [mm/rad]."""
     w, ow = frames.joint_axes, frames.joint_points
     return np.cross(w, p_WQ[:, None, :] - ow).transpose(0, 2, 1)
 
 
-def _drot_generators(model: TrackerModel, Rr: np.ndarray) -> list[np.ndarray]:
-    """d(R_r^T)/dr_k for R_r = Rx Ry Rz(r), as 3x3 matrices."""
-    r = model.p[27:30]
+def _drot_transposed(r) -> list[np.ndarray]:
+    """``d(Rr^T)/dr_k`` for ``Rr = Rx(r0) Ry(r1) Rz(r2)``, k = 0, 1, 2."""
     Rx, Ry, Rz = _rot(0, r[0]), _rot(1, r[1]), _rot(2, r[2])
     Gx = np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0]], dtype=float)
     Gy = np.array([[0, 0, 1], [0, 0, 0], [-1, 0, 0]], dtype=float)
     Gz = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 0]], dtype=float)
-    dR = [Rx @ Gx @ Ry @ Rz, Rx @ Ry @ Gy @ Rz, Rx @ Ry @ Rz @ Gz]
-    return [d.T for d in dR]
-
-
-def _drot_column(model, h, k, Rr, E):
-    # h = Rr^T v with v = R_ref^T (p_WQ - p_WT) = Rr h
-    v = h @ Rr.T
-    G = _drot_generators(model, Rr)[k]
-    return v @ G.T
-
-
-def _drot_column_dq(model, dh_dq, k, Rr):
-    dv = dh_dq @ Rr.T
-    G = _drot_generators(model, Rr)[k]
-    return dv @ G.T
+    return [(Rx @ Gx @ Ry @ Rz).T, (Rx @ Ry @ Gy @ Rz).T, (Rx @ Ry @ Rz @ Gz).T]
 
 
 def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None) -> np.ndarray:
     """(n,) cosine of the incidence angle between the reflector axis z_F and the line of sight."""
     frames = model.frames(q) if frames is None else frames
-    from kpioed_drake.kinematics import flange_point
-
     p = flange_point(frames, model.p_FQ)
     g = model.p_WT - p
     g /= np.linalg.norm(g, axis=1, keepdims=True)

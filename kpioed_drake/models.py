@@ -13,7 +13,6 @@ Conventions (SPEC): classic Denavit-Hartenberg
 ``T_i = Rz(theta_i + q_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)``.
 """
 
-
 import dataclasses
 import os
 import re

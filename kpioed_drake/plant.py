@@ -121,9 +121,7 @@ def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True)
         X_CM = _rest_transform(robot.conventions[i], robot.geometry[i]).inverse()
         M = plant.AddFrame(FixedOffsetFrame(f"A{i + 1}_child", bodies[i + 1].body_frame(), X_CM))
         plant.AddJoint(
-            RevoluteJoint(
-                f"A{i + 1}", F, M, [0.0, 0.0, 1.0], float(robot.lower[i]), float(robot.upper[i])
-            )
+            RevoluteJoint(f"A{i + 1}", F, M, [0.0, 0.0, 1.0], float(robot.lower[i]), float(robot.upper[i]))
         )
     friction = CoulombFriction(0.5, 0.5)
     names, links = {}, {}
@@ -147,7 +145,9 @@ def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True)
             obstacle_ids.append(gid)
         for ob in cell.obstacles:
             X, length = capsule_pose(ob.a, ob.b)
-            gid = plant.RegisterCollisionGeometry(world, X, Capsule(ob.radius * MM, length), ob.name, friction)
+            gid = plant.RegisterCollisionGeometry(
+                world, X, Capsule(ob.radius * MM, length), ob.name, friction
+            )
             names[gid], links[gid] = ob.name, -1
             obstacle_ids.append(gid)
     plant.Finalize()

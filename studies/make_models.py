@@ -56,14 +56,23 @@ def notional_entries():
     for lam in range(650, 1101, 50):
         for mu in range(600, 1001, 50):
             s = (lam + mu) / 1350.0
-            yield f"notional-{lam}-{mu}", dict(
-                description=f"Notional robot of paper Table 2 with lambda = {lam} mm, mu = {mu} mm.",
-                geo=dict(d1=675, a1=350, a2=lam, a3=145, d4=mu, d6=170),
-                limits=NOTIONAL_LIMITS,
-                size=EnvelopeSize(
-                    220, 180, 120, 110, 90, 40, (60, 70, round(45 * lam / 680, 1), round(35 * mu / 670, 1), 8, 6, 2)
+            yield (
+                f"notional-{lam}-{mu}",
+                dict(
+                    description=f"Notional robot of paper Table 2 with lambda = {lam} mm, mu = {mu} mm.",
+                    geo=dict(d1=675, a1=350, a2=lam, a3=145, d4=mu, d6=170),
+                    limits=NOTIONAL_LIMITS,
+                    size=EnvelopeSize(
+                        220,
+                        180,
+                        120,
+                        110,
+                        90,
+                        40,
+                        (60, 70, round(45 * lam / 680, 1), round(35 * mu / 670, 1), 8, 6, 2),
+                    ),
+                    mass_note=f"scale {s:.2f}",
                 ),
-                mass_note=f"scale {s:.2f}",
             )
 
 

@@ -47,8 +47,9 @@ def test_evaluate_matches_library(capsys, design_file, tmp_path):
     assert d["n_params"] == 27 and len(d["poses"]) == 30
     assert isinstance(d["feasible"], bool)
     # noise scales the covariance quadratically
-    code, out, _ = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--sigma-mm", "0.1",
-                        "--json", "-")
+    code, out, _ = _run(
+        capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--sigma-mm", "0.1", "--json", "-"
+    )
     assert json.loads(out)["kpi_avg_var_mm2"] == pytest.approx(0.01 * d["kpi_avg_var_mm2"], rel=1e-9)
 
 
@@ -56,8 +57,18 @@ def test_q_work_override_changes_kpi(capsys, design_file):
     path, _ = design_file
     base = json.loads(_run(capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--json", "-")[1])
     other = json.loads(
-        _run(capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--q-work", "0,-90,90,0,30,0",
-             "--json", "-")[1]
+        _run(
+            capsys,
+            "evaluate",
+            "--robot",
+            "kr16",
+            "--design",
+            str(path),
+            "--q-work",
+            "0,-90,90,0,30,0",
+            "--json",
+            "-",
+        )[1]
     )
     assert other["q_work_deg"] == [0, -90, 90, 0, 30, 0]
     assert other["kpi_avg_var_mm2"] != pytest.approx(base["kpi_avg_var_mm2"], rel=1e-3)
@@ -75,7 +86,10 @@ ROW = "10,-40,60,5,20,0\n"
         (HEADER.replace(",q6_deg", "") + "10,-40,60,5,20\n" * 12, "missing column 'q6_deg'"),
         (HEADER + ROW * 3 + "10,-40,abc,5,20,0\n" + ROW * 8, "row 5, column 'q3_deg'.*'abc' is not a number"),
         (HEADER + ROW * 3 + "10,-40,nan,5,20,0\n" + ROW * 8, "row 5, column 'q3_deg'.*not a finite"),
-        (HEADER + ROW * 2 + "10,-40,160,5,20,0\n" + ROW * 9, "row 4, column 'q3_deg'.*outside the joint range"),
+        (
+            HEADER + ROW * 2 + "10,-40,160,5,20,0\n" + ROW * 9,
+            "row 4, column 'q3_deg'.*outside the joint range",
+        ),
         (HEADER + ROW * 5, "5 poses cannot determine 27 parameters.*at least 9"),
         (HEADER + "0.1,-0.5,1.2,0.1,0.3,0.2\n0.2,-0.4,1.0,0.3,0.2,0.1\n" * 6, "look like radians"),
         (HEADER.strip() + ",q1_deg\n" + "10,-40,60,5,20,0,1\n" * 12, "'q1_deg' appears more than once"),

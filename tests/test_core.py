@@ -102,8 +102,10 @@ def test_kpi_jacobian_matches_finite_differences():
         pp, pm = model.p.copy(), model.p.copy()
         pp[k] += eps
         pm[k] -= eps
-        fd = (kpi_jacobian(model.with_params(pp), robot.q_work, tool)[0]
-              - kpi_jacobian(model.with_params(pm), robot.q_work, tool)[0]) / (2 * eps)
+        fd = (
+            kpi_jacobian(model.with_params(pp), robot.q_work, tool)[0]
+            - kpi_jacobian(model.with_params(pm), robot.q_work, tool)[0]
+        ) / (2 * eps)
         assert_allclose(Js[:, k], fd, rtol=0, atol=1e-6 * max(1.0, np.abs(Js).max()))
     assert_allclose(Js[:, 24:30], 0.0)  # the tracker does not move the TCP
 

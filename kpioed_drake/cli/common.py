@@ -9,7 +9,9 @@ from kpioed_drake.designio import atomic_write_json
 
 
 def add_robot(p, *, required: bool = True) -> None:
-    p.add_argument("--robot", required=required, help="model name (kr16, kr300, kr500, notional-850-800) or YAML path")
+    p.add_argument(
+        "--robot", required=required, help="model name (kr16, kr300, kr500, notional-850-800) or YAML path"
+    )
 
 
 def add_sigma(p, default=None) -> None:
@@ -17,7 +19,9 @@ def add_sigma(p, default=None) -> None:
 
 
 def add_q_work(p) -> None:
-    p.add_argument("--q-work", default=None, metavar="q1,...,q6", help="working pose [deg], overrides the model's")
+    p.add_argument(
+        "--q-work", default=None, metavar="q1,...,q6", help="working pose [deg], overrides the model's"
+    )
 
 
 def emit_json(data, target) -> None:

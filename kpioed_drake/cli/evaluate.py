@@ -12,8 +12,14 @@ def register(sub) -> None:
     p.add_argument("--design", required=True, help="design CSV with columns q1_deg..q6_deg")
     add_sigma(p)
     add_q_work(p)
-    p.add_argument("--json", nargs="?", const="-", default=None, metavar="FILE",
-                   help="write the report as JSON to FILE (or stdout)")
+    p.add_argument(
+        "--json",
+        nargs="?",
+        const="-",
+        default=None,
+        metavar="FILE",
+        help="write the report as JSON to FILE (or stdout)",
+    )
     p.set_defaults(func=run)
 
 
@@ -27,6 +33,9 @@ def run(args) -> int:
     print(f"{d['robot']}: {d['n_poses']} poses, {d['n_params']} parameters, sigma {d['sigma_mm']} mm")
     print(f"  KPI average variance tr(Cs)/3 = {d['kpi_avg_var_mm2']:.4f} mm^2")
     print(f"  standard criterion tr(P^T Cp P) = {d['param_crit']:.4f} mm^2")
-    print(f"  feasible: {d['feasible']} ({s['n_infeasible']} infeasible poses: {s['n_joint_limit']} joint limit, "
-          f"{s['n_incidence']} incidence, {s['n_collision']} collision, {s['n_beam']} beam)")
+    print(
+        f"  feasible: {d['feasible']} ({s['n_infeasible']} infeasible poses: "
+        f"{s['n_joint_limit']} joint limit, {s['n_incidence']} incidence, "
+        f"{s['n_collision']} collision, {s['n_beam']} beam)"
+    )
     return 0
