@@ -52,6 +52,17 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+class DataRows(list):
+    """Data rows of a CSV table (lists of strings) with their line numbers in the file (``lines``)."""
+
+    lines: list[int]
+
+
+def row_numbers(data) -> list[int]:
+    """File line numbers of the data rows (header = line 1 when the file has no blank lines)."""
+    return list(getattr(data, "lines", range(2, len(data) + 2)))
+
+
 def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
     """Read a CSV file with a header; check that ``required`` columns are present exactly once.
 
@@ -62,7 +73,12 @@ def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[st
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     text = path.read_text(encoding="utf-8-sig", errors="replace")
-    rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
+    rows, lines = [], []
+    reader = csv.reader(io.StringIO(text))
+    for r in reader:
+        if any(c.strip() for c in r):  # blank lines are skipped but keep their line numbers
+            rows.append(r)
+            lines.append(reader.line_num)
     if not rows:
         raise InputError(f"{path}: the file is empty (expected a header with {', '.join(required)})")
     header = [h.strip() for h in rows[0]]
@@ -75,8 +91,9 @@ def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[st
         close = difflib.get_close_matches(missing[0], others, n=1, cutoff=0.6)
         hint = f" (found {close[0]!r}; expected exactly {missing[0]!r})" if close else ""
         raise InputError(f"{path}: row 1 (header): missing column {missing[0]!r}{hint}")
-    data = rows[1:]
-    for k, r in enumerate(data, start=2):
+    data = DataRows(rows[1:])
+    data.lines = lines[1:]
+    for k, r in zip(data.lines, data, strict=True):
         if len(r) != len(header):
             raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}")
     return header, data
@@ -86,7 +103,7 @@ def parse_float_column(path, header, data, column: str) -> np.ndarray:
     """Column ``column`` as floats; text, empty cells, NaN and infinities are errors."""
     j = header.index(column)
     out = np.empty(len(data))
-    for k, r in enumerate(data, start=2):
+    for i, (k, r) in enumerate(zip(row_numbers(data), data, strict=True)):
         cell = r[j].strip()
         try:
             v = float(cell)
@@ -94,24 +111,31 @@ def parse_float_column(path, header, data, column: str) -> np.ndarray:
             raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a number") from None
         if not np.isfinite(v):
             raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a finite number")
-        out[k - 2] = v
+        out[i] = v
     return out
 
 
-def check_joint_angles(path, q_deg: np.ndarray, robot: Robot, *, first_row: int = 2) -> None:
-    """Angles within the robot's limits; a table that looks like radians gets a hint."""
+def check_joint_angles(path, q_deg: np.ndarray, robot: Robot, *, rows=None) -> None:
+    """Angles within the robot's limits; a table that looks like radians gets a clear message.
+
+    Args:
+        rows: file line numbers of the rows (default 2, 3, ...).
+    """
+    rows = list(range(2, len(q_deg) + 2)) if rows is None else list(rows)
     lo, up = np.rad2deg(robot.lower), np.rad2deg(robot.upper)
-    if q_deg.size and np.all(np.abs(q_deg) <= np.pi + 1e-9) and np.ptp(q_deg) > 0 and len(q_deg) > 3:
+    # Joints 4 and 6 range over +-350 deg, i.e. up to 6.1 rad: a table entirely within +-2 pi
+    # (with some spread, more than three poses) is taken for radians.
+    if len(q_deg) > 3 and np.ptp(q_deg) > 0 and np.all(np.abs(q_deg) <= 2.0 * np.pi + 1e-9):
         raise InputError(
-            f"{path}: every joint value is within +-pi: the angles look like radians; "
+            f"{path}: every joint value is within +-2 pi: the angles look like radians; "
             "columns q*_deg must hold degrees"
         )
     tol = 1e-6
-    for k, row in enumerate(q_deg):
+    for k, row in zip(rows, q_deg, strict=True):
         for j in range(N_JOINTS):
             if not lo[j] - tol <= row[j] <= up[j] + tol:
                 raise InputError(
-                    f"{path}: row {k + first_row}, column {Q_COLUMNS[j]!r}: {row[j]:g} deg is outside "
+                    f"{path}: row {k}, column {Q_COLUMNS[j]!r}: {row[j]:g} deg is outside "
                     f"the joint range [{lo[j]:g}, {up[j]:g}] of {robot.name}"
                 )
 
@@ -130,7 +154,7 @@ def read_design(path: str | Path, robot: Robot, *, check_limits: bool = True) ->
         raise InputError(f"{path}: no poses (the file has only a header)")
     q_deg = np.stack([parse_float_column(path, header, data, c) for c in Q_COLUMNS], axis=1)
     if check_limits:
-        check_joint_angles(path, q_deg, robot)
+        check_joint_angles(path, q_deg, robot, rows=row_numbers(data))
     return np.deg2rad(q_deg)
 
 

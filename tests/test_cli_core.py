@@ -127,3 +127,10 @@ def test_bad_arguments(capsys, design_file, argv, message):
         code = exc.code
     err = capsys.readouterr().err
     assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_row_numbers_count_file_lines_with_blank_lines(capsys, tmp_path):
+    bad = tmp_path / "blank.csv"
+    bad.write_text(HEADER + ROW * 3 + "\n\n" + "10,-40,abc,5,20,0\n" + ROW * 8)
+    code, _, err = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(bad))
+    assert code == 2 and "row 7, column 'q3_deg'" in err

@@ -1,0 +1,83 @@
+"""Residual plots of a calibration (matplotlib, Agg backend).
+
+- ``residuals_per_pose.png``: x, y, z residuals (in W, mm) against the file row, with the +-3 sigma
+  band and the removed outliers marked;
+- ``residuals_vs_joints.png``: residual components against each joint angle (deg), which shows
+  effects that depend on one joint (gear errors, elasticity).
+
+Residuals are ``measured - model`` rotated from the tracker frame into W (``R_WT r``), so that z is
+up and the components mean the same for every tracker orientation.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _figure(*args, **kwargs):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt, plt.subplots(*args, **kwargs)
+
+
+def plot_calibration(report, outdir) -> list[Path]:
+    """Write the residual plots of a :class:`~kpioed_drake.calibration.CalibrationReport`.
+
+    Returns:
+        the written files.
+    """
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    res = report.result
+    r_W = res.residuals @ report.model.R_WT.T  # (n, 3) in W
+    rows = np.asarray(report.data.rows)
+    used = res.mask
+    sigma = res.sigma
+    q_deg = np.rad2deg(report.data.q)
+    labels = ("x", "y", "z")
+    colors = ("tab:red", "tab:green", "tab:blue")
+    files = []
+
+    plt, (fig, axes) = _figure(3, 1, figsize=(9, 7), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.axhspan(-3 * sigma, 3 * sigma, color="0.9", label="+-3 sigma")
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.plot(rows[used], r_W[used, k], "o", ms=3.5, color=colors[k], label="used")
+        if np.any(~used):
+            ax.plot(rows[~used], r_W[~used, k], "x", ms=8, mew=2, color="k", label="outlier (removed)")
+        ax.set_ylabel(f"{labels[k]} residual [mm]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=3)
+    axes[-1].set_xlabel("file row (header = 1)")
+    title = f"{report.robot.name}: residuals in W, RMS {report.rms_residual_mm:.4f} mm" + (
+        f", chi2/dof {report.chi2_per_dof:.2f}" if report.chi2_per_dof is not None else ""
+    )
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = outdir / "residuals_per_pose.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    files.append(path)
+
+    plt, (fig, axes) = _figure(2, 3, figsize=(13, 7), sharey=True)
+    for j, ax in enumerate(axes.ravel()):
+        for k in range(3):
+            ax.plot(q_deg[used, j], r_W[used, k], "o", ms=3, color=colors[k], alpha=0.8, label=labels[k])
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_xlabel(f"q{j + 1} [deg]")
+        ax.grid(alpha=0.3)
+        if j % 3 == 0:
+            ax.set_ylabel("residual [mm]")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{report.robot.name}: residuals (used poses, in W) against the joint angles")
+    fig.tight_layout()
+    path = outdir / "residuals_vs_joints.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    files.append(path)
+    return files

@@ -1,0 +1,333 @@
+"""Parameter estimation from laser-tracker data: rigid registration and Levenberg-Marquardt.
+
+- :func:`register_tracker`: the tracker pose from nominal reflector positions in W and the measured
+  ones in the tracker frame T (Kabsch/Umeyama without scaling; a proper rotation even when the
+  best orthogonal fit would be a reflection).
+- :func:`estimate`: weighted nonlinear least squares on the 27 estimated parameters
+  (``model.layout.free``) of :class:`~kpioed_drake.measurement.TrackerModel`, started from the
+  nominal model with the registered tracker pose. The tracker orientation is kept as a reference
+  rotation ``R_WT_ref`` times three small rotations; after every accepted step the small rotations
+  are folded into the reference (:meth:`TrackerModel.rebased`), so they stay near zero and the
+  parametrisation never approaches a singularity, whatever the tracker's orientation.
+
+The covariance of the estimated parameters is ``Cp = (F1^T F1)^-1`` with ``F1 = J / sigma`` at the
+solution (paper eq. 19 without constraints): the a-priori covariance given the noise ``sigma``.
+``EstimationResult.Cp_scaled`` multiplies it by chi^2/dof (the a-posteriori version).
+
+Units: millimetres and radians. Residuals are ``eta - h(p, q)`` in the tracker frame [mm].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.measurement import TrackerModel, measure, measurement_jacobian, reflector_world
+
+
+# ----------------------------------------------------------------------------------------------
+# Registration
+# ----------------------------------------------------------------------------------------------
+def register_tracker(p_W, p_T) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform (no scaling) that best maps tracker-frame points onto world points.
+
+    Minimises ``sum_i |p_W[i] - (R_WT p_T[i] + p_WT)|^2`` over proper rotations ``R_WT``
+    (det = +1) and translations ``p_WT`` (Kabsch/Umeyama; if the unconstrained orthogonal optimum
+    is a reflection, the axis of the smallest singular value is flipped).
+
+    Args:
+        p_W: (n, 3) points in W [mm] (e.g. nominal reflector positions).
+        p_T: (n, 3) the same points measured in the tracker frame T [mm].
+
+    Returns:
+        R_WT (3, 3) and p_WT (3,) [mm], so that ``p_W ~= p_T @ R_WT.T + p_WT``.
+
+    Raises:
+        InputError: fewer than 3 points, mismatched shapes, or (nearly) collinear points.
+    """
+    p_W = np.asarray(p_W, dtype=float)
+    p_T = np.asarray(p_T, dtype=float)
+    if p_W.ndim != 2 or p_W.shape[1] != 3 or p_W.shape != p_T.shape:
+        raise InputError(f"registration: expected two (n, 3) arrays, got {p_W.shape} and {p_T.shape}")
+    if p_W.shape[0] < 3:
+        raise InputError(f"registration: need at least 3 points, got {p_W.shape[0]}")
+    c_W, c_T = p_W.mean(axis=0), p_T.mean(axis=0)
+    A, B = p_T - c_T, p_W - c_W
+    M = A.T @ B  # (3, 3) cross-covariance: sum a_i b_i^T
+    U, S, Vt = np.linalg.svd(M)
+    spread = np.linalg.svd(A, compute_uv=False)
+    if spread[1] <= 1e-9 * max(spread[0], 1e-300):
+        raise InputError("registration: the points are (nearly) collinear; the tracker pose is undetermined")
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    D = np.diag([1.0, 1.0, d if d != 0 else 1.0])
+    R_WT = Vt.T @ D @ U.T
+    p_WT = c_W - R_WT @ c_T
+    return R_WT, p_WT
+
+
+def registered_model(model: TrackerModel, q, eta) -> TrackerModel:
+    """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
+
+    The small rotations are set to zero and ``R_WT_ref`` to the registered rotation.
+    """
+    p_W = reflector_world(model, q)
+    R_WT, p_WT = register_tracker(p_W, eta)
+    p = model.p.copy()
+    p[24:27] = p_WT
+    p[27:30] = 0.0
+    return dataclasses.replace(model, p=p, R_WT_ref=R_WT)
+
+
+# ----------------------------------------------------------------------------------------------
+# Levenberg-Marquardt
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class EstimationResult:
+    """Outcome of :func:`estimate`.
+
+    Attributes:
+        model: the estimated model (tracker small rotations folded into ``R_WT_ref``, so zero).
+        residuals: (n, 3) ``eta - h`` for every pose, used or not [mm, tracker frame].
+        mask: (n,) poses used in the fit.
+        weights: (n,) relative weights of the poses (1 = noise ``sigma``).
+        sigma: noise standard deviation per coordinate [mm].
+        iterations: accepted plus rejected LM iterations.
+        converged: True if a step/cost tolerance was met.
+        cost: chi^2 = sum over used poses of ``w_i |r_i|^2 / sigma^2``.
+        dof: 3 * (used poses) - (estimated parameters).
+        Cp: (27, 27) a-priori covariance ``(F1^T F1)^-1`` of the free parameters [mm, rad].
+        J: (3 m, 27) weighted Jacobian ``F1`` at the solution over the used poses (pose-major).
+        message: why the iteration stopped.
+        q, eta: (n, 6) [rad] and (n, 3) [mm], the data the fit was made to.
+    """
+
+    model: TrackerModel
+    residuals: np.ndarray
+    mask: np.ndarray
+    weights: np.ndarray
+    sigma: float
+    iterations: int
+    converged: bool
+    cost: float
+    dof: int
+    Cp: np.ndarray
+    J: np.ndarray
+    message: str
+    q: np.ndarray
+    eta: np.ndarray
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.model.layout.free
+
+    @property
+    def free_names(self) -> list[str]:
+        return self.model.layout.free_names
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.cost / self.dof if self.dof > 0 else float("nan")
+
+    @property
+    def Cp_scaled(self) -> np.ndarray:
+        """A-posteriori covariance ``Cp * chi^2/dof`` (noise level estimated from the residuals)."""
+        return self.Cp * self.chi2_per_dof if self.dof > 0 else np.full_like(self.Cp, np.nan)
+
+    @property
+    def std(self) -> np.ndarray:
+        """(27,) a-priori standard deviations of the free parameters [mm, rad]."""
+        return np.sqrt(np.diag(self.Cp))
+
+    @property
+    def n_used(self) -> int:
+        return int(np.count_nonzero(self.mask))
+
+
+def _weighted(model, q, eta, sw, sigma, free):
+    h, H = measurement_jacobian(model, q)
+    r = (eta - h) * sw[:, None] / sigma  # (m, 3)
+    J = H[:, :, free] * (sw[:, None, None] / sigma)  # (m, 3, 27)
+    return r.reshape(-1), J.reshape(-1, free.size)
+
+
+def _residual(model, q, eta, sw, sigma):
+    return ((eta - measure(model, q)) * sw[:, None] / sigma).reshape(-1)
+
+
+def _step(model: TrackerModel, dx: np.ndarray) -> TrackerModel:
+    p = model.p.copy()
+    p[model.layout.free] += dx
+    return model.with_params(p)
+
+
+def estimate(
+    model: TrackerModel,
+    q,
+    eta,
+    *,
+    sigma: float = 0.02,
+    max_iter: int = 100,
+    tol: float = 1e-10,
+    mask=None,
+    weights=None,
+    register: bool = True,
+) -> EstimationResult:
+    """Estimate the free parameters of ``model`` from measured reflector positions.
+
+    Args:
+        model: starting model (normally the nominal one); its tracker pose is replaced by the
+            registration of its reflector points to the data unless ``register`` is False.
+        q: (n, 6) commanded joint angles [rad].
+        eta: (n, 3) measured reflector positions in the tracker frame [mm].
+        sigma: noise standard deviation per coordinate [mm].
+        max_iter: most LM iterations (accepted or rejected).
+        tol: stop when the accepted step is below ``tol`` relative to the parameters (in
+            Jacobian-scaled units) or the relative cost decrease is below ``tol``.
+        mask: (n,) bool, the poses to use (default all).
+        weights: (n,) positive relative weights (pose i has noise ``sigma / sqrt(w_i)``).
+        register: start from the rigid registration of the tracker (default True).
+
+    Returns:
+        :class:`EstimationResult`.
+
+    Raises:
+        InputError: bad shapes, too few poses for the free parameters, or a Jacobian without full
+            rank at the solution (parameters not identifiable from these poses).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    eta = np.atleast_2d(np.asarray(eta, dtype=float))
+    n = q.shape[0]
+    if q.shape != (n, 6) or eta.shape != (n, 3):
+        raise InputError(f"estimate: expected q (n, 6) and eta (n, 3), got {q.shape} and {eta.shape}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InputError(f"estimate: sigma must be a positive number of millimetres, got {sigma!r}")
+    mask = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).copy()
+    if mask.shape != (n,) or w.shape != (n,) or np.any(w[mask] <= 0) or not np.all(np.isfinite(w)):
+        raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
+    free = model.layout.free
+    m = int(np.count_nonzero(mask))
+    if 3 * m < free.size:
+        raise InputError(
+            f"estimate: {m} poses give {3 * m} coordinates, fewer than the {free.size} parameters "
+            f"(need at least {int(np.ceil(free.size / 3))} poses)"
+        )
+    qm, em, sw = q[mask], eta[mask], np.sqrt(w[mask])
+    if register:
+        model = registered_model(model, qm, em)
+
+    r, J = _weighted(model, qm, em, sw, sigma, free)
+    cost = float(r @ r)
+    lam = 1e-3
+    nu = 2.0
+    converged, message, it = False, "maximum number of iterations reached", 0
+    while it < max_iter:
+        it += 1
+        D = np.linalg.norm(J, axis=0)
+        D[D == 0] = 1.0
+        Js = J / D
+        g = Js.T @ r
+        A = Js.T @ Js
+        if np.max(np.abs(g)) <= 1e-14 * max(1.0, np.sqrt(cost)):
+            converged, message = True, "gradient is zero"
+            break
+        try:
+            dxs = np.linalg.solve(A + lam * np.eye(A.shape[0]), g)
+        except np.linalg.LinAlgError:
+            lam *= nu
+            nu *= 2.0
+            continue
+        dx = dxs / D
+        trial = _step(model, dx)
+        r_new = _residual(trial, qm, em, sw, sigma)
+        cost_new = float(r_new @ r_new)
+        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
+        actual = cost - cost_new
+        rho = actual / pred if pred > 0 else -1.0
+        if actual > 0 and rho > 0:
+            xs = D * model.p[free]
+            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(xs) + tol)
+            small_cost = actual <= tol * cost
+            model = trial.rebased()
+            r, J = _weighted(model, qm, em, sw, sigma, free)
+            cost = float(r @ r)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if small_step or small_cost:
+                converged = True
+                message = "relative step below tol" if small_step else "relative cost decrease below tol"
+                break
+        else:
+            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(D * model.p[free]) + tol):
+                converged, message = True, "no further decrease possible (step below tol)"
+                break
+            lam *= nu
+            nu *= 2.0
+
+    # covariance at the solution (a priori, with the given sigma)
+    M = J.T @ J
+    try:
+        L = np.linalg.cholesky(M)
+        Linv = np.linalg.solve(L, np.eye(M.shape[0]))
+        Cp = Linv.T @ Linv
+    except np.linalg.LinAlgError:
+        raise InputError(
+            f"estimate: the {m} poses do not determine the {free.size} parameters (information matrix "
+            "singular); use more or more varied poses"
+        ) from None
+    residuals = eta - measure(model, q)
+    return EstimationResult(
+        model=model,
+        residuals=residuals,
+        mask=mask,
+        weights=w,
+        sigma=float(sigma),
+        iterations=it,
+        converged=converged,
+        cost=cost,
+        dof=3 * m - free.size,
+        Cp=Cp,
+        J=J,
+        message=message,
+        q=q,
+        eta=eta,
+    )
+
+
+def leverage_blocks(J: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) diagonal blocks of the hat matrix ``J (J^T J)^-1 J^T`` of a (3 m, k) Jacobian."""
+    Q, _ = np.linalg.qr(J)
+    Qb = Q.reshape(-1, 3, Q.shape[1])
+    return np.einsum("mak,mbk->mab", Qb, Qb)
+
+
+def normalized_residuals(result: EstimationResult) -> np.ndarray:
+    """(n,) studentised squared residual norm of every pose, ~ chi^2(3) for a correct model.
+
+    For a used pose i: ``r_i^T (sigma_i^2 (I - H_ii))^-1 r_i`` with ``H_ii`` the 3x3 hat-matrix
+    block (the residual covariance of a fitted point is smaller than the noise by its leverage).
+    For an excluded pose: ``r_i^T (sigma_i^2 I + J_i Cp J_i^T)^-1 r_i`` (prediction error).
+    """
+    sw2 = result.weights / result.sigma**2
+    out = np.empty(result.residuals.shape[0])
+    used = np.flatnonzero(result.mask)
+    Hb = leverage_blocks(result.J)
+    for k, i in enumerate(used):
+        ri = result.residuals[i]
+        S = np.eye(3) - Hb[k]
+        try:
+            out[i] = float(ri @ np.linalg.solve(S, ri)) * sw2[i]
+        except np.linalg.LinAlgError:
+            out[i] = np.inf
+    other = np.flatnonzero(~result.mask)
+    if other.size:
+        _, H = measurement_jacobian(result.model, result.q[other])
+        Hf = H[:, :, result.free]
+        V = np.einsum("mak,kl,mbl->mab", Hf, result.Cp, Hf)
+        for k, i in enumerate(other):
+            ri = result.residuals[i]
+            S = np.eye(3) / sw2[i] + V[k]
+            out[i] = float(ri @ np.linalg.solve(S, ri))
+    return out
