@@ -1,0 +1,313 @@
+"""Tests of the optimum experimental design (kpioed_drake.design) and its command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from kpioed_drake import design
+from kpioed_drake.design import (
+    DesignConstraints,
+    DesignError,
+    DesignObjective,
+    DesignProgram,
+    heuristic_design,
+    incidence_rows,
+    optimize_design,
+)
+from kpioed_drake.errors import InputError
+from kpioed_drake.feasibility import FeasibilityChecker
+from kpioed_drake.problem import make_problem
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return make_problem("kr16")
+
+
+def _random_poses(problem, n, seed):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(problem.robot.lower, problem.robot.upper, size=(n, 6))
+
+
+def _central_fd(f, q, h):
+    """Central differences of f: (n,6) -> array, w.r.t. every entry of q; shape f.shape + (n, 6)."""
+    f0 = np.asarray(f(q))
+    out = np.zeros(f0.shape + q.shape)
+    for k in range(q.shape[0]):
+        for j in range(q.shape[1]):
+            qp, qm = q.copy(), q.copy()
+            qp[k, j] += h
+            qm[k, j] -= h
+            out[..., k, j] = (np.asarray(f(qp)) - np.asarray(f(qm))) / (2 * h)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Derivatives
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("criterion", ["kpi", "param", "d", "o1"])
+def test_objective_gradient_matches_central_differences(kr16, criterion):
+    q = _random_poses(kr16, 12, seed=1)
+    obj = DesignObjective(kr16, criterion)
+    value, grad = obj.value_and_grad(q)
+    assert grad.shape == (12, 6)
+    assert_allclose(value, obj.value(q), rtol=1e-12)
+    fd = _central_fd(obj.value, q, 1e-6)
+    scale = np.max(np.abs(fd))
+    assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * scale)
+
+
+def test_incidence_gradient_matches_central_differences(kr16):
+    q = _random_poses(kr16, 10, seed=2)
+    c, dc = incidence_rows(kr16, q)
+    from kpioed_drake.measurement import incidence_cosine
+
+    assert_allclose(c + np.cos(kr16.cell.max_incidence), incidence_cosine(kr16.model, q), atol=1e-14)
+    fd = _central_fd(lambda x: incidence_rows(kr16, x)[0], q, 1e-6)  # (n, n, 6)
+    assert_allclose(dc, np.einsum("kkj->kj", fd), rtol=1e-6, atol=1e-8)
+    off = fd.copy()
+    off[np.arange(10), np.arange(10)] = 0.0
+    assert np.max(np.abs(off)) == 0.0  # each row depends only on its own pose
+
+
+def test_constraint_gradient_matches_central_differences(kr16):
+    q = heuristic_design(kr16, n=8, seed=3)
+    cons = DesignConstraints(kr16, collision=True)
+    v, J = cons.evaluate(q)
+    assert v.shape == (8, cons.rows_per_pose) and J.shape == (8, cons.rows_per_pose, 6)
+    assert cons.rows_per_pose == 1 + cons.clearance.n_rows
+    fd = _central_fd(lambda x: cons.evaluate(x)[0], q, 1e-6)  # (n, r, n, 6)
+    own = np.stack([fd[k, :, k, :] for k in range(8)])
+    assert_allclose(J[:, 0], own[:, 0], rtol=1e-6, atol=1e-8)  # incidence [1/rad]
+    assert_allclose(J[:, 1:], own[:, 1:], rtol=1e-5, atol=1e-5)  # clearances [mm/rad]
+
+
+def test_autodiff_path_returns_the_same_values_and_gradients(kr16):
+    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+    n = 10
+    q = heuristic_design(kr16, n=n, seed=4)
+    dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, cost_scale=2.0)
+    x = q.reshape(-1)
+    xad = InitializeAutoDiff(x)
+    # cost
+    v, g = dp.objective.value_and_grad(q)
+    c_float = dp.cost_binding.evaluator().Eval(x)
+    c_ad = dp.cost_binding.evaluator().Eval(xad)
+    assert_allclose(c_float[0], 2.0 * v, rtol=1e-13)
+    assert_allclose(ExtractValue(c_ad).ravel(), [2.0 * v], rtol=1e-13)
+    assert_allclose(ExtractGradient(c_ad).ravel(), 2.0 * g.ravel(), rtol=1e-13)
+    # constraint: values scaled per row, block-diagonal gradient
+    vals, J = dp.constraints.evaluate(q)
+    s = dp.constraints.row_scale()
+    y_float = dp.constraint_binding.evaluator().Eval(x)
+    y_ad = dp.constraint_binding.evaluator().Eval(xad)
+    assert_allclose(y_float, (vals * s).ravel(), rtol=1e-13)
+    assert_allclose(ExtractValue(y_ad).ravel(), (vals * s).ravel(), rtol=1e-13)
+    G = ExtractGradient(y_ad)
+    r = dp.constraints.rows_per_pose
+    expected = np.zeros((n, r, n, 6))
+    for k in range(n):
+        expected[k, :, k, :] = J[k] * s[:, None]
+    assert_allclose(G, expected.reshape(n * r, 6 * n), rtol=1e-13, atol=0)
+    # the same rows split into constraints of 3 poses each
+    dpb = DesignProgram(kr16, criterion="kpi", n=n, collision=True, pose_block=3)
+    assert len(dpb.constraint_bindings) == 4
+    yb = np.concatenate(
+        [
+            ExtractValue(bb.evaluator().Eval(xad[6 * k0 : 6 * (k0 + m)])).ravel()
+            for bb, k0, m in zip(dpb.constraint_bindings, (0, 3, 6, 9), (3, 3, 3, 1))
+        ]
+    )
+    assert_allclose(yb, (vals * s).ravel(), rtol=1e-13)
+    G3 = ExtractGradient(dpb.constraint_bindings[1].evaluator().Eval(xad[18:36]))
+    assert_allclose(G3, expected[3:6, :, 3:6, :].reshape(3 * r, 18), rtol=1e-13, atol=0)
+    # declared sparsity pattern covers exactly the per-pose blocks
+    pattern = dp.constraint_binding.evaluator().gradient_sparsity_pattern()
+    assert len(pattern) == n * r * 6
+    assert all(col // 6 == row // r for row, col in pattern)
+
+
+# ----------------------------------------------------------------------------------------------
+# Heuristic design
+# ----------------------------------------------------------------------------------------------
+def test_heuristic_design_is_seeded_feasible_and_batch_independent(kr16):
+    q1 = heuristic_design(kr16, n=20, seed=7)
+    q2 = heuristic_design(kr16, n=20, seed=7, batch=333)
+    q3 = heuristic_design(kr16, n=20, seed=8)
+    assert q1.shape == (20, 6)
+    assert_allclose(q1, q2, rtol=0, atol=0)
+    assert not np.allclose(q1, q3)
+    assert np.all(q1 >= kr16.robot.lower) and np.all(q1 <= kr16.robot.upper)
+    reports = FeasibilityChecker(kr16.robot, kr16.cell).check(q1)
+    assert all(r.feasible for r in reports)
+    assert min(r.min_clearance_mm for r in reports) >= design.HEURISTIC_MARGIN_MM - 1e-6
+
+
+def test_heuristic_design_without_collision_checks_only_incidence(kr16):
+    q = heuristic_design(kr16, n=40, seed=0, collision=False)
+    c, _ = incidence_rows(kr16, q)
+    assert np.all(c >= 0)
+
+
+def test_heuristic_design_reports_when_it_finds_too_few_poses(kr16):
+    with pytest.raises(InputError, match="feasible pose.* in 10 draws"):
+        heuristic_design(kr16, n=60, seed=0, max_draws=10)
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad input
+# ----------------------------------------------------------------------------------------------
+def test_too_few_poses_is_an_input_error_naming_the_minimum(kr16):
+    assert kr16.min_poses() == 9
+    with pytest.raises(InputError, match="at least 9 poses"):
+        optimize_design(kr16, criterion="kpi", n=8)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(criterion="e-optimal"), "unknown criterion"),
+        (dict(solver="knitro"), "unknown solver"),
+        (dict(starts=0), "starts"),
+        (dict(q0=np.zeros((3, 6))), "q0"),
+    ],
+)
+def test_bad_arguments_are_input_errors(kr16, kwargs, match):
+    args = dict(criterion="kpi", n=12)
+    args.update(kwargs)
+    with pytest.raises(InputError, match=match):
+        optimize_design(kr16, **args)
+
+
+def test_q_work_outside_limits_is_an_input_error(tmp_path):
+    with pytest.raises(InputError, match="outside"):
+        design.run_design(
+            "kr16", criterion="heuristic", n=12, q_work_deg="0,0,0,0,179,0", out=tmp_path / "d.csv"
+        )
+    assert not (tmp_path / "d.csv").exists()
+
+
+def test_cli_bad_input_exits_2(tmp_path, capsys):
+    from kpioed_drake.cli import main
+
+    out = str(tmp_path / "d.csv")
+    assert main(["design", "--robot", "kr16", "--criterion", "kpi", "--n", "5", "--out", out]) == 2
+    assert "at least 9 poses" in capsys.readouterr().err
+    assert main(f"design --robot kr16 --criterion heuristic --q-work 0,0,0,0,179,0 --out {out}".split()) == 2
+    assert main(["design", "--robot", "no-such-robot", "--criterion", "kpi", "--out", out]) == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["design", "--robot", "kr16", "--criterion", "e-optimal", "--out", out])
+    assert exc.value.code == 2
+    assert not (tmp_path / "d.csv").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# Optimised designs
+# ----------------------------------------------------------------------------------------------
+def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monkeypatch, capsys):
+    orig = design.solver_options
+
+    def one_iteration(solver, n):
+        opts = orig(solver, n)
+        opts["Major iterations limit"] = 1
+        return opts
+
+    monkeypatch.setattr(design, "solver_options", one_iteration)
+    with pytest.raises(DesignError, match="failed") as exc:
+        optimize_design(kr16, criterion="kpi", n=12)
+    assert exc.value.result is not None and not exc.value.result.success
+    res = optimize_design(kr16, criterion="kpi", n=12, allow_infeasible=True)
+    assert not res.success and "snopt info" in res.status
+
+    from kpioed_drake.cli import main
+
+    out, js = tmp_path / "d.csv", tmp_path / "d.json"
+    code = main(f"design --robot kr16 --criterion kpi --n 12 --out {out} --json {js}".split())
+    assert code == 3
+    assert not out.exists()
+    rec = json.loads(js.read_text())
+    assert rec["success"] is False and "error" in rec
+
+
+def test_cli_writes_a_design_that_evaluate_reads(tmp_path, capsys):
+    from kpioed_drake import api
+    from kpioed_drake.cli import main
+    from kpioed_drake.designio import read_design
+
+    out, js, png = tmp_path / "kpi.csv", tmp_path / "kpi.json", tmp_path / "kpi.png"
+    code = main(
+        f"design --robot kr16 --criterion kpi --n 15 --seed 1 --out {out} --json {js} --plot {png}".split()
+    )
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "tr(Cs)/3" in text and "15/15 poses feasible" in text
+    rec = json.loads(js.read_text())
+    keys = "criterion values solver status solve_s n_evals feasible poses n_colliding_poses".split()
+    assert set(keys) <= set(rec)
+    assert rec["criterion"] == "kpi" and rec["feasible"] is True and len(rec["poses"]) == 15
+    problem = make_problem("kr16")
+    q = read_design(out, problem.robot)
+    assert q.shape == (15, 6)
+    ev = api.evaluate("kr16", str(out))
+    assert_allclose(ev["kpi_avg_var_mm2"], rec["values"]["kpi_avg_var_mm2"], rtol=1e-4)
+    assert ev["feasible"]
+    assert png.stat().st_size > 10_000
+    # the optimum improves on its heuristic start
+    assert rec["values"]["kpi_avg_var_mm2"] < rec["initial_values"][0]
+
+
+def test_heuristic_cli_with_json(tmp_path, capsys):
+    from kpioed_drake.cli import main
+
+    out, js = tmp_path / "h.csv", tmp_path / "h.json"
+    assert main(f"design --robot kr16 --criterion heuristic --n 20 --out {out} --json {js}".split()) == 0
+    rec = json.loads(js.read_text())
+    assert rec["solver"] == "none" and rec["n_poses"] == 20 and rec["feasible"]
+
+
+def _study(robot: str, n: int, seed: int = 0) -> dict:
+    problem = make_problem(robot)
+    checker = FeasibilityChecker(problem.robot, problem.cell)
+    out = {}
+    for crit in ("heuristic", "param", "d", "o1", "kpi"):
+        res = optimize_design(problem, criterion=crit, n=n, seed=seed)
+        assert res.success and res.feasible, (robot, crit, res.status)
+        reports = checker.check(res.q)  # independent check, all constraints
+        assert all(r.feasible for r in reports), (robot, crit)
+        out[crit] = res
+    return out
+
+
+def _assert_study_ordering(results: dict) -> None:
+    kpi = {c: r.kpi_avg_var_mm2 for c, r in results.items()}
+    assert kpi["kpi"] < kpi["param"], kpi
+    for crit in ("param", "d", "o1", "kpi"):
+        assert kpi[crit] < kpi["heuristic"], (crit, kpi)
+    # each optimiser is best in its own criterion among the optimised designs it is compared with
+    p_param, p_kpi = results["param"].param_crit, results["kpi"].param_crit
+    assert p_param <= p_kpi, (p_param, p_kpi)
+
+
+@pytest.mark.parametrize("robot", ["kr16", "kr300", "notional-850-800"])
+def test_reduced_study(robot):
+    _assert_study_ordering(_study(robot, n=30))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", ["kr500", "notional-650-1000", "notional-1100-1000"])
+def test_reduced_study_slow(robot):
+    _assert_study_ordering(_study(robot, n=30))
+
+
+def test_design_without_collision_avoidance_reports_collisions(kr16):
+    res = optimize_design(kr16, criterion="kpi", n=30, collision=False, seed=0)
+    assert res.success and res.feasible  # joint limits and incidence hold
+    assert 0 <= res.n_colliding_poses <= 30
+    assert res.n_infeasible_poses == 0
+    n_col = sum(any(f["check"] in ("collision", "beam") for f in r["failures"]) for r in res.reports)
+    assert n_col == res.n_colliding_poses
