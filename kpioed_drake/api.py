@@ -56,6 +56,7 @@ def evaluate(
     sigma_mm: float | None = None,
     q_work_deg: str | None = None,
     cell_path=None,
+    extend=(),
 ) -> dict:
     """KPI variance, standard criterion and feasibility of a design file.
 
@@ -64,6 +65,8 @@ def evaluate(
         design: CSV with columns ``q1_deg`` ... ``q6_deg``.
         sigma_mm: measurement noise per coordinate [mm] (default: the cell's).
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
+        extend: model extensions (``"joint_elasticity:2"``, ``"gear_cyclic:4:2"``) whose parameters
+            are estimated too; the KPI variance then includes them.
 
     Returns:
         dict with ``kpi_avg_var_mm2`` (tr(Cs)/3), ``kpi_cov_mm2`` (3x3), ``param_crit`` (scaled
@@ -73,7 +76,7 @@ def evaluate(
 
     rob = load_robot(robot)
     qw = parse_q_work(q_work_deg, rob) if q_work_deg else None
-    prob = make_problem(rob, cell_path=cell_path, q_work=qw, sigma_mm=sigma_mm)
+    prob = make_problem(rob, cell_path=cell_path, q_work=qw, sigma_mm=sigma_mm, extend=extend)
     q = read_design(design, rob)
     if len(q) < prob.min_poses():
         raise InputError(
@@ -86,6 +89,7 @@ def evaluate(
         "robot": rob.name,
         "n_poses": int(len(q)),
         "n_params": prob.n_params,
+        "extensions": [e.name for e in prob.extensions],
         "sigma_mm": prob.sigma,
         "q_work_deg": np.rad2deg(prob.q_work).round(6).tolist(),
         "kpi_avg_var_mm2": float(np.trace(Cs) / 3.0),
@@ -95,3 +99,40 @@ def evaluate(
         "feasibility": summarize(reports),
         "poses": [r.as_dict() for r in reports],
     }
+
+
+# The other commands' library functions, re-exported so that the API has one entry point.
+def design(robot: str, **kwargs):
+    """Optimum experimental design (``kpioed design``); see :func:`kpioed_drake.design.run_design`."""
+    from kpioed_drake.design import run_design
+
+    return run_design(robot, **kwargs)
+
+
+def simulate(robot: str, design_path: str, out: str, **kwargs):
+    """Simulated tracker data (``kpioed simulate``); see :func:`kpioed_drake.simulation.simulate_file`."""
+    from kpioed_drake.simulation import simulate_file
+
+    return simulate_file(robot, design_path, out, **kwargs)
+
+
+def calibrate(robot: str, data_path: str, **kwargs):
+    """Calibration from measured data (``kpioed calibrate``); see
+    :func:`kpioed_drake.calibration.calibrate_file`."""
+    from kpioed_drake.calibration import calibrate_file
+
+    return calibrate_file(robot, data_path, **kwargs)
+
+
+def diagnose(robot: str, data_path: str, **kwargs):
+    """Model-discrepancy diagnosis (``kpioed diagnose``); see :func:`kpioed_drake.diagnosis.diagnose`."""
+    from kpioed_drake.diagnosis import diagnose as _diagnose
+
+    return _diagnose(robot, data_path, **kwargs)
+
+
+def study(out_dir: str, **kwargs):
+    """The paper's studies (``kpioed study``); see :func:`kpioed_drake.study.run_study`."""
+    from kpioed_drake.study import run_study
+
+    return run_study(out_dir, **kwargs)

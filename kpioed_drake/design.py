@@ -820,6 +820,7 @@ def run_design(
     json_path: str | Path | None = None,
     allow_infeasible: bool = False,
     plot: str | Path | None = None,
+    extend=(),
 ) -> DesignResult:
     """Compute a design for a robot in the default cell and write its files (what ``kpioed design`` runs).
 
@@ -833,6 +834,8 @@ def run_design(
             ``min_clearance_mm``), written atomically.
         json_path: JSON record of the run, written atomically (also when the design is rejected).
         plot: PNG picture of the poses.
+        extend: model extensions (e.g. ``["joint_elasticity:2"]``): the design then also estimates
+            their parameters and its KPI variance includes them (:func:`problem.make_problem`).
 
     Returns:
         :class:`DesignResult`.
@@ -849,7 +852,7 @@ def run_design(
     if q_work_deg is not None:
         text = q_work_deg if isinstance(q_work_deg, str) else ",".join(repr(float(v)) for v in q_work_deg)
         q_work = designio.parse_q_work(text, robot)
-    problem = make_problem(robot, q_work=q_work, sigma_mm=sigma_mm)
+    problem = make_problem(robot, q_work=q_work, sigma_mm=sigma_mm, extend=extend)
     try:
         res = optimize_design(
             problem,

@@ -996,3 +996,73 @@ def run_synthetic_case(
 def reflector_points(model: TrackerModel, q) -> np.ndarray:
     """(n, 3) reflector positions in W [mm] (re-exported for plots)."""
     return reflector_world(model, q)
+
+
+def calibrate_extended(robot, data, extend, *, sigma_mm: float = 0.02, q_work=None) -> dict:
+    """Calibration with a model extension: the 27 geometric parameters and the effects' values.
+
+    What ``kpioed calibrate --extend EFFECT`` runs. No outlier screening (run ``kpioed calibrate``
+    without ``--extend`` first to find outliers).
+
+    Args:
+        robot: model name, path or :class:`~kpioed_drake.models.Robot`.
+        data: measurement CSV path or data (see :func:`as_measurements`).
+        extend: effect texts, e.g. ``["joint_elasticity:2"]``.
+        q_work: (6,) working pose [rad] (default: the model's).
+
+    Returns:
+        JSON-ready report: ``rms_residual_mm``, ``chi2_per_dof``, ``p_value``, ``kpi_mm`` (TCP at
+        q_work in W, no payload, reference temperature), ``kpi_cov_mm2``, ``parameters``
+        (geometric, with std) and ``extensions`` (effect values with std, display units).
+    """
+    robot = load_robot(robot) if isinstance(robot, str | Path) else robot
+    data = as_measurements(data, robot)
+    _check(data)
+    effs = fx.parse_effects(extend)
+    prob = FitProblem(robot, data, sigma_mm)
+    fit = prob.fit(effs)
+    C = fit.covariance()
+    std = np.sqrt(np.diag(C))
+    free = fit.model.layout.free
+    qw = robot.q_work if q_work is None else np.asarray(q_work, dtype=float)
+    s, Js = kpi_jacobian(fit.model, qw)
+    s = s + fx.effect_tcp_shift(fit.model, qw, fit.effects)
+    Je = np.concatenate([Js[:, free], fx.effect_kpi_columns(fit.model, qw, fit.effects)], axis=1)
+    Cs = Je @ C @ Je.T
+    dof = 3 * fit.n_used - C.shape[0]
+    chi2 = fit.cost
+    names = fit.model.layout.names
+    params = []
+    for k, i in enumerate(free):
+        ang = fit.model.layout.is_angle[i]
+        f = np.rad2deg(1.0) if ang else 1.0
+        params.append(
+            {
+                "name": names[i],
+                "value": float(fit.model.p[i] * f),
+                "std": float(std[k] * f),
+                "unit": "deg" if ang else "mm",
+            }
+        )
+    exts, c = [], free.size
+    for e in fit.effects:
+        d = e.to_dict()
+        d["std"] = e.display_values(std[c : c + e.n_params])
+        if len(d["std"]) == 1:
+            d["std"] = d["std"][0]
+        exts.append(d)
+        c += e.n_params
+    return {
+        "robot": robot.name,
+        "n_poses": int(data.n),
+        "sigma_mm": float(sigma_mm),
+        "rms_residual_mm": rms(fit.residuals),
+        "max_residual_mm": float(np.max(np.linalg.norm(fit.residuals, axis=1))),
+        "chi2_per_dof": float(chi2 / dof),
+        "p_value": float(scipy.stats.chi2.sf(chi2, dof)),
+        "kpi_mm": s.tolist(),
+        "kpi_cov_mm2": Cs.tolist(),
+        "kpi_avg_var_mm2": float(np.trace(Cs) / 3.0),
+        "parameters": params,
+        "extensions": exts,
+    }

@@ -4,6 +4,11 @@ Bundles the robot, the cell, the nominal measurement model, the working pose and
 evaluates paper eqs. (19), (24c)-(24e) for a design: ``F1 = dh/dp / sigma`` over the 27 estimated
 parameters (rows pose-major: x, y, z of pose 1, then pose 2, ...), ``Js = dTCP/dp`` at ``q_work``,
 ``Cp = (F1^T F1)^-1`` and ``Cs = Js Cp Js^T``.
+
+Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
+add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
+columns to Js, so that a design for the extended model estimates them too and its KPI variance
+includes them (paper outlook; issue "model discrepancy").
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ class Problem:
     q_work: np.ndarray
     sigma: float
     tool_offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    extensions: tuple = ()
 
     @property
     def free(self) -> np.ndarray:
@@ -43,12 +49,32 @@ class Problem:
 
     @property
     def n_params(self) -> int:
-        return self.model.layout.n_free
+        """Estimated parameters: 27 geometric plus those of the extensions."""
+        return self.model.layout.n_free + sum(e.n_params for e in self.extensions)
+
+    @property
+    def param_names(self) -> list[str]:
+        from kpioed_drake.effects import extension_param_names
+
+        return self.model.layout.free_names + extension_param_names(self.extensions)
 
     @property
     def scale(self) -> np.ndarray:
-        """(27,) SPEC's scaling of the standard criterion (lengths 1, angles times the reach)."""
-        return self.model.layout.scale(self.robot.reach)
+        """(k,) scaling of the standard criterion to millimetres at the tool.
+
+        SPEC: lengths 1, angles times the reach. An extension parameter is scaled by how far one
+        unit of it moves the TCP at ``q_work`` (its KPI column's norm) [mm per unit].
+        """
+        geo = self.model.layout.scale(self.robot.reach)
+        if not self.extensions:
+            return geo
+        ext = np.linalg.norm(self._ext_kpi_columns(), axis=0)
+        return np.concatenate([geo, np.where(ext > 0, ext, 1.0)])
+
+    def _ext_kpi_columns(self) -> np.ndarray:
+        from kpioed_drake.effects import effect_kpi_columns
+
+        return effect_kpi_columns(self.model, self.q_work, self.extensions, tool_offset=self.tool_offset)
 
     def min_poses(self) -> int:
         """Fewest poses whose 3 coordinates can determine the parameters."""
@@ -58,15 +84,27 @@ class Problem:
         """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27)."""
         out = measurement_jacobian(self.model, q, with_dq=with_dq)
         H = out[1][:, :, self.free] / self.sigma
+        dH = out[2][..., self.free] / self.sigma if with_dq else None
+        if self.extensions:
+            from kpioed_drake.effects import extension_columns
+
+            ext = extension_columns(self.model, q, self.extensions, with_dq=with_dq)
+            E, dE = (ext[0], ext[1]) if with_dq else (ext, None)
+            H = np.concatenate([H, E / self.sigma], axis=2)
+            if with_dq:
+                dH = np.concatenate([dH, dE / self.sigma], axis=3)
         n = H.shape[0]
         if not with_dq:
             return H.reshape(3 * n, -1)
-        return H.reshape(3 * n, -1), out[2][..., self.free] / self.sigma
+        return H.reshape(3 * n, -1), dH
 
     def Js(self) -> np.ndarray:
         """(3, 27) KPI Jacobian at ``q_work``."""
         _, Js = kpi_jacobian(self.model, self.q_work, self.tool_offset)
-        return Js[:, self.free]
+        Js = Js[:, self.free]
+        if self.extensions:
+            Js = np.concatenate([Js, self._ext_kpi_columns()], axis=1)
+        return Js
 
     def covariances(self, q) -> tuple[np.ndarray, np.ndarray]:
         """``Cp`` (27, 27) and ``Cs`` (3, 3) [mm^2] of a design ``q`` (n, 6) [rad].
@@ -98,12 +136,16 @@ def make_problem(
     q_work: np.ndarray | None = None,
     sigma_mm: float | None = None,
     tool_offset_mm=(0.0, 0.0, 0.0),
+    extend=(),
 ) -> Problem:
     """Build the :class:`Problem` of a robot (name, file path or :class:`Robot`).
 
     Args:
         q_work: (6,) [rad]; default: the model file's ``q_work_deg``.
         sigma_mm: noise per coordinate [mm]; default: the cell's ``noise_sigma_mm``.
+        extend: model extensions, e.g. ``["joint_elasticity:2", "gear_cyclic:4:2"]`` (texts of
+            :func:`kpioed_drake.effects.parse_effect`, values not needed). Only effects that do not
+            need per-pose temperature or time (elasticity, gear errors) can extend a design.
     """
     robot = load_robot(robot) if isinstance(robot, str) else robot
     cell = load_cell(cell_path, robot=robot)
@@ -117,7 +159,9 @@ def make_problem(
     sigma = cell.sigma if sigma_mm is None else float(sigma_mm)
     if not np.isfinite(sigma) or sigma <= 0:
         raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
+    exts = _parse_extensions(extend)
     return Problem(
+        extensions=exts,
         robot=robot,
         cell=cell,
         model=nominal_model(robot, cell),
@@ -125,3 +169,22 @@ def make_problem(
         sigma=sigma,
         tool_offset=np.asarray(tool_offset_mm, dtype=float),
     )
+
+
+def _parse_extensions(extend) -> tuple:
+    if not extend:
+        return ()
+    from kpioed_drake.effects import parse_effect
+
+    out = []
+    for e in extend:
+        eff = parse_effect(e) if isinstance(e, str) else e
+        if eff.family not in ("joint_elasticity", "gear_cyclic"):
+            raise InputError(
+                f"--extend {eff.name}: only joint_elasticity and gear_cyclic can extend a design or an "
+                "evaluation (thermal_expansion and tracker_drift need per-pose temperature and time)"
+            )
+        if any(o.key == eff.key for o in out):
+            raise InputError(f"--extend {eff.name} is given twice")
+        out.append(eff)
+    return tuple(out)

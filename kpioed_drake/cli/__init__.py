@@ -42,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"kpioed: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into e.g. `head`
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print("kpioed: interrupted", file=sys.stderr)
         return 130

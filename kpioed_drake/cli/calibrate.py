@@ -31,11 +31,20 @@ def register(sub) -> None:
         default=0.01,
         help="family-wise false-alarm level of the outlier test (Bonferroni); 0 disables (0.01)",
     )
+    p.add_argument(
+        "--extend",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="estimate a model extension too, e.g. joint_elasticity:2 (repeatable; see kpioed diagnose)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     to_stdout = args.json == "-"
+    if args.extend:
+        return _run_extended(args, to_stdout)
     report = calibration.calibrate_file(
         args.robot,
         args.data,
@@ -52,4 +61,32 @@ def run(args) -> int:
     print(report.summary())
     if args.out:
         print(f"  calibrated model written to {args.out} (use it as --robot {args.out})")
+    return 0
+
+
+def _run_extended(args, to_stdout: bool) -> int:
+    from kpioed_drake.designio import parse_q_work
+    from kpioed_drake.diagnosis import calibrate_extended, read_data
+    from kpioed_drake.models import load_robot
+
+    if args.out or args.plots:
+        from kpioed_drake.errors import InputError
+
+        raise InputError("--out and --plots are not available with --extend (the report holds the fit)")
+    robot = load_robot(args.robot)
+    q_work = parse_q_work(args.q_work, robot) if args.q_work else None
+    d = calibrate_extended(
+        robot, read_data(args.data, robot), args.extend, sigma_mm=args.sigma_mm, q_work=q_work
+    )
+    if args.json:
+        emit_json(d, args.json)
+        if to_stdout:
+            return 0
+    print(f"{d['robot']}: {d['n_poses']} poses, geometric model + {', '.join(args.extend)}")
+    rms, chi2, pv = d["rms_residual_mm"], d["chi2_per_dof"], d["p_value"]
+    print(f"  rms residual {rms:.4f} mm, chi2/dof {chi2:.3f} (p {pv:.3g})")
+    for e in d["extensions"]:
+        print(f"  {e['effect']} {e.get('joint', '')}: {e['value']} +- {e['std']} {e['unit']}")
+    kpi = ", ".join(f"{x:.4f}" for x in d["kpi_mm"])
+    print(f"  KPI at q_work: ({kpi}) mm, tr(Cs)/3 = {d['kpi_avg_var_mm2']:.3g} mm^2")
     return 0

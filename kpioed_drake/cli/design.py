@@ -40,6 +40,13 @@ def register(sub) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
     p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="PNG picture of the poses")
+    p.add_argument(
+        "--extend",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="extend the model, e.g. joint_elasticity:2 or gear_cyclic:4:2 (repeatable)",
+    )
     p.set_defaults(func=run)
 
 
@@ -61,6 +68,7 @@ def run(args) -> int:
             json_path=args.json,
             allow_infeasible=args.allow_infeasible,
             plot=args.plot,
+            extend=args.extend,
         )
     except DesignError as exc:
         if exc.result is not None:

@@ -13,6 +13,13 @@ def register(sub) -> None:
     add_sigma(p)
     add_q_work(p)
     p.add_argument(
+        "--extend",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="extend the model, e.g. joint_elasticity:2 (repeatable)",
+    )
+    p.add_argument(
         "--json",
         nargs="?",
         const="-",
@@ -24,15 +31,17 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    d = api.evaluate(args.robot, args.design, sigma_mm=args.sigma_mm, q_work_deg=args.q_work)
+    d = api.evaluate(
+        args.robot, args.design, sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend
+    )
     if args.json:
         emit_json(d, args.json)
         if args.json == "-":
             return 0
     s = d["feasibility"]
     print(f"{d['robot']}: {d['n_poses']} poses, {d['n_params']} parameters, sigma {d['sigma_mm']} mm")
-    print(f"  KPI average variance tr(Cs)/3 = {d['kpi_avg_var_mm2']:.4f} mm^2")
-    print(f"  standard criterion tr(P^T Cp P) = {d['param_crit']:.4f} mm^2")
+    print(f"  KPI average variance tr(Cs)/3 = {d['kpi_avg_var_mm2']:.4g} mm^2")
+    print(f"  standard criterion tr(P^T Cp P) = {d['param_crit']:.4g} mm^2")
     print(
         f"  feasible: {d['feasible']} ({s['n_infeasible']} infeasible poses: "
         f"{s['n_joint_limit']} joint limit, {s['n_incidence']} incidence, "
