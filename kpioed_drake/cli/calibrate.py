@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import calibration
-from kpioed_drake.cli.common import add_q_work, add_robot, emit_json
+from kpioed_drake.cli.common import add_extend, add_json_out, add_q_work, add_robot, emit_json
 
 
 def register(sub) -> None:
@@ -16,14 +16,7 @@ def register(sub) -> None:
     p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
     add_q_work(p)
     p.add_argument("--out", default=None, metavar="PARAMS.yaml", help="write the calibrated robot model file")
-    p.add_argument(
-        "--json",
-        nargs="?",
-        const="-",
-        default=None,
-        metavar="FILE",
-        help="write the report as JSON to FILE (or stdout)",
-    )
+    add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write residual plots (PNG) to DIR")
     p.add_argument(
         "--outlier-alpha",
@@ -31,13 +24,7 @@ def register(sub) -> None:
         default=0.01,
         help="family-wise false-alarm level of the outlier test (Bonferroni); 0 disables (0.01)",
     )
-    p.add_argument(
-        "--extend",
-        action="append",
-        default=[],
-        metavar="EFFECT",
-        help="estimate a model extension too, e.g. joint_elasticity:2 (repeatable; see kpioed diagnose)",
-    )
+    add_extend(p)
     p.set_defaults(func=run)
 
 

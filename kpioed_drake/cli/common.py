@@ -24,6 +24,29 @@ def add_q_work(p) -> None:
     )
 
 
+def add_extend(p) -> None:
+    """``--extend EFFECT`` (repeatable): a model extension estimated with the geometry."""
+    p.add_argument(
+        "--extend",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="extend the model, e.g. joint_elasticity:2 or gear_cyclic:4:2 (repeatable)",
+    )
+
+
+def add_json_out(p) -> None:
+    """``--json [FILE]``: the report as JSON to FILE, or to stdout without a FILE."""
+    p.add_argument(
+        "--json",
+        nargs="?",
+        const="-",
+        default=None,
+        metavar="FILE",
+        help="write the report as JSON to FILE (or stdout)",
+    )
+
+
 def emit_json(data, target) -> None:
     """Write ``data`` as JSON to a file (atomically) or to stdout when ``target`` is True/'-'."""
     if target in (True, "-"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from kpioed_drake.cli.common import add_q_work, add_robot, add_sigma
+from kpioed_drake.cli.common import add_extend, add_q_work, add_robot, add_sigma
 
 EXIT_DESIGN_FAILED = 3
 
@@ -40,13 +40,7 @@ def register(sub) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
     p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="PNG picture of the poses")
-    p.add_argument(
-        "--extend",
-        action="append",
-        default=[],
-        metavar="EFFECT",
-        help="extend the model, e.g. joint_elasticity:2 or gear_cyclic:4:2 (repeatable)",
-    )
+    add_extend(p)
     p.set_defaults(func=run)
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kpioed_drake.cli.common import add_robot, add_sigma, emit_json
+from kpioed_drake.cli.common import add_json_out, add_robot, add_sigma, emit_json
 
 
 def register(sub) -> None:
@@ -20,14 +20,7 @@ def register(sub) -> None:
         help="measurements: q1_deg..q6_deg, x_mm, y_mm, z_mm [, temperature_C, time_s, payload_kg]",
     )
     add_sigma(p, default=0.02)
-    p.add_argument(
-        "--json",
-        nargs="?",
-        const="-",
-        default=None,
-        metavar="FILE",
-        help="write the report as JSON to FILE (or stdout)",
-    )
+    add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write residual plots (PNG) into DIR")
     p.set_defaults(func=run)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_q_work, add_robot, add_sigma, emit_json
+from kpioed_drake.cli.common import add_extend, add_json_out, add_q_work, add_robot, add_sigma, emit_json
 
 
 def register(sub) -> None:
@@ -12,21 +12,8 @@ def register(sub) -> None:
     p.add_argument("--design", required=True, help="design CSV with columns q1_deg..q6_deg")
     add_sigma(p)
     add_q_work(p)
-    p.add_argument(
-        "--extend",
-        action="append",
-        default=[],
-        metavar="EFFECT",
-        help="extend the model, e.g. joint_elasticity:2 (repeatable)",
-    )
-    p.add_argument(
-        "--json",
-        nargs="?",
-        const="-",
-        default=None,
-        metavar="FILE",
-        help="write the report as JSON to FILE (or stdout)",
-    )
+    add_extend(p)
+    add_json_out(p)
     p.set_defaults(func=run)
 
 
