@@ -19,7 +19,8 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.geometry import segment_distance
-from kpioed_drake.kinematics import flange_point, forward_kinematics
+from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics
+from kpioed_drake.measurement import incidence_cosine, nominal_model
 from kpioed_drake.models import N_JOINTS, Cell, Robot
 from kpioed_drake.plant import MM, Scene, build_scene
 
@@ -67,8 +68,9 @@ class FeasibilityChecker:
         self.scene: Scene = build_scene(robot, cell)
         self._beam_caps = [c for c in robot.capsules if c.frame in robot.beam_links]
         self._beam_obs = [o for o in cell.obstacles if o.moves_with_car]
+        self._model = nominal_model(robot, cell)
 
-    def clearances(self, q) -> dict[str, float]:
+    def clearances(self, q, *, frames: Frames | None = None) -> dict[str, float]:
         """All pair clearances [mm] of one pose: Drake pairs and the beam pairs."""
         q = np.asarray(q, dtype=float)
         sc = self.scene
@@ -81,7 +83,7 @@ class FeasibilityChecker:
             ):
                 a, b = b, a
             out[f"{a} vs {b}"] = pr.distance / MM
-        fr = forward_kinematics(self.robot, q)
+        fr = forward_kinematics(self.robot, q) if frames is None else frames
         p_Q = flange_point(fr, self.cell.p_FQ)[0]
         for c in self._beam_caps:
             A = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.a
@@ -93,11 +95,9 @@ class FeasibilityChecker:
             out[f"beam vs {o.name}"] = float(d) - o.radius - self.cell.beam_radius
         return out
 
-    def incidence_deg(self, q) -> float:
-        fr = forward_kinematics(self.robot, q)
-        p = flange_point(fr, self.cell.p_FQ)[0]
-        g = self.cell.p_WT - p
-        c = float(fr.R[0, N_JOINTS][:, 2] @ g / np.linalg.norm(g))
+    def incidence_deg(self, q, *, frames: Frames | None = None) -> float:
+        """Incidence angle of one pose [deg] (paper eq. 4)."""
+        c = incidence_cosine(self._model, np.atleast_2d(q), frames=frames)[0]
         return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
     def check_pose(self, q, index: int = 0, *, collision: bool = True) -> PoseReport:
@@ -116,13 +116,14 @@ class FeasibilityChecker:
                         violation=float(abs(qd[j] - lim)),
                     )
                 )
-        inc = self.incidence_deg(q)
+        fr = forward_kinematics(self.robot, q)
+        inc = self.incidence_deg(q, frames=fr)
         max_inc = float(np.rad2deg(self.cell.max_incidence))
         if inc > max_inc + self.tol_deg:
             fails.append(
                 dict(check="incidence", name="reflector", value=inc, limit=max_inc, violation=inc - max_inc)
             )
-        clear = self.clearances(q) if collision else {}
+        clear = self.clearances(q, frames=fr) if collision else {}
         pair, cmin = ("", float("inf"))
         for name, d in clear.items():
             if d < cmin:

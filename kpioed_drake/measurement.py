@@ -22,7 +22,13 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics, point_jacobian
+from kpioed_drake.kinematics import (
+    Frames,
+    flange_point,
+    forward_kinematics,
+    point_jacobian,
+    point_velocity_jacobian,
+)
 from kpioed_drake.models import N_JOINTS, Cell, Robot
 
 N_FULL = 33
@@ -175,17 +181,11 @@ def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False):
     dH = np.zeros((n, N_JOINTS, 3, N_FULL))
     dH[..., :24] = np.einsum("ab,njbc->njac", R_TW, dJW[..., :24])
     dH[..., 30:33] = np.einsum("ab,njbc->njac", R_TW, dJW[..., 24:27])
-    dh_dq = np.einsum("ab,nbj->nja", R_TW, _point_dq(frames, p_WQ))  # (n, 6, 3)
+    dh_dq = point_velocity_jacobian(frames, p_WQ[:, None, :], np.array([N_JOINTS]))[:, 0] @ R_TW.T
     dv = dh_dq @ Rr.T
     for k in range(3):
         dH[:, :, :, 27 + k] = dv @ G[k].T
     return h, H, dH
-
-
-def _point_dq(frames: Frames, p_WQ: np.ndarray) -> np.ndarray:
-    """(n, 3, 6) derivative of a flange point w.r.t. the joint angles [mm/rad]."""
-    w, ow = frames.joint_axes, frames.joint_points
-    return np.cross(w, p_WQ[:, None, :] - ow).transpose(0, 2, 1)
 
 
 def _drot_transposed(r) -> list[np.ndarray]:
