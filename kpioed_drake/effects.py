@@ -67,7 +67,7 @@ import re
 import numpy as np
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import forward_kinematics, point_jacobian
+from kpioed_drake.kinematics import cross, forward_kinematics, point_jacobian
 from kpioed_drake.measurement import N_FULL, TrackerModel, small_rotation
 from kpioed_drake.models import N_JOINTS, Robot
 
@@ -352,12 +352,12 @@ class GravityModel:
         w = fr.joint_axes  # (n,6,3)
         r = (p[:, None, :] - fr.joint_points) * 1e-3  # (n,6,3) [m]
         F = m[:, None] * self.g[None, :]  # (n,3) [N]
-        wxr = np.cross(w, r)
+        wxr = cross(w, r)
         tau = np.einsum("nc,nic->ni", F, wxr)
         if not with_dq:
             return tau
-        full = np.cross(w[:, :, None, :], wxr[:, None, :, :])  # [n, j, i]: w_j x (w_i x r_i)
-        part = np.cross(w[:, None, :, :], np.cross(w, r)[:, :, None, :])  # [n, j, i]: w_i x (w_j x r_j)
+        full = cross(w[:, :, None, :], wxr[:, None, :, :])  # [n, j, i]: w_j x (w_i x r_i)
+        part = cross(w[:, None, :, :], cross(w, r)[:, :, None, :])  # [n, j, i]: w_i x (w_j x r_j)
         jj, ii = np.arange(N_JOINTS)[:, None], np.arange(N_JOINTS)[None, :]
         d = np.where((jj <= ii)[None, :, :, None], full, part)
         dtau = np.einsum("nc,njic->nij", F, d)
@@ -372,7 +372,7 @@ class GravityModel:
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
         fr = forward_kinematics(self.robot, q)
         F = m[:, None] * self.g[None, :]
-        Fxw = np.cross(F[:, None, :], fr.joint_axes)  # (n,6,3)
+        Fxw = cross(F[:, None, :], fr.joint_axes)  # (n,6,3)
         return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.R[:, N_JOINTS])
 
     def torques(self, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):

@@ -25,8 +25,8 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.kinematics import Frames, forward_kinematics, point_velocity_jacobian
-from kpioed_drake.models import Cell, Robot
+from kpioed_drake.kinematics import Frames, cross, forward_kinematics
+from kpioed_drake.models import N_JOINTS, Cell, Robot
 
 _EPS = 1e-12
 
@@ -63,6 +63,23 @@ class ClearanceRows:
 
     names: tuple[str, ...]
     kinds: tuple[str, ...]  # floor, wall, obstacle, self, beam
+
+
+@dataclasses.dataclass
+class ClearanceEval:
+    """Clearances of n poses and the data of their gradients (see ``ClearanceModel._rows``).
+
+    Attributes:
+        frames: forward kinematics of the poses.
+        values: (n, m) clearances [mm].
+        E: (n, m, 4, 3) gradient points [mm]; W: (n, m, 4) their weights; N: (n, m, 3) unit normals.
+    """
+
+    frames: Frames
+    values: np.ndarray
+    E: np.ndarray
+    W: np.ndarray
+    N: np.ndarray
 
 
 class ClearanceModel:
@@ -130,6 +147,13 @@ class ClearanceModel:
             self._pf = np.array([caps[k].frame for k in self._pk], dtype=int)
             self._pl = np.array([[caps[k].a, caps[k].b][e] for k, e in zip(self._pk, self._pe, strict=True)])
             self._prad = np.array([caps[k].radius for k in self._pk])
+        # Frame of each of the (up to) four gradient points of every row (see _rows), rows in order.
+        F = np.zeros((len(names), 4), dtype=int)
+        if pts:
+            F[: len(pts), 0] = self._pf
+        if segs:
+            F[len(pts) :] = self._sf
+        self._frames = F
 
     @staticmethod
     def _cap(c):
@@ -143,42 +167,101 @@ class ClearanceModel:
     def n_rows(self) -> int:
         return len(self.rows.names)
 
-    def evaluate(self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None):
+    def values(self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None) -> np.ndarray:
+        """Clearances only: (n, m) [mm] (>= 0 is free). Arguments as :meth:`evaluate`."""
+        return self.compute(q, geometry=geometry, frames=frames).values
+
+    def evaluate(
+        self,
+        q,
+        *,
+        geometry: np.ndarray | None = None,
+        frames: Frames | None = None,
+        rows: np.ndarray | None = None,
+    ):
         """Clearances and their joint-angle Jacobian.
 
         Args:
-            q: (n, 6) joint angles [rad].
+            q: (n, 6) joint angles [rad] (ignored when ``frames`` is given).
+            geometry: (6, 4) kinematic parameters (default: the robot's nominal ones).
+            frames: forward kinematics of ``q``, if already computed.
+            rows: (n, k) row indices: the Jacobian is computed for these rows of each pose only
+                (default: every row).
 
         Returns:
-            values: (n, m) clearances [mm] (>= 0 is free);
-            jac: (n, m, 6) derivative w.r.t. the pose's own joint angles [mm/rad].
+            values: (n, m) clearances [mm] (>= 0 is free), every row;
+            jac: (n, m, 6), or (n, k, 6) for ``rows``: derivative of the (selected) rows w.r.t.
+            the pose's own joint angles [mm/rad].
+        """
+        ev = self.compute(q, geometry=geometry, frames=frames)
+        return ev.values, self.jacobian(ev, rows)
+
+    def compute(
+        self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None
+    ) -> ClearanceEval:
+        """Every row's clearance and what its gradient needs (:meth:`jacobian`); see :meth:`evaluate`."""
+        return ClearanceEval(*self._rows(q, geometry, frames))
+
+    def jacobian(self, ev: ClearanceEval, rows: np.ndarray | None = None) -> np.ndarray:
+        """Jacobian (n, m, 6) of every row, or (n, k, 6) of the rows ``rows`` (n, k) [mm/rad]."""
+        n = ev.values.shape[0]
+        if ev.values.shape[1] == 0:
+            return np.zeros((n, 0, 6))
+        E, W, N, F = ev.E, ev.W, ev.N, self._frames
+        if rows is not None:
+            rows = np.asarray(rows, dtype=int)
+            E = np.take_along_axis(E, rows[:, :, None, None], axis=1)
+            W = np.take_along_axis(W, rows[:, :, None], axis=1)
+            N = np.take_along_axis(N, rows[:, :, None], axis=1)
+            F = F[rows]  # (n, k, 4)
+        return self._jacobian(ev.frames, E, W, N, F)
+
+    def _rows(self, q, geometry, frames):
+        """Values of all rows and, per row, the points, weights and normal of its gradient.
+
+        Every row's gradient has the form ``d v/d q_j = sum_k W_k N . dE_k/dq_j`` with four points
+        ``E_k`` (each fixed to frame ``F_k``; unused points have weight 0): for a segment pair the
+        end points with weights ``(1-s, s, -(1-t), -t)`` and the unit normal between the closest
+        points (envelope theorem); for a floor/wall row the capsule end point, weight 1 and the
+        plane's normal axis.
         """
         if frames is None:
             frames = forward_kinematics(self.robot, q, geometry)
         n = frames.R.shape[0]
-        vals, jacs = [], []
-        if self._pts:
+        m = self.n_rows
+        vals = np.empty((n, m))
+        E = np.zeros((n, m, 4, 3))
+        W = np.zeros((n, m, 4))
+        N = np.zeros((n, m, 3))
+        k = len(self._pts)
+        if k:
             P = frames.o[:, self._pf] + np.einsum("nmij,mj->nmi", frames.R[:, self._pf], self._pl)
-            dP = point_velocity_jacobian(frames, P, self._pf)  # (n,m,6,3)
-            ax = self._pa
-            v = np.take_along_axis(P, ax[None, :, None], axis=2)[..., 0] - self._prad - self._po
-            g = np.take_along_axis(dP, ax[None, :, None, None], axis=3)[..., 0]
-            vals.append(v)
-            jacs.append(g)
+            vals[:, :k] = P[:, np.arange(k), self._pa] - self._prad - self._po
+            E[:, :k, 0] = P
+            W[:, :k, 0] = 1.0
+            N[:, np.arange(k), self._pa] = 1.0
         if self._segs:
             f, loc = self._sf, self._sl
-            E = frames.o[:, f] + np.einsum("nmkij,mkj->nmki", frames.R[:, f], loc)  # (n,m,4,3)
-            dist, s, t = segment_distance(E[:, :, 0], E[:, :, 1], E[:, :, 2], E[:, :, 3])
-            cA = E[:, :, 0] + s[..., None] * (E[:, :, 1] - E[:, :, 0])
-            cB = E[:, :, 2] + t[..., None] * (E[:, :, 3] - E[:, :, 2])
-            nrm = (cA - cB) / np.maximum(dist, _EPS)[..., None]
-            m = f.shape[0]
-            dE = point_velocity_jacobian(frames, E.reshape(n, m * 4, 3), f.reshape(-1))
-            dE = dE.reshape(n, m, 4, 6, 3)
-            w = np.stack([1 - s, s, -(1 - t), -t], axis=2)  # (n,m,4)
-            dc = np.einsum("nmk,nmkjx->nmjx", w, dE)
-            vals.append(dist - self._sr)
-            jacs.append(np.einsum("nmx,nmjx->nmj", nrm, dc))
-        if not vals:
-            return np.zeros((n, 0)), np.zeros((n, 0, 6))
-        return np.concatenate(vals, axis=1), np.concatenate(jacs, axis=1)
+            Es = frames.o[:, f] + np.einsum("nmkij,mkj->nmki", frames.R[:, f], loc)  # (n,m,4,3)
+            dist, s, t = segment_distance(Es[:, :, 0], Es[:, :, 1], Es[:, :, 2], Es[:, :, 3])
+            cA = Es[:, :, 0] + s[..., None] * (Es[:, :, 1] - Es[:, :, 0])
+            cB = Es[:, :, 2] + t[..., None] * (Es[:, :, 3] - Es[:, :, 2])
+            vals[:, k:] = dist - self._sr
+            E[:, k:] = Es
+            W[:, k:, 0], W[:, k:, 1], W[:, k:, 2], W[:, k:, 3] = 1 - s, s, t - 1, -t
+            N[:, k:] = (cA - cB) / np.maximum(dist, _EPS)[..., None]
+        return frames, vals, E, W, N
+
+    @staticmethod
+    def _jacobian(frames: Frames, E, W, N, F) -> np.ndarray:
+        """``sum_k W_k [j < F_k] N . (w_j x (E_k - o_j))`` = ``sum_k W_k [j < F_k] (E_k - o_j) . (N x w_j)``.
+
+        Shapes: E (n, k, 4, 3), W (n, k, 4), N (n, k, 3), F (k, 4) or (n, k, 4); returns (n, k, 6).
+        """
+        w, o = frames.joint_axes, frames.joint_points  # (n, 6, 3)
+        T = cross(N[:, :, None, :], w[:, None, :, :])  # (n, k, 6, 3)
+        moves = np.arange(1, N_JOINTS + 1) <= np.asarray(F)[..., None]  # (.., k, 4, 6)
+        WM = W[..., None] * moves  # (n, k, 4, 6)
+        ET = np.einsum("nkpi,nkji->nkpj", E, T)  # (n, k, 4, 6)
+        oT = np.einsum("nji,nkji->nkj", o, T)  # (n, k, 6)
+        return np.einsum("nkpj,nkpj->nkj", WM, ET) - WM.sum(axis=2) * oT

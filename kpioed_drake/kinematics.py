@@ -26,19 +26,37 @@ import numpy as np
 from kpioed_drake.models import N_JOINTS, Robot
 
 
+def cross(a, b) -> np.ndarray:
+    """``a x b`` over the last axis (length 3), broadcast over leading axes.
+
+    Written out by components: ``numpy.cross`` spends most of its time on axis handling for the
+    small arrays of this package.
+    """
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
 def _rot_z(c, s):
-    z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+    R = np.zeros((*np.shape(c), 3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+    return R
 
 
 def _rot_x(c, s):
-    z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+    R = np.zeros((*np.shape(c), 3, 3))
+    R[..., 0, 0], R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2] = 1.0, c, -s, s, c
+    return R
 
 
 def _rot_y(c, s):
-    z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+    R = np.zeros((*np.shape(c), 3, 3))
+    R[..., 0, 0], R[..., 0, 2], R[..., 1, 1], R[..., 2, 0], R[..., 2, 2] = c, s, 1.0, -s, c
+    return R
 
 
 @dataclasses.dataclass
@@ -59,6 +77,16 @@ class Frames:
     elem_u: np.ndarray
     elem_o: np.ndarray
     elem_rot: np.ndarray
+
+    def poses(self, index) -> Frames:
+        """The frames of the poses ``index`` (a slice or index array)."""
+        return Frames(
+            R=self.R[index],
+            o=self.o[index],
+            elem_u=self.elem_u[index],
+            elem_o=self.elem_o[index],
+            elem_rot=self.elem_rot,
+        )
 
     @property
     def joint_axes(self) -> np.ndarray:
@@ -108,24 +136,24 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
         zp = Rp[..., 2]
         if conv == "dh":
             _, d, a, alpha = g[i]
-            Rx = _rot_x(np.full(n, np.cos(alpha)), np.full(n, np.sin(alpha)))
+            Rx = _rot_x(np.cos(alpha), np.sin(alpha))  # (3, 3), the same for all poses
             oi = op + d * zp + a * xA
             Ri = RA @ Rx
             # theta: rot about z_{i-1} at o_{i-1}; d: along z_{i-1}; a: along x_A; alpha: rot x_A at o_i
-            eu[:, i] = np.stack([zp, zp, xA, xA], 1)
-            eo[:, i] = np.stack([op, op, oi, oi], 1)
+            eu[:, i, 0], eu[:, i, 1], eu[:, i, 2], eu[:, i, 3] = zp, zp, xA, xA
+            eo[:, i, 0], eo[:, i, 1], eo[:, i, 2], eo[:, i, 3] = op, op, oi, oi
             erot[i] = (True, False, False, True)
         else:
             _, a, alpha, beta = g[i]
-            Rx = _rot_x(np.full(n, np.cos(alpha)), np.full(n, np.sin(alpha)))
-            Ry = _rot_y(np.full(n, np.cos(beta)), np.full(n, np.sin(beta)))
+            Rx = _rot_x(np.cos(alpha), np.sin(alpha))  # (3, 3), the same for all poses
+            Ry = _rot_y(np.cos(beta), np.sin(beta))
             oi = op + a * xA
             RB = RA @ Rx
             Ri = RB @ Ry
             yB = RB[..., 1]
             # theta: rot z_{i-1} at o_{i-1}; a: along x_A; alpha: rot x_A at o_i; beta: rot y_B at o_i
-            eu[:, i] = np.stack([zp, xA, xA, yB], 1)
-            eo[:, i] = np.stack([op, oi, oi, oi], 1)
+            eu[:, i, 0], eu[:, i, 1], eu[:, i, 2], eu[:, i, 3] = zp, xA, xA, yB
+            eo[:, i, 0], eo[:, i, 1], eo[:, i, 2], eo[:, i, 3] = op, oi, oi, oi
             erot[i] = (True, False, True, True)
         R[:, i + 1] = Ri
         o[:, i + 1] = oi
@@ -158,7 +186,7 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     p = flange_point(frames, p_FP)  # (n,3)
     u, o = frames.elem_u, frames.elem_o  # (n,6,4,3)
     rot = frames.elem_rot  # (6,4)
-    col_rot = np.cross(u, p[:, None, None, :] - o)
+    col_rot = cross(u, p[:, None, None, :] - o)
     cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,6,4,3)
     n = p.shape[0]
     J = np.empty((n, 3, 27))
@@ -169,19 +197,19 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
         return p, J
     w = frames.joint_axes  # (n,6,3)
     ow = frames.joint_points
-    dP = np.cross(w, p[:, None, :] - ow)  # (n,6,3): dp/dq_j
+    dP = cross(w, p[:, None, :] - ow)  # (n,6,3): dp/dq_j
     dJ = np.zeros((n, N_JOINTS, 3, 27))
     # element of transform i, joint j <= i: w_j x col
-    full = np.cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,4,3)
+    full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,4,3)
     # element of transform i, joint j > i: rotation: u x dP_j; translation: 0
-    part = np.cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,4,3)
+    part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,4,3)
     part = np.where(rot[None, None, :, :, None], part, 0.0)
     jj = np.arange(N_JOINTS)[:, None]
     ii = np.arange(N_JOINTS)[None, :]
     mask = (jj <= ii)[None, :, :, None, None]
     d = np.where(mask, full, part)  # (n,j,i,4,3)
     dJ[:, :, :, :24] = d.reshape(n, N_JOINTS, 24, 3).transpose(0, 1, 3, 2)
-    dJ[:, :, :, 24:] = np.cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
+    dJ[:, :, :, 24:] = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     return p, J, dJ
 
 
@@ -198,6 +226,6 @@ def point_velocity_jacobian(frames: Frames, p_W: np.ndarray, link: np.ndarray) -
     """
     w = frames.joint_axes  # (n,6,3)
     ow = frames.joint_points
-    d = np.cross(w[:, None, :, :], p_W[:, :, None, :] - ow[:, None, :, :])  # (n,m,6,3)
+    d = cross(w[:, None, :, :], p_W[:, :, None, :] - ow[:, None, :, :])  # (n,m,6,3)
     active = np.arange(1, N_JOINTS + 1)[None, :] <= np.asarray(link)[:, None]  # (m,6)
     return d * active[None, :, :, None]

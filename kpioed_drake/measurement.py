@@ -151,15 +151,17 @@ def measure(model: TrackerModel, q) -> np.ndarray:
     return (p_WQ - model.p_WT) @ model.R_WT
 
 
-def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False):
+def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False, frames: Frames | None = None):
     """Jacobian of :func:`measure` w.r.t. the 33 parameters.
+
+    ``frames`` is ``model.frames(q)`` if the caller has it already.
 
     Returns:
         h: (n, 3) [mm].
         H: (n, 3, 33) dh/dp.
         dH (with ``with_dq``): (n, 6, 3, 33), derivative of H w.r.t. the joint angles.
     """
-    frames = model.frames(q)
+    frames = model.frames(q) if frames is None else frames
     out = point_jacobian(frames, model.p_FQ, with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
     R_TW = model.R_WT.T

@@ -80,9 +80,12 @@ class Problem:
         """Fewest poses whose 3 coordinates can determine the parameters."""
         return int(np.ceil(self.n_params / 3))
 
-    def F1(self, q, *, with_dq: bool = False):
-        """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27)."""
-        out = measurement_jacobian(self.model, q, with_dq=with_dq)
+    def F1(self, q, *, with_dq: bool = False, frames=None):
+        """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27).
+
+        ``frames``: ``self.model.frames(q)`` if the caller has it already.
+        """
+        out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
         if self.extensions:

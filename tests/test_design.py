@@ -91,7 +91,7 @@ def test_autodiff_path_returns_the_same_values_and_gradients(kr16):
 
     n = 10
     q = heuristic_design(kr16, n=n, seed=4)
-    dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, cost_scale=2.0)
+    dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, cost_scale=2.0, active_rows=None)
     x = q.reshape(-1)
     xad = InitializeAutoDiff(x)
     # cost
@@ -115,7 +115,7 @@ def test_autodiff_path_returns_the_same_values_and_gradients(kr16):
         expected[k, :, k, :] = J[k] * s[:, None]
     assert_allclose(G, expected.reshape(n * r, 6 * n), rtol=1e-13, atol=0)
     # the same rows split into constraints of 3 poses each
-    dpb = DesignProgram(kr16, criterion="kpi", n=n, collision=True, pose_block=3)
+    dpb = DesignProgram(kr16, criterion="kpi", n=n, collision=True, pose_block=3, active_rows=None)
     assert len(dpb.constraint_bindings) == 4
     yb = np.concatenate(
         [
@@ -130,6 +130,73 @@ def test_autodiff_path_returns_the_same_values_and_gradients(kr16):
     pattern = dp.constraint_binding.evaluator().gradient_sparsity_pattern()
     assert len(pattern) == n * r * 6
     assert all(col // 6 == row // r for row, col in pattern)
+
+
+def test_clearance_jacobian_of_selected_rows_equals_those_rows_of_the_full_jacobian(kr16):
+    cm = DesignConstraints(kr16, collision=True).clearance
+    q = heuristic_design(kr16, n=7, seed=11)
+    v, J = cm.evaluate(q)
+    rows = np.random.default_rng(2).integers(0, cm.n_rows, size=(7, 5))
+    v2, Jr = cm.evaluate(q, rows=rows)
+    assert_allclose(v2, v, rtol=0, atol=0)
+    assert_allclose(Jr, np.take_along_axis(J, rows[:, :, None], axis=1), rtol=0, atol=0)
+
+
+def test_active_rows_are_the_smallest_and_keep_their_slots():
+    rng = np.random.default_rng(5)
+    v = rng.uniform(0, 100, size=(50, 12))
+    a = design.update_active_rows(v, None, 4)
+    assert_allclose(np.take_along_axis(v, a, 1), np.sort(v, 1)[:, :4], rtol=0, atol=0)
+    # move the values: the set is again the 4 smallest; rows still in it keep their position
+    v2 = v + rng.normal(0, 15, size=v.shape)
+    b = design.update_active_rows(v2, a, 4)
+    assert_allclose(np.sort(np.take_along_axis(v2, b, 1), 1), np.sort(v2, 1)[:, :4], rtol=0, atol=0)
+    stayed = (a[:, :, None] == b[:, None, :]).any(2)
+    assert stayed.any() and (~stayed).any()  # both cases happen
+    assert np.all(b[stayed] == a[stayed])
+    assert np.all([len(set(r)) == 4 for r in b])  # no row twice
+    with pytest.raises(ValueError):
+        design.update_active_rows(v, None, 13)
+
+
+def test_program_with_active_rows_passes_the_smallest_clearances_and_their_gradient(kr16):
+    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+    n, m = 9, 4
+    q = heuristic_design(kr16, n=n, seed=6)
+    dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m)
+    assert dp.rows_per_pose == 1 + m
+    vals, J = dp.constraints.evaluate(q)
+    y = dp.constraint_binding.evaluator().Eval(InitializeAutoDiff(q.reshape(-1)))
+    Y, G = ExtractValue(y).reshape(n, 1 + m), ExtractGradient(y).reshape(n, 1 + m, n, 6)
+    s = dp.constraints.row_scale(1 + m)
+    assert_allclose(Y[:, 0], vals[:, 0], rtol=1e-13)
+    assert_allclose(Y[:, 1:] / s[1], np.sort(vals[:, 1:], axis=1)[:, :m], rtol=1e-13)
+    active = dp.active
+    assert active.shape == (n, m)
+    for k in range(n):
+        assert_allclose(G[k, :, k, :], J[k, np.r_[0, 1 + active[k]]] * s[:, None], rtol=1e-13, atol=0)
+        others = np.delete(np.arange(n), k)
+        assert np.all(G[k, :, others, :] == 0.0)
+    # pose blocks hold their own slots and give the same rows
+    dpb = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m, pose_block=4)
+    yb = np.concatenate(
+        [
+            ExtractValue(b.evaluator().Eval(InitializeAutoDiff(q[k0 : k0 + 4].reshape(-1)))).ravel()
+            for b, k0 in zip(dpb.constraint_bindings, (0, 4, 8), strict=True)
+        ]
+    )
+    assert_allclose(yb, ExtractValue(y).ravel(), rtol=1e-13)
+    assert np.array_equal(dpb.active, active)
+
+
+def test_active_rows_and_all_rows_reach_feasible_designs_of_similar_value(kr16):
+    kw = dict(criterion="kpi", n=20, seed=1, allow_infeasible=True)
+    few = optimize_design(kr16, active_rows=4, **kw)
+    full = optimize_design(kr16, active_rows=None, **kw)
+    assert few.success and few.feasible and full.success and full.feasible
+    # local optima from one start: within 10 % of each other
+    assert abs(few.value / full.value - 1) < 0.10
 
 
 # ----------------------------------------------------------------------------------------------
