@@ -116,6 +116,8 @@ class DesignResult:
         seed: seed of the first start (start k uses ``seed + k``).
         best_start: index of the start that was kept.
         constraint_evals: constraint evaluations (all starts).
+        all_rows_retries: starts whose solve with each pose's smallest clearance rows failed or was
+            infeasible and was repeated with all rows (times and evaluations include both solves).
     """
 
     q: np.ndarray
@@ -139,6 +141,7 @@ class DesignResult:
     seed: int = 0
     best_start: int = 0
     constraint_evals: int = 0
+    all_rows_retries: int = 0
 
     @property
     def n(self) -> int:
@@ -162,6 +165,7 @@ class DesignResult:
             "solve_s": self.solve_s,
             "n_evals": self.n_evals,
             "constraint_evals": self.constraint_evals,
+            "all_rows_retries": self.all_rows_retries,
             "seed": self.seed,
             "starts": len(self.start_values) if self.start_values else 1,
             "best_start": self.best_start,
@@ -647,6 +651,10 @@ def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
     if solver == "snopt":
         return {
             "Major optimality tolerance": 1e-6,
+            # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
+            # smallest clearances in the QP, long first steps on notional robots went deep into
+            # collision and SNOPT stopped there (info 41). No change seen on the KUKA robots.
+            "Major step limit": 0.2,
             # Tighter than SNOPT's default 1e-6 (which is relative to the norm of the solution
             # vector): with 1e-6 and no margins, poses on the incidence limit were seen 3e-5 deg
             # beyond it. With the margins above, 1e-7 passed the independent check in every
@@ -700,6 +708,7 @@ class _Solve:
     n_evals: int
     constraint_evals: int
     callback_s: float = 0.0
+    all_rows_retry: bool = False
 
 
 def _solve_once(
@@ -889,8 +898,19 @@ def optimize_design(
         except np.linalg.LinAlgError:
             initial.append(float("nan"))
         sol = _solve_once(problem, criterion, q_start, collision, solver, pose_block, active_rows)
+        check = check_design(problem, sol.q, collision=collision)
+        if collision and active_rows is not None and not (sol.success and check[1] == 0):
+            # The reduced rows change identity between iterates; rarely (seen on some notional
+            # robots after a long first step) SNOPT then stops early. Solve again from the same
+            # start with every clearance row, the slower but robust formulation.
+            full = _solve_once(problem, criterion, q_start, collision, solver, pose_block, None)
+            full.solve_s += sol.solve_s
+            full.n_evals += sol.n_evals
+            full.constraint_evals += sol.constraint_evals
+            full.all_rows_retry = True
+            sol, check = full, check_design(problem, full.q, collision=collision)
         solves.append(sol)
-        checks.append(check_design(problem, sol.q, collision=collision))
+        checks.append(check)
     good = [k for k, s in enumerate(solves) if s.success and checks[k][1] == 0]
     pool = good or [k for k, s in enumerate(solves) if np.isfinite(s.value)] or [0]
     best = min(pool, key=lambda k: solves[k].value if np.isfinite(solves[k].value) else np.inf)
@@ -916,6 +936,7 @@ def optimize_design(
         start_values=[s.value if s.success else float("nan") for s in solves],
         initial_values=initial,
         best_start=best,
+        all_rows_retries=sum(s.all_rows_retry for s in solves),
         **crit,
         **base,
     )
@@ -1057,6 +1078,8 @@ def format_summary(res: DesignResult) -> str:
         lines.append(
             f"  solver {res.solver}: {res.status}; {res.solve_s:.2f} s, {res.n_evals} cost evaluations"
         )
+        if res.all_rows_retries:
+            lines.append("  (solved again with all clearance rows after the reduced rows failed)")
     n_ok = res.n - res.n_infeasible_poses
     lines.append(
         f"  independent check: {n_ok}/{res.n} poses feasible; {res.n_colliding_poses} pose(s) collide"

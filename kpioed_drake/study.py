@@ -201,7 +201,14 @@ def run_task(task: Task, design_api=None) -> dict:
         if task.criterion == "heuristic":
             q = np.asarray(api.heuristic_design(problem, n=task.n, seed=task.seed, collision=task.collision))
             solve_s = time.perf_counter() - t0
-            info = dict(solver="heuristic", status="drawn", success=True, n_evals=0, design_feasible=True)
+            info = dict(
+                solver="heuristic",
+                status="drawn",
+                success=True,
+                n_evals=0,
+                design_feasible=True,
+                all_rows_retry=False,
+            )
         else:
             res = api.optimize_design(
                 problem,
@@ -219,6 +226,7 @@ def run_task(task: Task, design_api=None) -> dict:
                 success=bool(res.success),
                 n_evals=int(res.n_evals or 0),
                 design_feasible=bool(res.feasible),
+                all_rows_retry=bool(getattr(res, "all_rows_retries", 0)),
             )
         crit = problem.criteria(q)
         reports = checker.check(q, collision=True)
@@ -388,6 +396,7 @@ RESULT_COLUMNS = [
     "status",
     "success",
     "n_evals",
+    "all_rows_retry",
     "q_work_deg",
     "error",
 ]
