@@ -334,7 +334,7 @@ def bench_breakdown(
     m = dp.active_rows
     t_np = _timeit(lambda: dp.constraints.evaluate_active(q, None, m), min_reps=20)[0]
     t_cost = _timeit(lambda: ev_cost.Eval(xad), min_reps=20)[0]
-    r = dp.constraints.rows_per_pose * n
+    r = dp.rows_per_pose * n
     rows = [
         "| part of one evaluation (60 poses) | wall [ms] |",
         "|---|---|",

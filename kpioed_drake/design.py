@@ -18,13 +18,19 @@ with ``C`` from the KKT system of eq. (24c), ``F1 = dh/dp / sigma`` (eq. 24d) an
 The problem is a Drake ``MathematicalProgram`` with 6n decision variables (pose-major: variable
 ``6k + j`` is joint j+1 of pose k), bounding-box joint limits, ONE vectorised Python cost and ONE
 vectorised Python constraint holding, for every pose, the incidence row and (with collision
-avoidance) every clearance row of :class:`~kpioed_drake.geometry.ClearanceModel`. Each constraint
-row depends only on its own pose's six variables; this sparsity is declared to the solver.
-Derivatives are closed form and vectorised over poses: the cost gradient is the adjoint
+avoidance) the pose's ``ACTIVE_ROWS_PER_POSE`` smallest clearances of
+:class:`~kpioed_drake.geometry.ClearanceModel` (51 rows for the KUKA robots). "Every clearance >= 0"
+and "the 4 smallest clearances >= 0" are the same condition, so the feasible set is that of paper
+eq. (24b); the solver's work per iteration shrinks with its rows (kr16, 60 poses: 300 rows instead of
+3120). A row keeps its slot while it stays among its pose's smallest (:func:`update_active_rows`).
+If such a solve fails or returns an infeasible design, the start is solved again with all rows.
+Each constraint row depends only on its own pose's six variables; this sparsity is declared to the
+solver. Derivatives are closed form and vectorised over poses: the cost gradient is the adjoint
 ``d phi/d F1`` (from :func:`kpioed_drake.covariance.criterion`) contracted with ``d F1/d q``
 (:meth:`kpioed_drake.problem.Problem.F1`); the incidence gradient follows from
 ``d z_F/d q_j = w_j x z_F`` and ``d p/d q_j = w_j x (p - o_{j-1})``; clearance gradients come from
-:mod:`kpioed_drake.geometry`. Solvers: SNOPT (default) or IPOPT, both bundled with pydrake.
+:mod:`kpioed_drake.geometry`. Cost and constraint share one forward kinematics per iterate.
+Solvers: SNOPT (default) or IPOPT, both bundled with pydrake.
 
 The heuristic design (paper 3.2, SPEC) draws poses uniformly from the joint box and keeps each pose
 that is feasible. It is also the optimiser's starting point.
