@@ -236,7 +236,7 @@ def heuristic_design(
         frames = forward_kinematics(robot, q)
         ok = incidence_cosine(problem.model, q, frames=frames) >= cos_max
         if cm is not None and ok.any():
-            vals, _ = cm.evaluate(q[ok])
+            vals = cm.values(q[ok])
             ok[ok] = np.all(vals >= margin_mm, axis=1)
         kept.append(q[ok])
         n_kept += int(ok.sum())
@@ -501,7 +501,6 @@ class DesignProgram:
         if self.active_rows is not None and self.active_rows < 1:
             raise InputError(f"active_rows must be positive, got {active_rows}")
         self._active: dict[int, np.ndarray] = {}  # first pose of a block -> its slots
-        self._fk_key: bytes | None = None
         self._fk: Frames | None = None
         self._fk_q: np.ndarray | None = None
         prog = MathematicalProgram()
@@ -538,11 +537,10 @@ class DesignProgram:
         """
         b = q.shape[0]
         if b == self.n:
-            key = q.tobytes()
-            if key != self._fk_key:
-                self._fk, self._fk_key, self._fk_q = self.constraints.frames(q), key, q.copy()
+            if self._fk_q is None or not np.array_equal(self._fk_q, q):
+                self._fk, self._fk_q = self.constraints.frames(q), q.copy()
             return self._fk
-        if self._fk is not None and np.array_equal(self._fk_q[k0 : k0 + b], q):
+        if self._fk_q is not None and np.array_equal(self._fk_q[k0 : k0 + b], q):
             return self._fk.poses(slice(k0, k0 + b))
         return self.constraints.frames(q)
 

@@ -852,7 +852,7 @@ def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell=None) -
     out = []
     while sum(len(x) for x in out) < n:
         q = rng.uniform(robot.lower, robot.upper, size=(4 * n, N_JOINTS))
-        vals, _ = cm.evaluate(q)
+        vals = cm.values(q)
         kinds = np.array(cm.rows.kinds)
         keep = np.all(vals[:, kinds != "self"] >= 0.0, axis=1)
         out.append(q[keep])

@@ -357,7 +357,7 @@ class GravityModel:
         if not with_dq:
             return tau
         full = cross(w[:, :, None, :], wxr[:, None, :, :])  # [n, j, i]: w_j x (w_i x r_i)
-        part = cross(w[:, None, :, :], cross(w, r)[:, :, None, :])  # [n, j, i]: w_i x (w_j x r_j)
+        part = cross(w[:, None, :, :], wxr[:, :, None, :])  # [n, j, i]: w_i x (w_j x r_j)
         jj, ii = np.arange(N_JOINTS)[:, None], np.arange(N_JOINTS)[None, :]
         d = np.where((jj <= ii)[None, :, :, None], full, part)
         dtau = np.einsum("nc,njic->nij", F, d)
