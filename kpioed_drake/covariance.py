@@ -74,7 +74,15 @@ def kpi_covariance(F1p: np.ndarray, Js: np.ndarray) -> tuple[np.ndarray, np.ndar
     return Cp, Js @ Cp @ Js.T
 
 
-def criterion(name: str, F1: np.ndarray, Js: np.ndarray, scale: np.ndarray, *, with_grad: bool = True):
+def criterion(
+    name: str,
+    F1: np.ndarray,
+    Js: np.ndarray,
+    scale: np.ndarray,
+    *,
+    with_grad: bool = True,
+    M0: np.ndarray | None = None,
+):
     """Design criterion of a weighted Jacobian and its derivative with respect to F1.
 
     Args:
@@ -83,6 +91,8 @@ def criterion(name: str, F1: np.ndarray, Js: np.ndarray, scale: np.ndarray, *, w
         Js: (3, k) KPI Jacobian.
         scale: (k,) parameter scaling of the ``param`` criterion (SPEC: 1 for lengths, the reach
             for angles).
+        M0: (k, k) information of further measurements held fixed, added to ``F1^T F1`` (e.g.
+            the poses outside the block being optimised); None: none.
 
     Returns:
         value, and with ``with_grad`` the (m, k) derivative ``d value / d F1``. For
@@ -92,6 +102,8 @@ def criterion(name: str, F1: np.ndarray, Js: np.ndarray, scale: np.ndarray, *, w
         numpy.linalg.LinAlgError: if ``F1^T F1`` is singular.
     """
     M = F1.T @ F1
+    if M0 is not None:
+        M = M + M0
     c = scipy.linalg.cho_factor(M)
     if name == "kpi":
         X = scipy.linalg.cho_solve(c, Js.T)  # M^-1 Js^T

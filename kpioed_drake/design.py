@@ -80,6 +80,28 @@ ACTIVE_ROWS_PER_POSE = 4
 """Clearance rows per pose the solver sees by default: the pose's 4 smallest clearances (the same
 feasible set as all 51 rows; SNOPT's work per iteration grows with the number of rows). Measured on
 kr16 (bench/results.md): 4 was faster than 3, 6, 8 and all rows, and reached the same optima."""
+MAX_BLOCK_POSES = 60
+"""Most poses one solve varies by default. SNOPT's work per major iteration grows about as n nS^2
+(nS, the number of free "superbasic" variables, is about half of the 6n angles): one solve over all
+240 poses took 110 s against 3.5 s at 60 poses. Larger designs are optimised by sweeps over blocks of
+:data:`SWEEP_BLOCK_POSES` poses, each solved with the other poses' information held fixed; the
+constraints hold pose by pose, so a block problem is the full problem restricted to the block.
+Measured on kr16 (seed 0, bench/results.md): 120 poses 12.7 s to tr(Cs)/3 = 0.0292 mm^2 against
+22.4 s to 0.0300 in one solve; 240 poses 15.5 s to 0.01456 against 110 s to 0.01463. At 60 poses
+sweeps were slower than one solve (3.9-7.2 s against 2.5-4.7 s, 5 seeds)."""
+SWEEP_BLOCK_POSES = 30
+"""Poses per block in sweeps. Blocks of 60 instead took 15.9 s (120 poses) and 25.6 s (240 poses)
+and ended higher (0.0301, 0.01466)."""
+SWEEP_RTOL = 1e-3
+"""Sweeps stop when one lowers the criterion by less than this fraction."""
+MAX_SWEEPS = 10
+"""Most sweeps."""
+POSE_BLOCK = 10
+"""Poses per constraint binding by default. Drake hands a Python constraint's gradient over as one
+AutoDiffXd per row with a derivative per variable of the binding: with one binding over all 6n
+variables that is a dense (rows, 6n) matrix whose conversion grew faster than n^2 (4.3 ms of an
+evaluation at 60 poses). With bindings of 10 poses the conversion costs 1.2 ms in all; the rows of
+every pose are still computed in one vectorised call (see :class:`DesignProgram`)."""
 
 
 class DesignError(InputError):
@@ -122,8 +144,10 @@ class DesignResult:
         seed: seed of the first start (start k uses ``seed + k``).
         best_start: index of the start that was kept.
         constraint_evals: constraint evaluations (all starts).
-        all_rows_retries: starts whose solve with each pose's smallest clearance rows failed or was
-            infeasible and was repeated with all rows (times and evaluations include both solves).
+        all_rows_retries: solves with each pose's smallest clearance rows that failed or were
+            infeasible and were repeated with all rows (times and evaluations include both solves).
+        sweeps: block sweeps of the kept start (0: one solve over all poses; see ``max_block`` of
+            :func:`optimize_design`).
     """
 
     q: np.ndarray
@@ -148,6 +172,7 @@ class DesignResult:
     best_start: int = 0
     constraint_evals: int = 0
     all_rows_retries: int = 0
+    sweeps: int = 0
 
     @property
     def n(self) -> int:
@@ -172,6 +197,7 @@ class DesignResult:
             "n_evals": self.n_evals,
             "constraint_evals": self.constraint_evals,
             "all_rows_retries": self.all_rows_retries,
+            "sweeps": self.sweeps,
             "seed": self.seed,
             "starts": len(self.start_values) if self.start_values else 1,
             "best_start": self.best_start,
@@ -269,19 +295,22 @@ class DesignObjective:
     Args:
         problem: the identification problem.
         criterion: ``kpi``, ``param``, ``d`` or ``o1``.
+        fixed_information: (k, k) information ``F1^T F1`` of further poses that are measured too
+            but not varied (block sweeps of :func:`optimize_design`); None: none.
     """
 
-    def __init__(self, problem: Problem, criterion: str):
+    def __init__(self, problem: Problem, criterion: str, *, fixed_information: np.ndarray | None = None):
         if criterion not in CRITERIA:
             raise InputError(f"unknown criterion {criterion!r}; expected one of {', '.join(CRITERIA)}")
         self.problem, self.criterion = problem, criterion
         self.Js = problem.Js()
         self.scale = problem.scale
+        self.M0 = fixed_information
 
     def value(self, q, *, frames: Frames | None = None) -> float:
         """Criterion of the design ``q`` (n, 6) [rad] (``frames``: its forward kinematics, if known)."""
         F1 = self.problem.F1(_poses(q), frames=frames)
-        return covariance.criterion(self.criterion, F1, self.Js, self.scale, with_grad=False)
+        return covariance.criterion(self.criterion, F1, self.Js, self.scale, with_grad=False, M0=self.M0)
 
     def value_and_grad(self, q, *, frames: Frames | None = None) -> tuple[float, np.ndarray]:
         """Criterion and its gradient (n, 6) w.r.t. the joint angles [criterion units / rad].
@@ -290,7 +319,7 @@ class DesignObjective:
         """
         q = _poses(q)
         F1, dF1 = self.problem.F1(q, with_dq=True, frames=frames)  # (3n, k), (n, 6, 3, k)
-        value, G = covariance.criterion(self.criterion, F1, self.Js, self.scale)
+        value, G = covariance.criterion(self.criterion, F1, self.Js, self.scale, M0=self.M0)
         n = q.shape[0]
         grad = np.einsum("nak,njak->nj", G.reshape(n, 3, -1), dF1)
         return value, grad
@@ -415,19 +444,27 @@ def update_active_rows(values: np.ndarray, active: np.ndarray | None, m: int) ->
 
     Args:
         values: (n, R) clearances of every row.
-        active: (n, m) the row indices in the slots so far, or None.
+        active: (n, m) the row indices in the slots so far, or None. A pose whose slots are all -1
+            has none yet (as with None).
         m: number of slots.
 
     Returns:
         (n, m) row indices: the set is the m smallest of each pose; a row that was in ``active`` and
         still belongs to the set keeps its position, the rows that enter fill the freed positions
-        in increasing row index.
+        in increasing row index. A pose without slots gets its m smallest in increasing order.
     """
     n, R = values.shape
     if not 1 <= m <= R:
         raise ValueError(f"the number of active rows must be in 1..{R}, got {m}")
     if active is None:
         return np.argsort(values, axis=1, kind="stable")[:, :m]
+    unset = active[:, 0] < 0
+    if unset.any():
+        out = np.empty((n, m), dtype=np.intp)
+        out[unset] = update_active_rows(values[unset], None, m)
+        if not unset.all():
+            out[~unset] = update_active_rows(values[~unset], active[~unset], m)
+        return out
     best = (
         np.sort(np.argpartition(values, m - 1, axis=1)[:, :m], axis=1)
         if m < R
@@ -461,17 +498,21 @@ class DesignProgram:
         active_rows: clearance rows per pose passed to the solver: the pose's ``active_rows``
             smallest clearances (:meth:`DesignConstraints.evaluate_active`; the same feasible set
             as all rows, with far fewer rows for the solver). None: every clearance row.
-        pose_block: poses per Python constraint. None (default): ONE constraint over all 6n
-            variables. The AutoDiffXd gradient of one constraint is a dense (n r, 6n) matrix, so its
-            cost grows as n^2; blocks of ``pose_block`` poses make it grow as n (at the price of one
-            Python callback per block).
+        pose_block: poses per constraint binding (default :data:`POSE_BLOCK`; None: one binding
+            over all 6n variables). The AutoDiffXd gradient of one binding is a dense (b r, 6b)
+            matrix, so its conversion grows as b^2: blocks make it grow as n. The rows of all poses
+            are computed once per iterate, by the first block evaluated after the cost (the solver
+            evaluates the cost first, and the cost's forward kinematics is kept); the other blocks
+            read them. A block evaluated at poses that differ from the kept ones computes its own.
+        fixed_information: (k, k) information of poses measured too but held fixed (see
+            :class:`DesignObjective`).
 
     Attributes:
         prog: the program; ``x`` its (6n,) decision variables (pose-major).
         objective, constraints: the numpy evaluators.
         rows_per_pose: constraint rows per pose that the solver sees.
         active: (n, active_rows) the clearance rows in the slots after the last evaluation (None
-            before the first, or without ``active_rows``).
+            before every pose has been evaluated, or without ``active_rows``).
         cost_binding: the one cost; ``constraint_bindings``: the constraint(s), each with its
             gradient sparsity pattern (row of pose k -> variables 6k..6k+5);
             ``constraint_binding`` is the first (the only one by default).
@@ -487,12 +528,13 @@ class DesignProgram:
         collision: bool,
         cost_scale: float = 1.0,
         active_rows: int | None = ACTIVE_ROWS_PER_POSE,
-        pose_block: int | None = None,
+        pose_block: int | None = POSE_BLOCK,
+        fixed_information: np.ndarray | None = None,
     ):
         from pydrake.solvers import MathematicalProgram
 
         self.problem, self.n, self.collision = problem, n, collision
-        self.objective = DesignObjective(problem, criterion)
+        self.objective = DesignObjective(problem, criterion, fixed_information=fixed_information)
         self.constraints = DesignConstraints(problem, collision=collision)
         self.cost_scale = float(cost_scale)
         self.counters = _Counters()
@@ -500,9 +542,13 @@ class DesignProgram:
         self.active_rows = None if (active_rows is None or n_clear == 0) else min(int(active_rows), n_clear)
         if self.active_rows is not None and self.active_rows < 1:
             raise InputError(f"active_rows must be positive, got {active_rows}")
-        self._active: dict[int, np.ndarray] = {}  # first pose of a block -> its slots
-        self._fk: Frames | None = None
+        # per pose: its clearance rows in the slots (-1: none yet)
+        self._slots = None if self.active_rows is None else np.full((n, self.active_rows), -1, np.intp)
+        self._fk: Frames | None = None  # forward kinematics of all poses at _fk_q
         self._fk_q: np.ndarray | None = None
+        self._rows_q = np.full((n, N_JOINTS), np.nan)  # per pose: the q its kept rows belong to
+        self._rows_v: np.ndarray | None = None  # (n, r) kept rows (unscaled)
+        self._rows_J: np.ndarray | None = None  # (n, r, 6) their Jacobian
         prog = MathematicalProgram()
         x = prog.NewContinuousVariables(N_JOINTS * n, "q")
         robot = problem.robot
@@ -548,20 +594,37 @@ class DesignProgram:
     def active(self) -> np.ndarray | None:
         """(n, active_rows) clearance rows in the slots after the last evaluation of every block
         (None before that, or without ``active_rows``)."""
-        if self.active_rows is None or len(self._active) < len(self.constraint_bindings):
+        if self._slots is None or np.any(self._slots < 0):
             return None
-        return np.concatenate([self._active[k] for k in sorted(self._active)], axis=0)
+        return self._slots.copy()
 
     def _rows(self, k0: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unscaled rows the solver sees for the poses ``q`` (b, 6) of the block starting at ``k0``:
-        values (b, r) and per-pose Jacobian (b, r, 6). Updates the block's slots."""
-        frames = self._frames(q, k0)
+        values (b, r) and per-pose Jacobian (b, r, 6). Updates the slots of the poses evaluated.
+
+        Rows depend on their own pose only, so rows kept for the same pose angles are reused. If
+        the cost was last evaluated where this block's poses are, every pose's rows are computed
+        in one call (the other blocks then read them)."""
+        b = q.shape[0]
+        hi = k0 + b
+        if self._rows_v is not None and np.array_equal(self._rows_q[k0:hi], q):
+            return self._rows_v[k0:hi], self._rows_J[k0:hi]
+        lo, up = k0, hi
+        if b < self.n and self._fk_q is not None and np.array_equal(self._fk_q[k0:hi], q):
+            lo, up, q, frames = 0, self.n, self._fk_q, self._fk
+        else:
+            frames = self._frames(q, k0)
         if self.active_rows is None:
-            return self.constraints.evaluate(q, frames=frames)
-        v, J, self._active[k0] = self.constraints.evaluate_active(
-            q, self._active.get(k0), self.active_rows, frames=frames
-        )
-        return v, J
+            v, J = self.constraints.evaluate(q, frames=frames)
+        else:
+            v, J, self._slots[lo:up] = self.constraints.evaluate_active(
+                q, self._slots[lo:up], self.active_rows, frames=frames
+            )
+        if self._rows_v is None:
+            self._rows_v = np.empty((self.n, *v.shape[1:]))
+            self._rows_J = np.empty((self.n, *J.shape[1:]))
+        self._rows_q[lo:up], self._rows_v[lo:up], self._rows_J[lo:up] = q, v, J
+        return v[k0 - lo : hi - lo], J[k0 - lo : hi - lo]
 
     # Drake passes x as float (plain evaluation) or as AutoDiffXd with an identity gradient (SNOPT,
     # IPOPT; DRAKE-NOTES): the returned gradient is therefore d/dx directly, without the chain
@@ -654,7 +717,10 @@ def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
     """Options passed to the solver for an ``n``-pose design."""
     if solver == "snopt":
         return {
-            "Major optimality tolerance": 1e-6,
+            # 1e-5 (SNOPT's default 1e-6): measured on kr16 KPI with CA, 60 poses, seeds 0-9: 29 %
+            # fewer evaluations, final tr(Cs)/3 +0.12 % on average (max +0.9 %, some seeds lower);
+            # kr300/kr500 seeds 0-2 within 0.5 %; kr16 param seeds 0-1: criterion within 0.02 %.
+            "Major optimality tolerance": 1e-5,
             # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
             # smallest clearances in the QP, long first steps on notional robots went deep into
             # collision and SNOPT stopped there (info 41). No change seen on the KUKA robots.
@@ -682,6 +748,10 @@ def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
         "print_level": 0,
         "mu_strategy": "adaptive",
         "hessian_approximation": "limited-memory",
+        # SPRAL's default matching-based scaling repeats the symbolic analysis at every
+        # factorisation: 3.5 s of a 12.3 s solve (kr16, 60 poses, all rows); without it 9.0 s, same
+        # optimum.
+        "spral_scaling": "none",
     }
 
 
@@ -712,7 +782,8 @@ class _Solve:
     n_evals: int
     constraint_evals: int
     callback_s: float = 0.0
-    all_rows_retry: bool = False
+    all_rows_retries: int = 0  # solves repeated with all clearance rows
+    sweeps: int = 0  # block sweeps (0: one solve over all poses)
 
 
 def _solve_once(
@@ -721,13 +792,14 @@ def _solve_once(
     q_start: np.ndarray,
     collision: bool,
     solver: str,
-    pose_block: int | None = None,
+    pose_block: int | None = POSE_BLOCK,
     active_rows: int | None = ACTIVE_ROWS_PER_POSE,
+    fixed_information: np.ndarray | None = None,
 ) -> _Solve:
     from pydrake.solvers import SolverOptions
 
     n = q_start.shape[0]
-    obj = DesignObjective(problem, criterion)
+    obj = DesignObjective(problem, criterion, fixed_information=fixed_information)
     v0 = obj.value(q_start)
     # Scale the cost to O(1) at the start: kpi and param are positive variances, o1 is negative;
     # the d criterion is a log (differences matter, not ratios), so it is divided by the number of
@@ -741,6 +813,7 @@ def _solve_once(
         cost_scale=scale,
         active_rows=active_rows,
         pose_block=pose_block,
+        fixed_information=fixed_information,
     )
     s = _make_solver(solver)
     opts = SolverOptions()
@@ -767,6 +840,101 @@ def _solve_once(
         constraint_evals=dp.counters.constraint,
         callback_s=dp.counters.cost_s + dp.counters.constraint_s,
     )
+
+
+def _solve_checked(
+    problem: Problem,
+    criterion: str,
+    q_start: np.ndarray,
+    collision: bool,
+    solver: str,
+    pose_block: int | None,
+    active_rows: int | None,
+    fixed_information: np.ndarray | None = None,
+) -> tuple[_Solve, tuple[list[PoseReport], int, int]]:
+    """One solve from ``q_start`` and the independent check of its result.
+
+    The reduced rows change identity between iterates; rarely (seen on some notional robots after a
+    long first step) SNOPT then stops early. Such a start is solved again with every clearance row,
+    the slower but robust formulation."""
+    args = (problem, criterion, q_start, collision, solver, pose_block)
+    sol = _solve_once(*args, active_rows, fixed_information)
+    check = check_design(problem, sol.q, collision=collision)
+    if collision and active_rows is not None and not (sol.success and check[1] == 0):
+        full = _solve_once(*args, None, fixed_information)
+        full.solve_s += sol.solve_s
+        full.n_evals += sol.n_evals
+        full.constraint_evals += sol.constraint_evals
+        full.all_rows_retries = 1
+        sol, check = full, check_design(problem, full.q, collision=collision)
+    return sol, check
+
+
+def _solve_blocks(
+    problem: Problem,
+    criterion: str,
+    q_start: np.ndarray,
+    collision: bool,
+    solver: str,
+    pose_block: int | None,
+    active_rows: int | None,
+    *,
+    block: int,
+    seed: int,
+) -> _Solve:
+    """Sweeps over blocks of about ``block`` poses, each block optimised with the others fixed.
+
+    The constraints hold pose by pose, so a block's problem is the full problem with the other
+    poses' information ``F1^T F1`` held fixed (:class:`DesignObjective`), and a point where no block
+    can improve is a KKT point of the full problem. A block's result is kept only if its solve
+    succeeded, it passes the independent check and it does not increase the criterion; the design
+    therefore stays feasible and its criterion never increases. The first sweep takes the poses in
+    order, later ones in a random order (seeded by ``seed``). Sweeps stop when one improves the
+    criterion by less than :data:`SWEEP_RTOL` (relative), or after :data:`MAX_SWEEPS`.
+    """
+    n = q_start.shape[0]
+    q = q_start.copy()
+    obj = DesignObjective(problem, criterion)
+    value = float(obj.value(q))
+    n_blocks = -(-n // block)
+    rng = np.random.default_rng(seed)
+    out = _Solve(q=q, value=value, success=False, status="", solve_s=0.0, n_evals=0, constraint_evals=0)
+    solves = kept = 0
+    infos: dict[str, int] = {}
+    change = np.inf
+    for sweep in range(MAX_SWEEPS):
+        order = np.arange(n) if sweep == 0 else rng.permutation(n)
+        before = value
+        for idx in np.array_split(order, n_blocks):
+            idx = np.sort(idx)
+            F = problem.F1(np.delete(q, idx, axis=0))
+            sol, check = _solve_checked(
+                problem, criterion, q[idx], collision, solver, pose_block, active_rows, F.T @ F
+            )
+            solves += 1
+            out.solve_s += sol.solve_s
+            out.n_evals += sol.n_evals
+            out.constraint_evals += sol.constraint_evals
+            out.callback_s += sol.callback_s
+            out.all_rows_retries += sol.all_rows_retries
+            infos[sol.status] = infos.get(sol.status, 0) + 1
+            if sol.success and check[1] == 0 and sol.value <= value:
+                q[idx], value = sol.q, sol.value
+                kept += 1
+        out.sweeps = sweep + 1
+        change = (before - value) / abs(before) if before != 0 else 0.0
+        if change < SWEEP_RTOL:
+            break
+    out.q, out.value = q, value
+    converged = change < SWEEP_RTOL
+    out.success = converged and kept > 0
+    statuses = "; ".join(f"{k} ({v}x)" for k, v in sorted(infos.items(), key=lambda kv: -kv[1]))
+    out.status = (
+        f"{out.sweeps} sweeps over {n_blocks} blocks of <= {-(-n // n_blocks)} poses, "
+        f"{'converged' if converged else 'not converged'} (last sweep changed the criterion by "
+        f"{change:.1e}, tolerance {SWEEP_RTOL:g}); {kept} of {solves} block solves kept; {statuses}"
+    )
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -806,7 +974,15 @@ def check_design(problem: Problem, q, *, collision: bool = True) -> tuple[list[P
     return reports, n_bad, n_col
 
 
-def _validate(problem: Problem, criterion: str, n: int, solver: str, starts: int) -> None:
+def _validate(
+    problem: Problem,
+    criterion: str,
+    n: int,
+    solver: str,
+    starts: int,
+    max_block: int | None = None,
+    sweep_block: int = SWEEP_BLOCK_POSES,
+) -> None:
     if criterion not in DESIGN_CRITERIA:
         raise InputError(f"unknown criterion {criterion!r}; expected one of {', '.join(DESIGN_CRITERIA)}")
     if solver not in SOLVERS:
@@ -818,6 +994,10 @@ def _validate(problem: Problem, criterion: str, n: int, solver: str, starts: int
         )
     if not isinstance(starts, int | np.integer) or starts < 1:
         raise InputError(f"--starts must be a positive integer, got {starts!r}")
+    if max_block is not None and (not isinstance(max_block, int | np.integer) or max_block < 1):
+        raise InputError(f"max_block must be a positive integer or None, got {max_block!r}")
+    if not isinstance(sweep_block, int | np.integer) or sweep_block < 1:
+        raise InputError(f"sweep_block must be a positive integer, got {sweep_block!r}")
 
 
 def optimize_design(
@@ -832,7 +1012,9 @@ def optimize_design(
     q0: np.ndarray | None = None,
     allow_infeasible: bool = False,
     active_rows: int | None = ACTIVE_ROWS_PER_POSE,
-    pose_block: int | None = None,
+    pose_block: int | None = POSE_BLOCK,
+    max_block: int | None = MAX_BLOCK_POSES,
+    sweep_block: int = SWEEP_BLOCK_POSES,
 ) -> DesignResult:
     """Optimum experimental design (paper eq. 24) or, for ``criterion="heuristic"``, the heuristic.
 
@@ -848,8 +1030,13 @@ def optimize_design(
         allow_infeasible: return a failed or infeasible result instead of raising.
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
             rows); see :class:`DesignProgram`.
-        pose_block: poses per Python constraint (default: one constraint for all poses; see
-            :class:`DesignProgram`).
+        pose_block: poses per constraint binding (default :data:`POSE_BLOCK`; None: one binding
+            for all poses; see :class:`DesignProgram`).
+        max_block: most poses one solve varies (default :data:`MAX_BLOCK_POSES`). A design of more
+            poses is optimised by sweeps over blocks of about ``sweep_block`` poses, each solved
+            with the others fixed (see :data:`MAX_BLOCK_POSES`); ``status`` then reports the sweeps
+            and ``sweeps`` their number. None: always one solve over all poses.
+        sweep_block: poses per block in sweeps (default :data:`SWEEP_BLOCK_POSES`).
 
     Returns:
         :class:`DesignResult`.
@@ -858,7 +1045,7 @@ def optimize_design(
         InputError: bad ``n``, criterion, solver or ``q0``; no feasible heuristic start.
         DesignError: the solver failed or the design is infeasible (unless ``allow_infeasible``).
     """
-    _validate(problem, criterion, n, solver, starts)
+    _validate(problem, criterion, n, solver, starts, max_block, sweep_block)
     n = int(n)
     base = dict(criterion=criterion, collision=collision, robot=problem.robot.name, seed=int(seed))
     if criterion == "heuristic":
@@ -901,18 +1088,23 @@ def optimize_design(
             initial.append(float(obj.value(q_start)))
         except np.linalg.LinAlgError:
             initial.append(float("nan"))
-        sol = _solve_once(problem, criterion, q_start, collision, solver, pose_block, active_rows)
-        check = check_design(problem, sol.q, collision=collision)
-        if collision and active_rows is not None and not (sol.success and check[1] == 0):
-            # The reduced rows change identity between iterates; rarely (seen on some notional
-            # robots after a long first step) SNOPT then stops early. Solve again from the same
-            # start with every clearance row, the slower but robust formulation.
-            full = _solve_once(problem, criterion, q_start, collision, solver, pose_block, None)
-            full.solve_s += sol.solve_s
-            full.n_evals += sol.n_evals
-            full.constraint_evals += sol.constraint_evals
-            full.all_rows_retry = True
-            sol, check = full, check_design(problem, full.q, collision=collision)
+        if max_block is not None and n > max_block:
+            sol = _solve_blocks(
+                problem,
+                criterion,
+                q_start,
+                collision,
+                solver,
+                pose_block,
+                active_rows,
+                block=int(sweep_block),
+                seed=seed + k,
+            )
+            check = check_design(problem, sol.q, collision=collision)
+        else:
+            sol, check = _solve_checked(
+                problem, criterion, q_start, collision, solver, pose_block, active_rows
+            )
         solves.append(sol)
         checks.append(check)
     good = [k for k, s in enumerate(solves) if s.success and checks[k][1] == 0]
@@ -940,7 +1132,8 @@ def optimize_design(
         start_values=[s.value if s.success else float("nan") for s in solves],
         initial_values=initial,
         best_start=best,
-        all_rows_retries=sum(s.all_rows_retry for s in solves),
+        all_rows_retries=sum(s.all_rows_retries for s in solves),
+        sweeps=sol.sweeps,
         **crit,
         **base,
     )

@@ -190,6 +190,50 @@ def test_program_with_active_rows_passes_the_smallest_clearances_and_their_gradi
     assert np.array_equal(dpb.active, active)
 
 
+def test_pose_blocks_compute_all_rows_once_and_never_reuse_rows_of_other_angles(kr16):
+    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+    n, m = 25, 4
+    q = heuristic_design(kr16, n=n, seed=3)
+    one = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m, pose_block=None)
+    blk = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m, pose_block=10)
+    assert len(one.constraint_bindings) == 1 and len(blk.constraint_bindings) == 3
+    calls = []
+    evaluate_active = blk.constraints.evaluate_active
+
+    def counting(q, *args, **kwargs):
+        calls.append(len(q))
+        return evaluate_active(q, *args, **kwargs)
+
+    blk.constraints.evaluate_active = counting
+    xad = InitializeAutoDiff(q.reshape(-1))
+    for dp in (one, blk):  # the solver evaluates the cost first
+        dp.cost_binding.evaluator().Eval(xad)
+    y = one.constraint_binding.evaluator().Eval(xad)
+    Y, G = ExtractValue(y).reshape(n, 1 + m), ExtractGradient(y).reshape(n, 1 + m, n, 6)
+    starts, sizes = (0, 10, 20), (10, 10, 5)
+    for b, k0, nb in zip(blk.constraint_bindings, starts, sizes, strict=True):
+        yb = b.evaluator().Eval(xad[6 * k0 : 6 * (k0 + nb)])
+        assert_allclose(ExtractValue(yb).reshape(nb, 1 + m), Y[k0 : k0 + nb], rtol=0, atol=0)
+        Gb = ExtractGradient(yb).reshape(nb, 1 + m, nb, 6)
+        assert_allclose(Gb, G[k0 : k0 + nb, :, k0 : k0 + nb, :], rtol=0, atol=0)
+    assert calls == [n]  # every pose's rows in one call, by the first block
+    assert np.array_equal(blk.active, one.active)
+    # a block evaluated at other angles than the cost's computes its own rows
+    q2 = heuristic_design(kr16, n=10, seed=9)
+    y2 = blk.constraint_bindings[1].evaluator().Eval(InitializeAutoDiff(q2.reshape(-1)))
+    assert calls == [n, 10]
+    vals, _ = blk.constraints.evaluate(q2)
+    Y2 = ExtractValue(y2).reshape(10, 1 + m)
+    s = blk.constraints.row_scale(1 + m)
+    assert_allclose(Y2[:, 0], vals[:, 0], rtol=1e-13)
+    assert_allclose(np.sort(Y2[:, 1:], axis=1) / s[1], np.sort(vals[:, 1:], axis=1)[:, :m], rtol=1e-13)
+    # and the kept rows of the other poses are still those of q
+    y0 = blk.constraint_bindings[0].evaluator().Eval(xad[:60])
+    assert_allclose(ExtractValue(y0).reshape(10, 1 + m), Y[:10], rtol=0, atol=0)
+    assert calls == [n, 10]
+
+
 def test_active_rows_and_all_rows_reach_feasible_designs_of_similar_value(kr16):
     kw = dict(criterion="kpi", n=20, seed=1, allow_infeasible=True)
     few = optimize_design(kr16, active_rows=4, **kw)
@@ -378,3 +422,32 @@ def test_design_without_collision_avoidance_reports_collisions(kr16):
     assert res.n_infeasible_poses == 0
     n_col = sum(any(f["check"] in ("collision", "beam") for f in r["failures"]) for r in res.reports)
     assert n_col == res.n_colliding_poses
+
+
+def test_fixed_information_equals_the_design_with_those_poses_added(kr16):
+    q = heuristic_design(kr16, n=20, seed=7)
+    block, rest = q[:8], q[8:]
+    F = kr16.F1(rest)
+    for crit in design.CRITERIA:
+        v, g = DesignObjective(kr16, crit).value_and_grad(np.vstack([block, rest]))
+        vb, gb = DesignObjective(kr16, crit, fixed_information=F.T @ F).value_and_grad(block)
+        assert_allclose(vb, v, rtol=1e-12, err_msg=crit)
+        assert_allclose(gb, g[:8], rtol=1e-9, atol=1e-12 * np.abs(g).max(), err_msg=crit)
+
+
+def test_block_sweeps_keep_the_design_feasible_and_reach_a_value_like_one_solve(kr16):
+    kw = dict(criterion="kpi", n=24, seed=2, allow_infeasible=True)
+    swept = optimize_design(kr16, max_block=12, sweep_block=8, **kw)
+    one = optimize_design(kr16, max_block=None, **kw)
+    assert one.sweeps == 0 and "sweeps" not in one.status
+    assert swept.sweeps >= 2 and "over 3 blocks of <= 8 poses" in swept.status
+    assert swept.success and swept.feasible
+    assert swept.value < 0.5 * swept.initial_values[0]
+    assert_allclose(swept.value, DesignObjective(kr16, "kpi").value(swept.q), rtol=1e-12)
+    assert swept.summary()["sweeps"] == swept.sweeps
+    # local optima from one start: within 10 % of each other
+    assert abs(swept.value / one.value - 1) < 0.10
+    with pytest.raises(InputError, match="max_block"):
+        optimize_design(kr16, max_block=0, **kw)
+    with pytest.raises(InputError, match="sweep_block"):
+        optimize_design(kr16, sweep_block=0, **kw)
