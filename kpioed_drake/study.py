@@ -33,8 +33,9 @@ from kpioed_drake.models import list_robots
 KUKA = ("kr16", "kr300", "kr500")
 CRITERIA = ("heuristic", "param", "kpi")
 
-# Paper numbers: Kraus et al., "A computational method for key-performance-indicator-based parameter
-# identification of industrial manipulators", J. Math. Industry 7:7 (2017), Tables 6, 7, 8 and
+# Paper numbers: Jost, Kudruss, Körkel and Walter, "A computational method for
+# key-performance-indicator-based parameter identification of industrial manipulators",
+# J. Math. Industry 7:7 (2017), Tables 6, 7, 8 and
 # sections 3.3-4 (also /work/shared/SPEC.md "Figures to compare with"). KPI average variance
 # tr(Cs)/3 [mm^2]; None = not given ("-").
 PAPER = {
@@ -543,8 +544,8 @@ def make_report(df, t6, t7, t8, pr, *, wall_s: float | None = None, title="Study
     n_rob = df["robot"].nunique()
     lines.append(
         f"{n_rob} robots, {len(df)} designs ({int(df['error'].notna().sum())} failed). Values: average KPI "
-        "variance tr(Cs)/3 [mm^2], noise 1 mm per coordinate. `paper_*`: Kraus et al. 2017 "
-        "(kpioed_drake.study.PAPER). Heuristic: mean over the seeded draws (feasible poses only)."
+        "variance tr(Cs)/3 [mm^2], noise 1 mm per coordinate. `paper_*`: Jost, Kudruss, Körkel and "
+        "Walter 2017 (kpioed_drake.study.PAPER). Heuristic: mean over the seeded draws (feasible poses only)."
     )
     if wall_s is not None:
         lines.append(f"Wall time of this run: {wall_s:.0f} s.")
