@@ -581,20 +581,14 @@ class DesignProgram:
         self.constraint_binding = self.constraint_bindings[0]
         self.prog, self.x = prog, x
 
-    def _frames(self, q: np.ndarray, k0: int = 0) -> Frames:
-        """Forward kinematics of poses ``k0 .. k0 + len(q) - 1`` equal to ``q``.
-
-        The solver evaluates the cost (all poses) and then the constraint block(s) at the same x:
-        the cost's forward kinematics is kept and sliced for the blocks.
-        """
-        b = q.shape[0]
-        if b == self.n:
-            if self._fk_q is None or not np.array_equal(self._fk_q, q):
-                self._fk, self._fk_q = self.constraints.frames(q), q.copy()
-            return self._fk
-        if self._fk_q is not None and np.array_equal(self._fk_q[k0 : k0 + b], q):
-            return self._fk.poses(slice(k0, k0 + b))
-        return self.constraints.frames(q)
+    def _frames(self, q: np.ndarray) -> Frames:
+        """Forward kinematics of ``q``; that of all poses is kept for the constraint blocks
+        (:meth:`_rows`), which the solver evaluates after the cost at the same x."""
+        if q.shape[0] < self.n:
+            return self.constraints.frames(q)
+        if self._fk_q is None or not np.array_equal(self._fk_q, q):
+            self._fk, self._fk_q = self.constraints.frames(q), q.copy()
+        return self._fk
 
     @property
     def active(self) -> np.ndarray | None:
@@ -619,7 +613,7 @@ class DesignProgram:
         if b < self.n and self._fk_q is not None and np.array_equal(self._fk_q[k0:hi], q):
             lo, up, q, frames = 0, self.n, self._fk_q, self._fk
         else:
-            frames = self._frames(q, k0)
+            frames = self._frames(q)
         if self.active_rows is None:
             v, J = self.constraints.evaluate(q, frames=frames)
         else:
@@ -783,7 +777,6 @@ class _Solve:
     solve_s: float
     n_evals: int
     constraint_evals: int
-    callback_s: float = 0.0
     all_rows_retries: int = 0  # solves repeated with all clearance rows
     sweeps: int = 0  # block sweeps (0: one solve over all poses)
 
@@ -840,7 +833,6 @@ def _solve_once(
         solve_s=dt,
         n_evals=dp.counters.cost,
         constraint_evals=dp.counters.constraint,
-        callback_s=dp.counters.cost_s + dp.counters.constraint_s,
     )
 
 
@@ -919,7 +911,6 @@ def _solve_blocks(
             solves += 1
             out.n_evals += sol.n_evals
             out.constraint_evals += sol.constraint_evals
-            out.callback_s += sol.callback_s
             out.all_rows_retries += sol.all_rows_retries
             infos[sol.status] = infos.get(sol.status, 0) + 1
             if sol.success and check[1] == 0 and sol.value <= value:

@@ -78,16 +78,6 @@ class Frames:
     elem_o: np.ndarray
     elem_rot: np.ndarray
 
-    def poses(self, index) -> Frames:
-        """The frames of the poses ``index`` (a slice or index array)."""
-        return Frames(
-            R=self.R[index],
-            o=self.o[index],
-            elem_u=self.elem_u[index],
-            elem_o=self.elem_o[index],
-            elem_rot=self.elem_rot,
-        )
-
     @property
     def joint_axes(self) -> np.ndarray:
         """(n, 6, 3) axis of joint j (= z of frame j-1)."""
