@@ -32,8 +32,9 @@ format: setup
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
-bench: setup   ## benchmark report (ratios within one run) -> bench/results.md
+bench: setup   ## benchmark report (ratios within one run) -> bench/results.md; certificate -> bench/bound_results.md
 	$(PY) bench/run_bench.py
+	$(PY) bench/bound_bench.py
 
 tables: setup   ## full study: paper Tables 6-8, Figures 7-8 -> studies/results
 	$(VENV)/bin/kpioed study --out studies/results

@@ -42,6 +42,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
+from kpioed_drake.designio import atomic_write_text  # noqa: E402
 from kpioed_drake.measurement import N_FULL  # noqa: E402
 from kpioed_drake.models import N_JOINTS  # noqa: E402
 from kpioed_drake.problem import Problem, make_problem  # noqa: E402
@@ -475,8 +476,6 @@ def main(argv=None) -> int:
     ]
     text = "\n".join(head + targets + [""] + sections + foot) + "\n"
     print(text)
-    from kpioed_drake.designio import atomic_write_text
-
     atomic_write_text(args.out, text)
     print(f"wrote {args.out}", file=sys.stderr)
     return 0

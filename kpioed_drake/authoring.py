@@ -15,9 +15,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.solvers import Solve
 
 from kpioed_drake.kinematics import forward_kinematics
 from kpioed_drake.models import CapsuleSpec, Cell, JointSpec, LinkSpec, Robot, RobotSpec, robot_from_spec
+from kpioed_drake.plant import MM, build_scene
 
 
 def kinematic_rows(*, d1, a1, a2, a3, d4, d6, limits_deg) -> list[JointSpec]:
@@ -140,11 +143,6 @@ def solve_q_work(
     Raises:
         RuntimeError: if no start converges.
     """
-    from pydrake.multibody.inverse_kinematics import InverseKinematics
-    from pydrake.solvers import Solve
-
-    from kpioed_drake.plant import MM, build_scene
-
     scene = build_scene(robot, cell)
     plant = scene.plant
     target = work_target(cell)

@@ -1,4 +1,4 @@
-"""Reading and writing design and result files, with validation and atomic writes.
+"""Reading and writing design and result files, with validation (writes: :mod:`kpioed_drake.outputs`).
 
 A design file is a CSV with a header and one row per pose, columns ``q1_deg`` ... ``q6_deg``
 (other columns are kept but ignored). Errors name the file, the row (1-based, header = row 1)
@@ -10,46 +10,49 @@ from __future__ import annotations
 import csv
 import difflib
 import io
-import json
-import os
-import tempfile
+import re
 from pathlib import Path
 
 import numpy as np
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.outputs import atomic_write_json, atomic_write_text
+
+__all__ = [  # the writers live in outputs; re-exported here for the readers' callers
+    "Q_COLUMNS",
+    "atomic_write_json",
+    "atomic_write_text",
+    "check_joint_angles",
+    "design_csv_text",
+    "jsonable",
+    "parse_float_column",
+    "parse_q_work",
+    "read_csv_table",
+    "read_design",
+    "row_numbers",
+    "write_design",
+]
 
 Q_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
 
 
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def jsonable(obj):
+    """``obj`` as plain JSON data: numpy arrays and scalars to Python, NaN/inf to None, keys to str.
 
-
-def atomic_write_json(path: str | Path, data) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+    JSON has no NaN; every result record of the package goes through this one function.
+    """
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
 
 
 class DataRows(list):
@@ -63,16 +66,33 @@ def row_numbers(data) -> list[int]:
     return list(getattr(data, "lines", range(2, len(data) + 2)))
 
 
+def _read_text(path: Path) -> str:
+    """The text of a UTF-8 file (a byte-order mark is dropped); other encodings are errors."""
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; expected a CSV file")
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    raw = path.read_bytes()
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in raw[:1000]:
+        raise InputError(
+            f"{path}: the file is UTF-16 (or binary); expected UTF-8 or ASCII text: save it as UTF-8"
+        )
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError(
+            f"{path}: row {line}: not UTF-8 text (byte {raw[exc.start]:#04x}); save it as UTF-8"
+        ) from None
+
+
 def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
     """Read a CSV file with a header; check that ``required`` columns are present exactly once.
 
     Returns:
         header and the data rows (strings).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    text = path.read_text(encoding="utf-8-sig", errors="replace")
+    text = _read_text(Path(path))
     rows, lines = [], []
     reader = csv.reader(io.StringIO(text))
     for r in reader:
@@ -86,6 +106,13 @@ def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[st
     if dup:
         raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
     missing = [c for c in required if c not in header]
+    if missing and len(header) == 1 and ";" in header[0]:
+        comma = " with decimal commas" if re.search(r"\d,\d", text) else ""
+        raise InputError(
+            f"{path}: row 1 (header): the columns are separated by ';'{comma}; expected a "
+            "comma-separated file with decimal points (e.g. save it from the spreadsheet as CSV "
+            "with ',' as separator)"
+        )
     if missing:
         others = [h for h in header if h not in required]
         close = difflib.get_close_matches(missing[0], others, n=1, cutoff=0.6)

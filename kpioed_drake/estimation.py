@@ -1,14 +1,19 @@
 """Parameter estimation from laser-tracker data: rigid registration and Levenberg-Marquardt.
 
+The one estimator of the package, used by calibration and by the diagnosis:
+
 - :func:`register_tracker`: the tracker pose from nominal reflector positions in W and the measured
   ones in the tracker frame T (Kabsch/Umeyama without scaling; a proper rotation even when the
   best orthogonal fit would be a reflection).
-- :func:`estimate`: weighted nonlinear least squares on the 27 estimated parameters
-  (``model.layout.free``) of :class:`~kpioed_drake.measurement.TrackerModel`, started from the
-  nominal model with the registered tracker pose. The tracker orientation is kept as a reference
-  rotation ``R_WT_ref`` times three small rotations; after every accepted step the small rotations
-  are folded into the reference (:meth:`TrackerModel.rebased`), so they stay near zero and the
+- :func:`estimate`: weighted nonlinear least squares on the free geometric parameters
+  (``model.layout.free``, 27 for six joints) of :class:`~kpioed_drake.measurement.TrackerModel`,
+  optionally together with the parameters of non-geometric effects (their Jacobian columns from
+  :func:`kpioed_drake.effects.augmented_jacobian`), started from the given model, by default with
+  the registered tracker pose. The tracker orientation is kept as a reference rotation
+  ``R_WT_ref`` times three small rotations; after every accepted step the small rotations are
+  folded into the reference (:meth:`TrackerModel.rebased`), so they stay near zero and the
   parametrisation never approaches a singularity, whatever the tracker's orientation.
+- :func:`covariance`: ``(J^T J)^-1`` of a weighted Jacobian (column-scaled Cholesky).
 
 The covariance of the estimated parameters is ``Cp = (F1^T F1)^-1`` with ``F1 = J / sigma`` at the
 solution (paper eq. 19 without constraints): the a-priori covariance given the noise ``sigma``.
@@ -22,9 +27,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.linalg
 
+from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurement import TrackerModel, measure, measurement_jacobian, reflector_world
+from kpioed_drake.measurement import TrackerModel, reflector_world
+from kpioed_drake.measurements import Measurements
+from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.parameters import ParameterLayout
 
 
 # ----------------------------------------------------------------------------------------------
@@ -75,9 +85,87 @@ def registered_model(model: TrackerModel, q, eta) -> TrackerModel:
     p_W = reflector_world(model, q)
     R_WT, p_WT = register_tracker(p_W, eta)
     p = model.p.copy()
-    p[24:27] = p_WT
-    p[27:30] = 0.0
+    p[model.layout.tracker_position] = p_WT
+    p[model.layout.tracker_rotation] = 0.0
     return dataclasses.replace(model, p=p, R_WT_ref=R_WT)
+
+
+# ----------------------------------------------------------------------------------------------
+# The model response with effects
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Conditions:
+    """Per-pose inputs of the effects (all optional).
+
+    Attributes:
+        temperature_C: (n,) [C] (thermal expansion).
+        time_s: (n,) [s] (tracker drift).
+        tau: (n, 6) gravity torques [N m] at the commanded angles, payload included (joint
+            elasticity); computed by the effects module when needed and not given.
+    """
+
+    temperature_C: np.ndarray | None = None
+    time_s: np.ndarray | None = None
+    tau: np.ndarray | None = None
+
+    def subset(self, idx) -> Conditions:
+        """The poses ``idx``."""
+
+        def pick(x):
+            return None if x is None else x[idx]
+
+        return Conditions(pick(self.temperature_C), pick(self.time_s), pick(self.tau))
+
+
+def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
+    """The conditions of measured data: its temperature and time, and the gravity torques at the
+    commanded angles with the payload at ``p_FP`` [mm] (held fixed during a fit, so that the
+    residual function is the same for every parameter value)."""
+    tau = fx.gravity_torques(robot, data.q, payload_kg=data.payload_kg, p_FP=p_FP)
+    return Conditions(data.temperature_C, data.time_s, tau)
+
+
+def rms(r) -> float:
+    """Root mean square over all coordinates [mm] (nan for no coordinates)."""
+    r = np.asarray(r)
+    return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
+
+
+def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bool = True):
+    """Model response with effects and (with ``jac``) its Jacobian: h (n, 3) [mm], H (n, 3, n_full),
+    E (n, 3, k)."""
+    f = fx.augmented_jacobian if jac else fx.augmented_response
+    return f(
+        model,
+        q,
+        effects,
+        temperature_C=conditions.temperature_C,
+        time_s=conditions.time_s,
+        tau=conditions.tau,
+    )
+
+
+def covariance(J: np.ndarray, *, singular_ok: bool = False) -> np.ndarray:
+    """``(J^T J)^-1`` of a weighted (m, k) Jacobian, from the column-scaled information matrix.
+
+    Cholesky when the information is positive definite; otherwise, with ``singular_ok``, its
+    pseudo-inverse (the parameters without information get none).
+
+    Raises:
+        numpy.linalg.LinAlgError: the information matrix is singular and ``singular_ok`` is False.
+    """
+    D = np.linalg.norm(J, axis=0)
+    D[D == 0] = 1.0
+    Js = J / D
+    A = Js.T @ Js
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        if not singular_ok:
+            raise
+        return np.linalg.pinv(A) / np.outer(D, D)
+    Linv = scipy.linalg.solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    return (Linv.T @ Linv) / np.outer(D, D)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -97,10 +185,15 @@ class EstimationResult:
         converged: True if a step/cost tolerance was met.
         cost: chi^2 = sum over used poses of ``w_i |r_i|^2 / sigma^2``.
         dof: 3 * (used poses) - (estimated parameters).
-        Cp: (27, 27) a-priori covariance ``(F1^T F1)^-1`` of the free parameters [mm, rad].
-        J: (3 m, 27) weighted Jacobian ``F1`` at the solution over the used poses (pose-major).
+        Cp: (n_free + k, n_free + k) a-priori covariance ``(F1^T F1)^-1`` of the estimated
+            parameters (free geometric ones, then the effects') [mm, rad, effect units].
+        J: (3 m, n_free + k) weighted Jacobian ``F1`` at the solution over the used poses
+            (pose-major).
         message: why the iteration stopped.
-        q, eta: (n, 6) [rad] and (n, 3) [mm], the data the fit was made to.
+        q: (n, 6) [rad], the commanded joint angles the fit was made to.
+        eta: (n, 3) [mm], the measurements the fit was made to.
+        effects: the estimated effects with their values (empty for the geometric model).
+        conditions: the per-pose inputs of the effects.
     """
 
     model: TrackerModel
@@ -117,6 +210,8 @@ class EstimationResult:
     message: str
     q: np.ndarray
     eta: np.ndarray
+    effects: tuple = ()
+    conditions: Conditions = dataclasses.field(default_factory=Conditions)
 
     @property
     def free(self) -> np.ndarray:
@@ -125,6 +220,21 @@ class EstimationResult:
     @property
     def free_names(self) -> list[str]:
         return self.model.layout.free_names
+
+    @property
+    def k(self) -> int:
+        """Number of effect parameters."""
+        return sum(e.n_params for e in self.effects)
+
+    @property
+    def layout(self) -> ParameterLayout:
+        """The model's layout with the effect parameters after the free geometric ones."""
+        return self.model.layout.with_effects(self.k)
+
+    @property
+    def n_params(self) -> int:
+        """Estimated parameters: free geometric plus effects'."""
+        return self.layout.n_unknowns
 
     @property
     def chi2_per_dof(self) -> float:
@@ -137,7 +247,7 @@ class EstimationResult:
 
     @property
     def std(self) -> np.ndarray:
-        """(27,) a-priori standard deviations of the free parameters [mm, rad]."""
+        """(n_free + k,) a-priori standard deviations of the estimated parameters [mm, rad, ...]."""
         return np.sqrt(np.diag(self.Cp))
 
     @property
@@ -145,21 +255,57 @@ class EstimationResult:
         return int(np.count_nonzero(self.mask))
 
 
-def _weighted(model, q, eta, sw, sigma, free):
-    h, H = measurement_jacobian(model, q)
-    r = (eta - h) * sw[:, None] / sigma  # (m, 3)
-    J = H[:, :, free] * (sw[:, None, None] / sigma)  # (m, 3, 27)
-    return r.reshape(-1), J.reshape(-1, free.size)
+@dataclasses.dataclass(frozen=True)
+class _Problem:
+    """The used poses, their weights and conditions: residuals and Jacobians of a parameter point."""
+
+    q: np.ndarray
+    eta: np.ndarray
+    sw: np.ndarray
+    sigma: float
+    conditions: Conditions
+
+    def weighted(self, model: TrackerModel, effects, *, jac: bool = True):
+        w = self.sw[:, None] / self.sigma
+        if not jac:
+            return ((self.eta - response(model, effects, self.q, self.conditions, jac=False)) * w).reshape(-1)
+        h, H, E = response(model, effects, self.q, self.conditions)
+        r = ((self.eta - h) * w).reshape(-1)
+        free = model.layout.free
+        J = np.concatenate([H[:, :, free], E], axis=2) * w[:, :, None]
+        return r, J.reshape(r.size, -1)
 
 
-def _residual(model, q, eta, sw, sigma):
-    return ((eta - measure(model, q)) * sw[:, None] / sigma).reshape(-1)
-
-
-def _step(model: TrackerModel, dx: np.ndarray) -> TrackerModel:
+def _step(model: TrackerModel, effects, dx: np.ndarray):
+    free = model.layout.free
     p = model.p.copy()
-    p[model.layout.free] += dx
-    return model.with_params(p)
+    p[free] += dx[: free.size]
+    out, c = [], free.size
+    for e in effects:
+        out.append(e.with_values(e.value_array() + dx[c : c + e.n_params]))
+        c += e.n_params
+    return model.with_params(p), out
+
+
+def _check_inputs(q, eta, sigma, mask, weights, n_params):
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    eta = np.atleast_2d(np.asarray(eta, dtype=float))
+    n = q.shape[0]
+    if q.shape != (n, N_JOINTS) or eta.shape != (n, 3):
+        raise InputError(f"estimate: expected q (n, 6) and eta (n, 3), got {q.shape} and {eta.shape}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InputError(f"estimate: sigma must be a positive number of millimetres, got {sigma!r}")
+    mask = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).copy()
+    if mask.shape != (n,) or w.shape != (n,) or np.any(w[mask] <= 0) or not np.all(np.isfinite(w)):
+        raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
+    m = int(np.count_nonzero(mask))
+    if 3 * m < n_params:
+        raise InputError(
+            f"estimate: {m} poses give {3 * m} coordinates, fewer than the {n_params} parameters "
+            f"(need at least {int(np.ceil(n_params / 3))} poses)"
+        )
+    return q, eta, mask, w
 
 
 def estimate(
@@ -173,8 +319,11 @@ def estimate(
     mask=None,
     weights=None,
     register: bool = True,
+    effects=(),
+    conditions: Conditions | None = None,
+    singular_ok: bool = False,
 ) -> EstimationResult:
-    """Estimate the free parameters of ``model`` from measured reflector positions.
+    """Estimate the free parameters of ``model`` (and the effects' values) from measured reflector positions.
 
     Args:
         model: starting model (normally the nominal one); its tracker pose is replaced by the
@@ -188,37 +337,30 @@ def estimate(
         mask: (n,) bool, the poses to use (default all).
         weights: (n,) positive relative weights (pose i has noise ``sigma / sqrt(w_i)``).
         register: start from the rigid registration of the tracker (default True).
+        effects: :class:`~kpioed_drake.effects.Effect` list estimated with the geometry; their
+            values are the starting point (unknown = 0).
+        conditions: the per-pose inputs the effects need (over all n poses).
+        singular_ok: accept a rank-deficient Jacobian at the solution (``Cp`` is then the
+            pseudo-inverse) instead of raising; the diagnosis fits candidates that way.
 
     Returns:
         :class:`EstimationResult`.
 
     Raises:
-        InputError: bad shapes, too few poses for the free parameters, or a Jacobian without full
-            rank at the solution (parameters not identifiable from these poses).
+        InputError: bad shapes, too few poses for the parameters, or (unless ``singular_ok``) a
+            Jacobian without full rank at the solution (parameters not identifiable from these poses).
     """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    eta = np.atleast_2d(np.asarray(eta, dtype=float))
-    n = q.shape[0]
-    if q.shape != (n, 6) or eta.shape != (n, 3):
-        raise InputError(f"estimate: expected q (n, 6) and eta (n, 3), got {q.shape} and {eta.shape}")
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise InputError(f"estimate: sigma must be a positive number of millimetres, got {sigma!r}")
-    mask = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
-    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).copy()
-    if mask.shape != (n,) or w.shape != (n,) or np.any(w[mask] <= 0) or not np.all(np.isfinite(w)):
-        raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
+    effects = [e.with_values(e.value_array()) for e in effects]
+    conditions = Conditions() if conditions is None else conditions
     free = model.layout.free
+    n_params = free.size + sum(e.n_params for e in effects)
+    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params)
     m = int(np.count_nonzero(mask))
-    if 3 * m < free.size:
-        raise InputError(
-            f"estimate: {m} poses give {3 * m} coordinates, fewer than the {free.size} parameters "
-            f"(need at least {int(np.ceil(free.size / 3))} poses)"
-        )
-    qm, em, sw = q[mask], eta[mask], np.sqrt(w[mask])
+    prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
     if register:
-        model = registered_model(model, qm, em)
+        model = registered_model(model, prob.q, prob.eta)
 
-    r, J = _weighted(model, qm, em, sw, sigma, free)
+    r, J = prob.weighted(model, effects)
     cost = float(r @ r)
     lam = 1e-3
     nu = 2.0
@@ -240,18 +382,18 @@ def estimate(
             nu *= 2.0
             continue
         dx = dxs / D
-        trial = _step(model, dx)
-        r_new = _residual(trial, qm, em, sw, sigma)
+        trial, trial_effects = _step(model, effects, dx)
+        r_new = prob.weighted(trial, trial_effects, jac=False)
         cost_new = float(r_new @ r_new)
         pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
         actual = cost - cost_new
         rho = actual / pred if pred > 0 else -1.0
+        x_scaled = D * np.concatenate([model.p[free], *(e.value_array() for e in effects)])
         if actual > 0 and rho > 0:
-            xs = D * model.p[free]
-            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(xs) + tol)
+            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol)
             small_cost = actual <= tol * cost
-            model = trial.rebased()
-            r, J = _weighted(model, qm, em, sw, sigma, free)
+            model, effects = trial.rebased(), trial_effects
+            r, J = prob.weighted(model, effects)
             cost = float(r @ r)
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
@@ -260,24 +402,21 @@ def estimate(
                 message = "relative step below tol" if small_step else "relative cost decrease below tol"
                 break
         else:
-            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(D * model.p[free]) + tol):
+            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol):
                 converged, message = True, "no further decrease possible (step below tol)"
                 break
             lam *= nu
             nu *= 2.0
 
     # covariance at the solution (a priori, with the given sigma)
-    M = J.T @ J
     try:
-        L = np.linalg.cholesky(M)
-        Linv = np.linalg.solve(L, np.eye(M.shape[0]))
-        Cp = Linv.T @ Linv
+        Cp = covariance(J, singular_ok=singular_ok)
     except np.linalg.LinAlgError:
         raise InputError(
-            f"estimate: the {m} poses do not determine the {free.size} parameters (information matrix "
+            f"estimate: the {m} poses do not determine the {n_params} parameters (information matrix "
             "singular); use more or more varied poses"
         ) from None
-    residuals = eta - measure(model, q)
+    residuals = eta - response(model, effects, q, conditions, jac=False)
     return EstimationResult(
         model=model,
         residuals=residuals,
@@ -287,12 +426,14 @@ def estimate(
         iterations=it,
         converged=converged,
         cost=cost,
-        dof=3 * m - free.size,
+        dof=3 * m - n_params,
         Cp=Cp,
         J=J,
         message=message,
         q=q,
         eta=eta,
+        effects=tuple(effects),
+        conditions=conditions,
     )
 
 
@@ -323,8 +464,8 @@ def normalized_residuals(result: EstimationResult) -> np.ndarray:
             out[i] = np.inf
     other = np.flatnonzero(~result.mask)
     if other.size:
-        _, H = measurement_jacobian(result.model, result.q[other])
-        Hf = H[:, :, result.free]
+        _, H, E = response(result.model, result.effects, result.q[other], result.conditions.subset(other))
+        Hf = np.concatenate([H[:, :, result.free], E], axis=2)
         V = np.einsum("mak,kl,mbl->mab", Hf, result.Cp, Hf)
         for k, i in enumerate(other):
             ri = result.residuals[i]

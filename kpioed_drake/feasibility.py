@@ -58,8 +58,8 @@ class FeasibilityChecker:
 
     Args:
         robot, cell: the models (the cell as loaded for this robot, i.e. with its car shift).
-        collision: check robot-vs-world and self clearances.
-        beam: check the laser beam clearances.
+        tol_mm: a clearance counts as a failure below ``-tol_mm`` [mm].
+        tol_deg: an angle counts as a failure beyond its limit by more than ``tol_deg`` [deg].
     """
 
     def __init__(self, robot: Robot, cell: Cell, *, tol_mm: float = TOL_MM, tol_deg: float = TOL_DEG):
@@ -101,6 +101,8 @@ class FeasibilityChecker:
         return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
     def check_pose(self, q, index: int = 0, *, collision: bool = True) -> PoseReport:
+        """Report of one pose ``q`` (6,) [rad]: joint limits, incidence and, with ``collision``,
+        every robot and beam clearance (without, ``min_clearance_mm`` is inf)."""
         q = np.asarray(q, dtype=float)
         fails = []
         qd, lo, up = np.rad2deg(q), np.rad2deg(self.robot.lower), np.rad2deg(self.robot.upper)

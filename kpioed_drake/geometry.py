@@ -59,10 +59,12 @@ def segment_distance(p1, q1, p2, q2):
 
 @dataclasses.dataclass(frozen=True)
 class ClearanceRows:
-    """Names of the clearance rows of one pose, in evaluation order."""
+    """The clearance rows of one pose, in evaluation order."""
 
     names: tuple[str, ...]
-    kinds: tuple[str, ...]  # floor, wall, obstacle, self, beam
+    """Row names, e.g. ``upper_arm.a vs floor``, ``forearm vs car_body``, ``beam vs wrist``."""
+    kinds: tuple[str, ...]
+    """Per row: ``floor``, ``wall``, ``obstacle``, ``self`` or ``beam``."""
 
 
 @dataclasses.dataclass

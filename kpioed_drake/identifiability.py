@@ -53,8 +53,8 @@ def check_identifiability(
     """Rank test of F1 at ``n_poses`` random poses drawn uniformly within the joint limits.
 
     Args:
-        all_params: test all 33 candidates instead of the 27 estimated ones (shows the 6 that
-            trade against others).
+        all_params: test every parameter of the vector (33 for six joints) instead of the
+            estimated ones (27; shows the 6 gauge parameters that trade against others).
     """
     model = nominal_model(robot, cell)
     rng = np.random.default_rng(seed)

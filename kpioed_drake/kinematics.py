@@ -24,6 +24,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.parameters import PER_JOINT
 
 
 def cross(a, b) -> np.ndarray:
@@ -114,9 +115,9 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
     o = np.empty((n, N_JOINTS + 1, 3))
     R[:, 0] = np.eye(3)
     o[:, 0] = 0.0
-    eu = np.empty((n, N_JOINTS, 4, 3))
-    eo = np.empty((n, N_JOINTS, 4, 3))
-    erot = np.zeros((N_JOINTS, 4), dtype=bool)
+    eu = np.empty((n, N_JOINTS, PER_JOINT, 3))
+    eo = np.empty((n, N_JOINTS, PER_JOINT, 3))
+    erot = np.zeros((N_JOINTS, PER_JOINT), dtype=bool)
     for i, conv in enumerate(robot.conventions):
         Rp, op = R[:, i], o[:, i]
         ang = g[i, 0] + q[:, i]
@@ -160,7 +161,7 @@ def flange_point(frames: Frames, p_FP) -> np.ndarray:
 
 
 def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
-    """Jacobian of a flange-fixed point w.r.t. the 24 joint parameters and its flange coordinates.
+    """Jacobian of a flange-fixed point w.r.t. the joint parameters and its flange coordinates.
 
     Args:
         frames: result of :func:`forward_kinematics` for n poses.
@@ -169,9 +170,10 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
 
     Returns:
         p_WP: (n, 3) [mm].
-        J: (n, 3, 27): columns 0..23 the joint parameters in storage order [mm/rad or mm/mm],
-            columns 24..26 the flange coordinates of the point [mm/mm].
-        dJ (only with ``with_dq``): (n, 6, 3, 27), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
+        J: (n, 3, g + 3) with ``g = 6 * PER_JOINT`` (24): columns ``0..g-1`` the joint parameters in
+            storage order (the joint rows of :mod:`kpioed_drake.parameters`) [mm/rad or mm/mm],
+            columns ``g..g+2`` the flange coordinates of the point [mm/mm].
+        dJ (only with ``with_dq``): (n, 6, 3, g + 3), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
     """
     p = flange_point(frames, p_FP)  # (n,3)
     u, o = frames.elem_u, frames.elem_o  # (n,6,4,3)
@@ -179,16 +181,17 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     col_rot = cross(u, p[:, None, None, :] - o)
     cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,6,4,3)
     n = p.shape[0]
-    J = np.empty((n, 3, 27))
-    J[:, :, :24] = cols.reshape(n, 24, 3).transpose(0, 2, 1)
+    g = N_JOINTS * PER_JOINT
+    J = np.empty((n, 3, g + 3))
+    J[:, :, :g] = cols.reshape(n, g, 3).transpose(0, 2, 1)
     RF = frames.R[:, N_JOINTS]
-    J[:, :, 24:] = RF
+    J[:, :, g:] = RF
     if not with_dq:
         return p, J
     w = frames.joint_axes  # (n,6,3)
     ow = frames.joint_points
     dP = cross(w, p[:, None, :] - ow)  # (n,6,3): dp/dq_j
-    dJ = np.zeros((n, N_JOINTS, 3, 27))
+    dJ = np.zeros((n, N_JOINTS, 3, g + 3))
     # element of transform i, joint j <= i: w_j x col
     full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,4,3)
     # element of transform i, joint j > i: rotation: u x dP_j; translation: 0
@@ -198,8 +201,8 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     ii = np.arange(N_JOINTS)[None, :]
     mask = (jj <= ii)[None, :, :, None, None]
     d = np.where(mask, full, part)  # (n,j,i,4,3)
-    dJ[:, :, :, :24] = d.reshape(n, N_JOINTS, 24, 3).transpose(0, 1, 3, 2)
-    dJ[:, :, :, 24:] = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
+    dJ[:, :, :, :g] = d.reshape(n, N_JOINTS, g, 3).transpose(0, 1, 3, 2)
+    dJ[:, :, :, g:] = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     return p, J, dJ
 
 

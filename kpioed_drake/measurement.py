@@ -1,16 +1,8 @@
-"""Laser-tracker measurement model (paper eq. 3 and 4) and the parameter vector.
+"""Laser-tracker measurement model (paper eq. 3 and 4).
 
-The full parameter vector ``p`` (33 entries) is, in this order:
-
-- 24 joint parameters, joint-major, each joint in its own convention's order
-  (DH ``theta, d, a, alpha``; Hayati ``theta, a, alpha, beta``) [rad, mm];
-- 6 tracker pose parameters: position ``p_WT`` in W [mm] and three small rotations ``r`` [rad]
-  about the tracker axes, ``R_WT = R_WT_ref @ Rx(rx) @ Ry(ry) @ Rz(rz)``;
-- 3 reflector coordinates ``p_FQ`` in the flange frame F [mm].
-
-Six of them trade exactly against others and are held at their nominal values (SPEC, the gauge):
-theta1, d1 (against the tracker pose) and theta6, d6, a6, alpha6 (against the reflector offset).
-The other 27 are estimated.
+The parameter vector ``p`` and its layout (joint rows, tracker pose, reflector offset, the gauge
+and the free subset) are defined in :mod:`kpioed_drake.parameters`; :class:`TrackerModel` reads
+its parts through the layout.
 
 Model response (eq. 3): ``h(p, q) = R_WT^T (p_WQ(p, q) - p_WT)``, the reflector in the tracker
 frame. Incidence (eq. 4): ``cos(beta) = z_F . (p_WT - p_WQ)/|p_WT - p_WQ| >= cos(30 deg)``.
@@ -30,12 +22,12 @@ from kpioed_drake.kinematics import (
     point_velocity_jacobian,
 )
 from kpioed_drake.models import N_JOINTS, Cell, Robot
-
-N_FULL = 33
-FIXED_NAMES = ("theta1", "d1", "theta6", "d6", "a6", "alpha6")
-TRACKER_NAMES = ("tracker_x", "tracker_y", "tracker_z", "tracker_rx", "tracker_ry", "tracker_rz")
-REFLECTOR_NAMES = ("reflector_x", "reflector_y", "reflector_z")
-ANGLE_PREFIXES = ("theta", "alpha", "beta", "tracker_r")
+from kpioed_drake.parameters import (  # noqa: F401  (re-exported: the layout's historical home)
+    FIXED_NAMES,
+    N_FULL,
+    ParameterLayout,
+    parameter_layout,
+)
 
 
 def _rot(axis: int, a: float) -> np.ndarray:
@@ -52,52 +44,14 @@ def small_rotation(r) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True)
-class ParameterLayout:
-    """Names, units and the estimated subset of the 33-vector.
-
-    Attributes:
-        names: (33,) parameter names.
-        is_angle: (33,) True for angles [rad], False for lengths [mm].
-        free: (27,) indices of the estimated parameters into the 33-vector.
-    """
-
-    names: tuple[str, ...]
-    is_angle: np.ndarray
-    free: np.ndarray
-
-    @property
-    def free_names(self) -> list[str]:
-        return [self.names[i] for i in self.free]
-
-    @property
-    def n_free(self) -> int:
-        return int(self.free.size)
-
-    def scale(self, reach: float) -> np.ndarray:
-        """(27,) SPEC's scaling to millimetres at the tool: lengths 1, angles times the reach."""
-        return np.where(self.is_angle[self.free], reach, 1.0)
-
-
-def parameter_layout(robot: Robot, *, fixed: tuple[str, ...] = FIXED_NAMES) -> ParameterLayout:
-    """The 33 parameter names of ``robot`` and the indices of the estimated ones."""
-    names = tuple(robot.param_names()) + TRACKER_NAMES + REFLECTOR_NAMES
-    is_angle = np.array([n.startswith(ANGLE_PREFIXES) for n in names])
-    unknown = set(fixed) - set(names)
-    if unknown:
-        raise ValueError(f"fixed parameters not in the model: {sorted(unknown)}")
-    free = np.array([i for i, n in enumerate(names) if n not in fixed])
-    return ParameterLayout(names=names, is_angle=is_angle, free=free)
-
-
-@dataclasses.dataclass(frozen=True)
 class TrackerModel:
     """Robot + tracker + reflector: everything the measurement model needs.
 
     Attributes:
         robot: the robot (conventions, limits).
-        p: (33,) parameter values [rad, mm].
+        p: (n_full,) parameter values [rad, mm] (33 for a six-joint robot).
         R_WT_ref: (3, 3) reference tracker orientation the small rotations refer to.
-        layout: which parameters are estimated.
+        layout: where each parameter sits in ``p`` and which are estimated.
     """
 
     robot: Robot
@@ -107,19 +61,23 @@ class TrackerModel:
 
     @property
     def geometry(self) -> np.ndarray:
-        return self.p[:24].reshape(N_JOINTS, 4)
+        """(n_joints, per_joint) joint rows [rad, mm]."""
+        return self.p[self.layout.joints].reshape(self.layout.geometry_shape())
 
     @property
     def p_WT(self) -> np.ndarray:
-        return self.p[24:27]
+        """(3,) tracker position in W [mm]."""
+        return self.p[self.layout.tracker_position]
 
     @property
     def R_WT(self) -> np.ndarray:
-        return self.R_WT_ref @ small_rotation(self.p[27:30])
+        """(3, 3) tracker orientation: the reference times the small rotations."""
+        return self.R_WT_ref @ small_rotation(self.p[self.layout.tracker_rotation])
 
     @property
     def p_FQ(self) -> np.ndarray:
-        return self.p[30:33]
+        """(3,) reflector offset in the flange frame [mm]."""
+        return self.p[self.layout.target(0)]
 
     def with_params(self, p: np.ndarray) -> TrackerModel:
         return dataclasses.replace(self, p=np.asarray(p, dtype=float))
@@ -127,7 +85,7 @@ class TrackerModel:
     def rebased(self) -> TrackerModel:
         """Same model with the tracker's small rotations folded into ``R_WT_ref``."""
         p = self.p.copy()
-        p[27:30] = 0.0
+        p[self.layout.tracker_rotation] = 0.0
         return dataclasses.replace(self, p=p, R_WT_ref=self.R_WT)
 
     def frames(self, q) -> Frames:
@@ -136,8 +94,12 @@ class TrackerModel:
 
 def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
     """The nominal model: the robot's table, the cell's tracker pose and reflector offset."""
-    p = np.concatenate([robot.geometry.ravel(), cell.p_WT, np.zeros(3), cell.p_FQ])
-    return TrackerModel(robot=robot, p=p, R_WT_ref=cell.R_WT, layout=parameter_layout(robot))
+    layout = parameter_layout(robot)
+    p = np.zeros(layout.size)
+    p[layout.joints] = robot.geometry.ravel()
+    p[layout.tracker_position] = cell.p_WT
+    p[layout.target(0)] = cell.p_FQ
+    return TrackerModel(robot=robot, p=p, R_WT_ref=cell.R_WT, layout=layout)
 
 
 def reflector_world(model: TrackerModel, q) -> np.ndarray:
@@ -151,42 +113,77 @@ def measure(model: TrackerModel, q) -> np.ndarray:
     return (p_WQ - model.p_WT) @ model.R_WT
 
 
+def tracker_jacobian(model: TrackerModel, p_WQ, JW, *, scale=None, offset=None, rotation_point=None):
+    """Response in the tracker frame and its Jacobian w.r.t. the full parameter vector.
+
+    ``h = R_TW (s p_WQ - p_WT - offset)``: the reflector points ``p_WQ``, optionally scaled about W
+    by ``s`` (thermal expansion) and shifted by ``offset`` (tracker drift).
+
+    Args:
+        model: the model (tracker pose, layout).
+        p_WQ: (n, 3) reflector points in W [mm].
+        JW: (n, 3, n_joint_params + 3) their Jacobian from :func:`~kpioed_drake.kinematics.point_jacobian`.
+        scale: (n,) length scale s (default 1).
+        offset: (n, 3) shift of the tracker origin in W [mm] (default 0).
+
+    Returns:
+        h: (n, 3) [mm]; H: (n, 3, n_full) dh/dp.
+    """
+    lay = model.layout
+    nj = lay.joints.stop
+    R_TW = model.R_WT.T
+    x = p_WQ - model.p_WT
+    if scale is not None:
+        x = scale[:, None] * p_WQ - model.p_WT
+    if offset is not None:
+        x = x - offset
+    h = x @ R_TW.T
+    H = np.zeros((h.shape[0], 3, lay.size))
+    H[:, :, lay.joints] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, :nj])
+    H[:, :, lay.tracker_position] = -R_TW
+    H[:, :, lay.tracker_rotation] = _rotation_columns(model, h)
+    H[:, :, lay.target(0)] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, nj : nj + 3])
+    if scale is not None:
+        H[:, :, lay.joints] *= scale[:, None, None]
+        H[:, :, lay.target(0)] *= scale[:, None, None]
+    return h, H
+
+
+def _rotation_columns(model: TrackerModel, h: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) dh/dr_k of ``h = Rr^T v``, ``v = R_ref^T x = Rr h``: ``G_k v``, ``G_k = d(Rr^T)/dr_k``."""
+    r = model.p[model.layout.tracker_rotation]
+    v = h @ small_rotation(r).T
+    return np.stack([v @ G.T for G in _drot_transposed(r)], axis=-1)
+
+
 def measurement_jacobian(model: TrackerModel, q, *, with_dq: bool = False, frames: Frames | None = None):
-    """Jacobian of :func:`measure` w.r.t. the 33 parameters.
+    """Jacobian of :func:`measure` w.r.t. the full parameter vector (33 entries for six joints).
 
     ``frames`` is ``model.frames(q)`` if the caller has it already.
 
     Returns:
         h: (n, 3) [mm].
-        H: (n, 3, 33) dh/dp.
-        dH (with ``with_dq``): (n, 6, 3, 33), derivative of H w.r.t. the joint angles.
+        H: (n, 3, n_full) dh/dp.
+        dH (with ``with_dq``): (n, n_joints, 3, n_full), derivative of H w.r.t. the joint angles.
     """
+    lay = model.layout
     frames = model.frames(q) if frames is None else frames
     out = point_jacobian(frames, model.p_FQ, with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
-    R_TW = model.R_WT.T
-    h = (p_WQ - model.p_WT) @ R_TW.T
-    n = h.shape[0]
-    H = np.zeros((n, 3, N_FULL))
-    H[:, :, :24] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, :24])
-    H[:, :, 24:27] = -R_TW
-    # h = Rr^T v with v = R_ref^T (p_WQ - p_WT) = Rr h, so dh/dr_k = G_k v, G_k = d(Rr^T)/dr_k.
-    Rr = small_rotation(model.p[27:30])
-    G = _drot_transposed(model.p[27:30])
-    v = h @ Rr.T
-    for k in range(3):
-        H[:, :, 27 + k] = v @ G[k].T
-    H[:, :, 30:33] = np.einsum("ab,nbc->nac", R_TW, JW[:, :, 24:27])
+    h, H = tracker_jacobian(model, p_WQ, JW)
     if not with_dq:
         return h, H
+    R_TW = model.R_WT.T
+    nj = lay.joints.stop
     dJW = out[2]
-    dH = np.zeros((n, N_JOINTS, 3, N_FULL))
-    dH[..., :24] = np.einsum("ab,njbc->njac", R_TW, dJW[..., :24])
-    dH[..., 30:33] = np.einsum("ab,njbc->njac", R_TW, dJW[..., 24:27])
-    dh_dq = point_velocity_jacobian(frames, p_WQ[:, None, :], np.array([N_JOINTS]))[:, 0] @ R_TW.T
-    dv = dh_dq @ Rr.T
-    for k in range(3):
-        dH[:, :, :, 27 + k] = dv @ G[k].T
+    dH = np.zeros((h.shape[0], lay.n_joints, 3, lay.size))
+    dH[..., lay.joints] = np.einsum("ab,njbc->njac", R_TW, dJW[..., :nj])
+    dH[..., lay.target(0)] = np.einsum("ab,njbc->njac", R_TW, dJW[..., nj : nj + 3])
+    dh_dq = point_velocity_jacobian(frames, p_WQ[:, None, :], np.array([lay.n_joints]))[:, 0] @ R_TW.T
+    r = model.p[lay.tracker_rotation]
+    dv = dh_dq @ small_rotation(r).T
+    for k, G in enumerate(_drot_transposed(r)):
+        dH[:, :, :, lay.tracker_rotation.start + k] = dv @ G.T
     return h, H, dH
 
 
@@ -209,17 +206,19 @@ def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None) ->
 
 
 def kpi_jacobian(model: TrackerModel, q_work, tool_offset=(0.0, 0.0, 0.0)):
-    """The KPI: TCP position in W at ``q_work`` and its Jacobian w.r.t. the 33 parameters.
+    """The KPI: TCP position in W at ``q_work`` and its Jacobian w.r.t. the full parameter vector.
 
     The TCP is the reflector point plus ``tool_offset`` (flange axes, [mm]); the tracker parameters
     do not move it (their columns are zero).
 
     Returns:
-        s: (3,) [mm]; Js: (3, 33).
+        s: (3,) [mm]; Js: (3, n_full).
     """
     frames = model.frames(np.asarray(q_work, dtype=float)[None, :])
     p, J = point_jacobian(frames, model.p_FQ + np.asarray(tool_offset, dtype=float))
-    Js = np.zeros((3, N_FULL))
-    Js[:, :24] = J[0, :, :24]
-    Js[:, 30:33] = J[0, :, 24:27]
+    lay = model.layout
+    nj = lay.joints.stop
+    Js = np.zeros((3, lay.size))
+    Js[:, lay.joints] = J[0, :, :nj]
+    Js[:, lay.target(0)] = J[0, :, nj : nj + 3]
     return p[0], Js

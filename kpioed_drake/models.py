@@ -19,97 +19,25 @@ import re
 from pathlib import Path
 
 import numpy as np
+import yaml
 from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RollPitchYaw
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.jointmap import JointMap, joint_map_from_spec
+from kpioed_drake.modelspec import (  # noqa: F401 (the file schemas, re-exported)
+    CapsuleSpec,
+    CellSpec,
+    JointSpec,
+    LinkSpec,
+    ObstacleSpec,
+    RobotSpec,
+)
 
 MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[1] / "models"))
 """Folder holding ``cell.yaml`` and ``robots/*.yaml`` (override with ``KPIOED_MODELS``)."""
 
 N_JOINTS = 6
-
-
-# ----------------------------------------------------------------------------------------------
-# File schemas (what the YAML holds, millimetres and degrees)
-# ----------------------------------------------------------------------------------------------
-@dataclasses.dataclass
-class JointSpec:
-    """One row of the kinematic table [mm, deg]."""
-
-    name: str = ""
-    convention: str = "dh"  # "dh" or "hayati"
-    theta_deg: float = 0.0
-    d_mm: float = 0.0  # DH only
-    a_mm: float = 0.0
-    alpha_deg: float = 0.0
-    beta_deg: float = 0.0  # Hayati only
-    lower_deg: float = -180.0
-    upper_deg: float = 180.0
-
-
-@dataclasses.dataclass
-class CapsuleSpec:
-    """A capsule: segment ``a_mm``-``b_mm`` in the owning frame, swept by a sphere of ``radius_mm``."""
-
-    name: str = ""
-    radius_mm: float = 0.0
-    a_mm: list[float] = dataclasses.field(default_factory=list)
-    b_mm: list[float] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class LinkSpec:
-    """Link ``index`` (0 = base fixed to the world, i = moved by joint i), in DH frame ``index``."""
-
-    index: int = 0
-    mass_kg: float = 0.0
-    com_mm: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    capsules: list[CapsuleSpec] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class RobotSpec:
-    """A robot model file."""
-
-    name: str = ""
-    description: str = ""
-    sources: str = ""
-    joints: list[JointSpec] = dataclasses.field(default_factory=list)
-    links: list[LinkSpec] = dataclasses.field(default_factory=list)
-    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
-    beam_links: list[int] = dataclasses.field(default_factory=list)
-    q_work_deg: list[float] = dataclasses.field(default_factory=list)
-    car_shift_x_mm: float = 0.0
-    notes: str = ""
-
-
-@dataclasses.dataclass
-class ObstacleSpec:
-    """A fixed obstacle capsule in the world frame W [mm]."""
-
-    name: str = ""
-    radius_mm: float = 0.0
-    a_mm: list[float] = dataclasses.field(default_factory=list)
-    b_mm: list[float] = dataclasses.field(default_factory=list)
-    moves_with_car: bool = False
-
-
-@dataclasses.dataclass
-class CellSpec:
-    """The measuring cell file."""
-
-    description: str = ""
-    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
-    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
-    max_incidence_deg: float = 30.0
-    noise_sigma_mm: float = 1.0
-    beam_radius_mm: float = 5.0
-    floor_z_mm: float = 0.0
-    wall_x_mm: float = -450.0
-    obstacles: list[ObstacleSpec] = dataclasses.field(default_factory=list)
-    work_height_above_cabin_mm: float = 100.0
-    work_cabin_obstacle: str = "car_cabin"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -124,6 +52,15 @@ class Capsule:
     radius: float
     a: np.ndarray  # (3,) [mm] in the frame
     b: np.ndarray  # (3,) [mm]
+
+
+def joint_param_names(conventions) -> list[str]:
+    """Names of the joint parameters of rows of these conventions, e.g. ``theta1, d1, a1, alpha1``."""
+    names = []
+    for i, conv in enumerate(conventions, start=1):
+        kinds = ("theta", "d", "a", "alpha") if conv == "dh" else ("theta", "a", "alpha", "beta")
+        names += [f"{k}{i}" for k in kinds]
+    return names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,6 +79,13 @@ class Robot:
         self_pairs: link index pairs checked against each other.
         beam_links: links the laser beam must not touch.
         q_work: (6,) working configuration [rad], or None.
+        car_shift_x: moves the car obstacles along x [mm].
+        joint_names: the joints' names.
+        source: the model file.
+        p_FQ: (3,) reflector offset in the flange frame [mm] overriding the cell's, or None.
+        X_WT: tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))`` overriding the cell's, or None.
+        joint_map: controller angles to model angles, or None (identity).
+        extra_gauge: parameter names held at nominal besides SPEC's gauge.
     """
 
     name: str
@@ -158,14 +102,14 @@ class Robot:
     car_shift_x: float = 0.0
     joint_names: tuple[str, ...] = ("A1", "A2", "A3", "A4", "A5", "A6")
     source: str = ""
+    p_FQ: np.ndarray | None = None
+    X_WT: tuple[np.ndarray, np.ndarray] | None = None
+    joint_map: JointMap | None = None
+    extra_gauge: tuple[str, ...] = ()
 
     def param_names(self) -> list[str]:
         """Names of the 24 joint parameters in storage order, e.g. ``theta1, d1, a1, alpha1``."""
-        names = []
-        for i, conv in enumerate(self.conventions, start=1):
-            kinds = ("theta", "d", "a", "alpha") if conv == "dh" else ("theta", "a", "alpha", "beta")
-            names += [f"{k}{i}" for k in kinds]
-        return names
+        return joint_param_names(self.conventions)
 
     @property
     def reach(self) -> float:
@@ -222,8 +166,19 @@ _NOTIONAL = re.compile(r"^notional-(\d+)-(\d+)$")
 
 
 def _load_yaml(path: Path, schema):
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a YAML file")
     if not path.is_file():
         raise InputError(f"{path}: file not found")
+    try:  # PyYAML first: its syntax errors carry the line and column
+        yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InputError(f"{path}: YAML syntax error{loc}: {what}") from None
     try:
         return yaml_load_typed(filename=str(path), schema=schema)
     except AssertionError:
@@ -231,6 +186,11 @@ def _load_yaml(path: Path, schema):
     except Exception as exc:  # pydrake raises RuntimeError/ValueError with a terse text
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"{path}: {msg}") from None
+
+
+def load_yaml_typed(path: str | Path, schema):
+    """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
+    return _load_yaml(Path(path), schema)
 
 
 def _vec3(values, where: str) -> np.ndarray:
@@ -271,8 +231,11 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         conv.append(j.convention)
         th, al, be = np.deg2rad([j.theta_deg, j.alpha_deg, j.beta_deg])
         geom[i] = (th, j.d_mm, j.a_mm, al) if j.convention == "dh" else (th, j.a_mm, al, be)
-        if not j.lower_deg < j.upper_deg:
-            raise InputError(f"{w}: lower_deg must be below upper_deg")
+        if not (np.isfinite(j.lower_deg) and np.isfinite(j.upper_deg) and j.lower_deg < j.upper_deg):
+            raise InputError(
+                f"{w}: lower_deg and upper_deg must be finite with lower_deg < upper_deg, "
+                f"got {j.lower_deg!r}, {j.upper_deg!r}"
+            )
         lo[i], up[i] = np.deg2rad([j.lower_deg, j.upper_deg])
     if conv[0] != "dh":
         raise InputError(f"{where}: joint 1 must use the 'dh' convention")
@@ -285,14 +248,14 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         if not 0 <= link.index <= N_JOINTS or link.index in seen:
             raise InputError(f"{w}: index must be a unique integer in 0..6, got {link.index}")
         seen.add(link.index)
-        if link.mass_kg < 0:
-            raise InputError(f"{w}: mass_kg must be >= 0")
+        if not (np.isfinite(link.mass_kg) and link.mass_kg >= 0):
+            raise InputError(f"{w}: mass_kg must be a finite number >= 0, got {link.mass_kg!r}")
         masses[link.index] = link.mass_kg
         coms[link.index] = _vec3(link.com_mm, f"{w}.com_mm")
         for c, cap in enumerate(link.capsules):
             wc = f"{w}.capsules[{c}]"
-            if cap.radius_mm <= 0:
-                raise InputError(f"{wc}: radius_mm must be > 0")
+            if not (np.isfinite(cap.radius_mm) and cap.radius_mm > 0):
+                raise InputError(f"{wc}: radius_mm must be a finite number > 0, got {cap.radius_mm!r}")
             a, b = _vec3(cap.a_mm, f"{wc}.a_mm"), _vec3(cap.b_mm, f"{wc}.b_mm")
             name = cap.name or f"link{link.index}_{c}"
             caps.append(Capsule(name, link.index, float(cap.radius_mm), a, b))
@@ -301,11 +264,43 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         if len(pr) != 2 or not all(0 <= x <= N_JOINTS for x in pr) or abs(pr[0] - pr[1]) < 2:
             raise InputError(f"{where}: self_collision_pairs entry {pr} must be two non-neighbour links")
         pairs.append((int(min(pr)), int(max(pr))))
+    bad_beam = [x for x in spec.beam_links if not 0 <= x <= N_JOINTS]
+    if bad_beam:
+        raise InputError(f"{where}: beam_links must be link indices in 0..{N_JOINTS}, got {bad_beam}")
     q_work = None
     if spec.q_work_deg:
-        if len(spec.q_work_deg) != N_JOINTS:
-            raise InputError(f"{where}: q_work_deg must have 6 values")
-        q_work = np.deg2rad(np.asarray(spec.q_work_deg, dtype=float))
+        qw = np.asarray(spec.q_work_deg, dtype=float)
+        if qw.shape != (N_JOINTS,) or not np.all(np.isfinite(qw)):
+            raise InputError(
+                f"{where}: q_work_deg must have {N_JOINTS} finite values, got {spec.q_work_deg!r}"
+            )
+        q_work = np.deg2rad(qw)
+        outside = np.flatnonzero((q_work < lo) | (q_work > up))
+        if outside.size:
+            i = int(outside[0])
+            raise InputError(
+                f"{where}: q_work_deg[{i}] = {qw[i]:g} deg is outside joint {i + 1}'s limits "
+                f"[{np.rad2deg(lo[i]):g}, {np.rad2deg(up[i]):g}] deg"
+            )
+    if not np.isfinite(spec.car_shift_x_mm):
+        raise InputError(f"{where}: car_shift_x_mm must be finite, got {spec.car_shift_x_mm!r}")
+    p_FQ = (
+        _vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm")
+        if spec.reflector_position_mm
+        else None
+    )
+    X_WT = None
+    if spec.tracker_position_mm or spec.tracker_rpy_deg:
+        if not spec.tracker_position_mm:
+            raise InputError(f"{where}: tracker_rpy_deg needs tracker_position_mm")
+        rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{where}: tracker_rpy_deg"))
+        X_WT = (
+            _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm"),
+            RollPitchYaw(rpy).ToRotationMatrix().matrix(),
+        )
+    bad = sorted(set(spec.extra_gauge) - set(joint_param_names(conv)))
+    if bad:
+        raise InputError(f"{where}: extra_gauge names {bad} that are not joint parameters of this table")
     return Robot(
         name=spec.name,
         conventions=tuple(conv),
@@ -321,6 +316,10 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         car_shift_x=float(spec.car_shift_x_mm),
         joint_names=tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints)),
         source=where,
+        p_FQ=p_FQ,
+        X_WT=X_WT,
+        joint_map=joint_map_from_spec(spec.joint_map, where),
+        extra_gauge=tuple(spec.extra_gauge),
     )
 
 
@@ -346,15 +345,23 @@ def load_robot(name: str) -> Robot:
 
 def cell_from_spec(spec: CellSpec, where: str = "cell") -> Cell:
     """Validate a :class:`CellSpec` and convert it to a :class:`Cell` (mm, rad)."""
-    from pydrake.math import RollPitchYaw
-
     p_WT = _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm")
     rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg, f"{where}: tracker_rpy_deg"))
     R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
-    if spec.noise_sigma_mm <= 0 or spec.beam_radius_mm < 0:
-        raise InputError(f"{where}: noise_sigma_mm must be > 0 and beam_radius_mm >= 0")
+    if not (np.isfinite(spec.noise_sigma_mm) and spec.noise_sigma_mm > 0):
+        raise InputError(f"{where}: noise_sigma_mm must be a finite number > 0, got {spec.noise_sigma_mm!r}")
+    if not (np.isfinite(spec.beam_radius_mm) and spec.beam_radius_mm >= 0):
+        raise InputError(f"{where}: beam_radius_mm must be a finite number >= 0, got {spec.beam_radius_mm!r}")
     if not 0 < spec.max_incidence_deg < 90:
-        raise InputError(f"{where}: max_incidence_deg must be in (0, 90)")
+        raise InputError(f"{where}: max_incidence_deg must be in (0, 90), got {spec.max_incidence_deg!r}")
+    for field in ("floor_z_mm", "wall_x_mm", "work_height_above_cabin_mm"):
+        if not np.isfinite(getattr(spec, field)):
+            raise InputError(f"{where}: {field} must be finite, got {getattr(spec, field)!r}")
+    for k, o in enumerate(spec.obstacles):
+        if not (np.isfinite(o.radius_mm) and o.radius_mm >= 0):
+            raise InputError(
+                f"{where}: obstacles[{k}].radius_mm must be a finite number >= 0, got {o.radius_mm!r}"
+            )
     obstacles = tuple(
         Obstacle(
             o.name or f"obstacle{k}",
@@ -384,7 +391,9 @@ def load_cell(path: str | Path | None = None, *, robot: Robot | None = None) -> 
     """Load the measuring cell (default ``models/cell.yaml``).
 
     If ``robot`` is given, the car obstacles are shifted along x by the robot's ``car_shift_x_mm``
-    (SPEC: move the car for a robot that cannot reach a feasible region in the default cell).
+    (SPEC: move the car for a robot that cannot reach a feasible region in the default cell), and
+    the robot file's optional ``reflector_position_mm`` and tracker pose replace the cell's (a
+    robot- or data-specific target, or a calibrated model's tracker frame).
     """
     path = Path(path) if path is not None else MODELS_DIR / "cell.yaml"
     spec = _load_yaml(path, CellSpec)
@@ -396,4 +405,8 @@ def load_cell(path: str | Path | None = None, *, robot: Robot | None = None) -> 
             for o in cell.obstacles
         )
         cell = dataclasses.replace(cell, obstacles=obs)
+    if robot is not None and robot.p_FQ is not None:
+        cell = dataclasses.replace(cell, p_FQ=robot.p_FQ)
+    if robot is not None and robot.X_WT is not None:
+        cell = dataclasses.replace(cell, p_WT=robot.X_WT[0], R_WT=robot.X_WT[1])
     return cell

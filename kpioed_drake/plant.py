@@ -23,7 +23,6 @@ from pydrake.geometry import (
     Box,
     Capsule,
     CollisionFilterDeclaration,
-    GeometryId,
     GeometrySet,
     SceneGraph,
 )
@@ -171,8 +170,3 @@ def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True)
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyContextFromRoot(context)
     return Scene(diagram, plant, scene_graph, context, plant_context, bodies, names, links)
-
-
-def geometry_ids(scene: Scene) -> list[GeometryId]:
-    """All collision geometry ids of the scene."""
-    return list(scene.geometry_names)

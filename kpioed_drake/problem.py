@@ -5,6 +5,13 @@ evaluates paper eqs. (19), (24c)-(24e) for a design: ``F1 = dh/dp / sigma`` over
 parameters (rows pose-major: x, y, z of pose 1, then pose 2, ...), ``Js = dTCP/dp`` at ``q_work``,
 ``Cp = (F1^T F1)^-1`` and ``Cs = Js Cp Js^T``.
 
+Several KPIs (paper, Outlook: further working poses, or a working path sampled at K points): with
+working poses ``q_work_k`` (K, 6) and weights ``w_k`` (sum 1), the KPI is the weighted mean of the
+variances ``v_k = tr(Js_k Cp Js_k^T)/3`` or the worst one (``kpi_aggregate``). The weighted mean
+equals ``tr(Js Cp Js^T)/3`` of the stacked rows ``Js = [sqrt(w_1) Js_1; ...; sqrt(w_K) Js_K]``
+(3K, k), so :meth:`Problem.Js` returns that stack and every KPI criterion works on it unchanged;
+with K = 1 it is the single (3, k) Jacobian and every number is that of one working pose.
+
 Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
 add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
 columns to Js, so that a design for the extended model estimates them too and its KPI variance
@@ -18,9 +25,20 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake import covariance
+from kpioed_drake.effects import effect_kpi_columns, extension_columns, extension_param_names, parse_effect
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
 from kpioed_drake.models import Cell, Robot, load_cell, load_robot
+from kpioed_drake.parameters import parameter_layout
+
+KPI_AGGREGATES = ("mean", "max")
+"""How the variances of several working poses make the KPI: weighted mean or the worst."""
+KPI_POINTS = ("reflector", "flange")
+"""Where the KPI point sits: the reflector (plus ``tool_offset``; SPEC) or the flange origin (the
+paper's TCP frame k, which does not move with the reflector offset)."""
+PARAM_SCALINGS = ("reach", "none")
+"""Scalings of the standard criterion phi_A(Cp): SPEC's (angles times the reach) or none (the
+paper's eq. 25 with the identity, angles in radians)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,9 +48,21 @@ class Problem:
     Attributes:
         robot, cell: the models (cell as loaded for this robot).
         model: measurement model at the parameter values the design is evaluated at.
-        q_work: (6,) working configuration [rad].
+        q_work: (6,) working configuration [rad]; several KPIs: (K, 6) working poses (or the
+            K samples of a working path) [rad].
         sigma: noise standard deviation per coordinate [mm].
         tool_offset: (3,) TCP relative to the reflector, flange axes [mm].
+        extensions: model extensions (:mod:`kpioed_drake.effects`) whose parameters are estimated
+            too: their columns follow the 27 geometric ones in ``F1`` and ``Js``.
+        kpi_weights: (K,) weights of the working poses, positive, summing to 1 (None: one working
+            pose, or equal weights).
+        kpi_aggregate: how the K variances make the KPI: ``mean`` (weighted mean) or ``max`` (the
+            worst working pose). Only the ``kpi`` criterion depends on it.
+        param_scaling: scaling of the standard criterion's geometric parameters: ``reach`` (SPEC:
+            lengths 1, angles times the reach) or ``none`` (all 1). Only ``param_crit`` depends on it.
+        kpi_point: ``reflector`` (the reflector point plus ``tool_offset``) or ``flange`` (the
+            flange origin, frame k of the paper: its position does not depend on the reflector
+            offset, whose Js columns are then zero).
     """
 
     robot: Robot
@@ -42,6 +72,32 @@ class Problem:
     sigma: float
     tool_offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     extensions: tuple = ()
+    kpi_weights: np.ndarray | None = None
+    kpi_aggregate: str = "mean"
+    param_scaling: str = "reach"
+    kpi_point: str = "reflector"
+
+    @property
+    def q_works(self) -> np.ndarray:
+        """(K, 6) the working poses [rad] (K = 1 for one working pose)."""
+        return np.atleast_2d(self.q_work)
+
+    @property
+    def n_kpis(self) -> int:
+        """K, the number of working poses whose TCP variance makes the KPI."""
+        return self.q_works.shape[0]
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(K,) weights of the working poses (sum 1)."""
+        if self.kpi_weights is None:
+            return np.full(self.n_kpis, 1.0 / self.n_kpis)
+        return np.asarray(self.kpi_weights, dtype=float)
+
+    @property
+    def worst_case(self) -> bool:
+        """The KPI is the largest of several variances (``kpi_aggregate == "max"`` and K > 1)."""
+        return self.kpi_aggregate == "max" and self.n_kpis > 1
 
     @property
     def free(self) -> np.ndarray:
@@ -54,27 +110,28 @@ class Problem:
 
     @property
     def param_names(self) -> list[str]:
-        from kpioed_drake.effects import extension_param_names
-
         return self.model.layout.free_names + extension_param_names(self.extensions)
 
     @property
     def scale(self) -> np.ndarray:
         """(k,) scaling of the standard criterion to millimetres at the tool.
 
-        SPEC: lengths 1, angles times the reach. An extension parameter is scaled by how far one
-        unit of it moves the TCP at ``q_work`` (its KPI column's norm) [mm per unit].
+        SPEC: lengths 1, angles times the reach (``param_scaling == "none"``: all 1). An extension
+        parameter is scaled by how far one unit of it moves the TCP at ``q_work`` (its KPI column's
+        norm; several working poses: the norm of its weighted stack, the root mean square over
+        them) [mm per unit].
         """
         geo = self.model.layout.scale(self.robot.reach)
+        if self.param_scaling == "none":
+            geo = np.ones_like(geo)
         if not self.extensions:
             return geo
-        ext = np.linalg.norm(self._ext_kpi_columns(), axis=0)
+        ext = np.linalg.norm(self.Js()[:, self.model.layout.n_free :], axis=0)
         return np.concatenate([geo, np.where(ext > 0, ext, 1.0)])
 
-    def _ext_kpi_columns(self) -> np.ndarray:
-        from kpioed_drake.effects import effect_kpi_columns
-
-        return effect_kpi_columns(self.model, self.q_work, self.extensions, tool_offset=self.tool_offset)
+    def _stack(self, blocks) -> np.ndarray:
+        """Rows ``sqrt(w_k) B_k`` of K blocks B_k (3, c), stacked to (3K, c)."""
+        return np.concatenate([np.sqrt(w) * B for w, B in zip(self.weights, blocks, strict=True)], axis=0)
 
     def min_poses(self) -> int:
         """Fewest poses whose 3 coordinates can determine the parameters."""
@@ -89,8 +146,6 @@ class Problem:
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
         if self.extensions:
-            from kpioed_drake.effects import extension_columns
-
             ext = extension_columns(self.model, q, self.extensions, with_dq=with_dq)
             E, dE = (ext[0], ext[1]) if with_dq else (ext, None)
             H = np.concatenate([H, E / self.sigma], axis=2)
@@ -101,16 +156,31 @@ class Problem:
             return H.reshape(3 * n, -1)
         return H.reshape(3 * n, -1), dH
 
+    def Js_each(self) -> np.ndarray:
+        """(K, 3, k) KPI Jacobian ``dTCP/dp`` at each working pose [mm per parameter unit]."""
+        flange = self.kpi_point == "flange"
+        offset = -self.model.p_FQ if flange else self.tool_offset
+        out = []
+        for qw in self.q_works:
+            _, Js = kpi_jacobian(self.model, qw, offset)
+            if flange:
+                Js[:, self.model.layout.target(0)] = 0.0
+            Js = Js[:, self.free]
+            if self.extensions:
+                ext = effect_kpi_columns(self.model, qw, self.extensions, tool_offset=offset)
+                Js = np.concatenate([Js, ext], axis=1)
+            out.append(Js)
+        return np.stack(out)
+
     def Js(self) -> np.ndarray:
-        """(3, 27) KPI Jacobian at ``q_work``."""
-        _, Js = kpi_jacobian(self.model, self.q_work, self.tool_offset)
-        Js = Js[:, self.free]
-        if self.extensions:
-            Js = np.concatenate([Js, self._ext_kpi_columns()], axis=1)
-        return Js
+        """KPI Jacobian: (3, k) at ``q_work``; several working poses: the stack (3K, k) of
+        ``sqrt(w_k) Js_k``, whose ``tr(Js Cp Js^T)/3`` is the weighted mean of the K variances."""
+        Js = self.Js_each()
+        return Js[0] if self.n_kpis == 1 else self._stack(Js)
 
     def covariances(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """``Cp`` (27, 27) and ``Cs`` (3, 3) [mm^2] of a design ``q`` (n, 6) [rad].
+        """``Cp`` (27, 27) and ``Cs = Js Cp Js^T`` (3, 3) [mm^2] of a design ``q`` (n, 6) [rad]
+        (several working poses: (3K, 3K) of the weighted stack :meth:`Js`, trace/3 = the mean KPI).
 
         Raises:
             InputError: if the design does not determine all parameters.
@@ -123,11 +193,25 @@ class Problem:
                 "(information matrix singular); use more or more varied poses"
             ) from None
 
+    def kpi_variances(self, q) -> np.ndarray:
+        """(K,) ``tr(Cs_k)/3`` [mm^2] at each working pose of a design ``q`` (n, 6) [rad].
+
+        Raises:
+            InputError: if the design does not determine all parameters.
+        """
+        Cp, _ = self.covariances(q)
+        return np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self.Js_each()])
+
     def criteria(self, q) -> dict[str, float]:
-        """``kpi_avg_var_mm2`` (tr(Cs)/3) and ``param_crit`` (scaled tr(Cp)) of a design."""
+        """``kpi_avg_var_mm2`` and ``param_crit`` (scaled tr(Cp) [mm^2]) of a design.
+
+        ``kpi_avg_var_mm2`` is tr(Cs)/3 [mm^2]; with several working poses the KPI: the weighted
+        mean of their tr(Cs_k)/3, or with ``kpi_aggregate == "max"`` the largest.
+        """
         Cp, Cs = self.covariances(q)
+        kpi = float(np.max(self.kpi_variances(q))) if self.worst_case else float(np.trace(Cs) / 3.0)
         return {
-            "kpi_avg_var_mm2": float(np.trace(Cs) / 3.0),
+            "kpi_avg_var_mm2": kpi,
             "param_crit": float(np.sum(np.diag(Cp) * self.scale**2)),
         }
 
@@ -140,45 +224,108 @@ def make_problem(
     sigma_mm: float | None = None,
     tool_offset_mm=(0.0, 0.0, 0.0),
     extend=(),
+    kpi_weights=None,
+    kpi_aggregate: str = "mean",
+    fixed: tuple[str, ...] | None = None,
+    max_incidence_deg: float | None = None,
+    param_scaling: str = "reach",
+    kpi_point: str = "reflector",
 ) -> Problem:
     """Build the :class:`Problem` of a robot (name, file path or :class:`Robot`).
 
     Args:
-        q_work: (6,) [rad]; default: the model file's ``q_work_deg``.
+        q_work: (6,) [rad]; several KPIs: (K, 6) working poses or samples of a working path [rad];
+            default: the model file's ``q_work_deg``.
         sigma_mm: noise per coordinate [mm]; default: the cell's ``noise_sigma_mm``.
         extend: model extensions, e.g. ``["joint_elasticity:2", "gear_cyclic:4:2"]`` (texts of
             :func:`kpioed_drake.effects.parse_effect`, values not needed). Only effects that do not
             need per-pose temperature or time (elasticity, gear errors) can extend a design.
+        kpi_weights: (K,) positive weights of the working poses, normalised to sum 1 (default:
+            equal). Not allowed with ``kpi_aggregate="max"`` unless equal.
+        kpi_aggregate: ``mean`` (weighted mean of the K variances tr(Cs_k)/3) or ``max`` (the
+            largest).
+        fixed: the parameters held at their nominal values (default: SPEC's gauge,
+            :data:`~kpioed_drake.parameters.FIXED_NAMES`); the others are estimated.
+        max_incidence_deg: largest admitted incidence angle from the reflector's axis [deg]
+            (default: the cell's); the optimiser, the heuristic and the checker use it.
+        param_scaling: scaling of the standard criterion, one of :data:`PARAM_SCALINGS`.
+        kpi_point: one of :data:`KPI_POINTS`; ``flange`` takes no ``tool_offset_mm``.
+
+    Raises:
+        InputError: q_work outside the joint limits or of a bad shape, bad weights or aggregate,
+            bad sigma or extensions, unknown fixed names, an incidence limit outside (0, 90) deg,
+            an unknown scaling or KPI point, a tool offset with the flange as KPI point.
     """
     robot = load_robot(robot) if isinstance(robot, str) else robot
     cell = load_cell(cell_path, robot=robot)
+    if max_incidence_deg is not None:
+        if not 0 < max_incidence_deg < 90:
+            raise InputError(f"max_incidence_deg must be in (0, 90) deg, got {max_incidence_deg!r}")
+        cell = dataclasses.replace(cell, max_incidence=float(np.deg2rad(max_incidence_deg)))
+    if param_scaling not in PARAM_SCALINGS:
+        raise InputError(f"param_scaling must be one of {', '.join(PARAM_SCALINGS)}, got {param_scaling!r}")
+    if kpi_point not in KPI_POINTS:
+        raise InputError(f"kpi_point must be one of {', '.join(KPI_POINTS)}, got {kpi_point!r}")
+    if kpi_point == "flange" and np.any(np.asarray(tool_offset_mm, dtype=float) != 0):
+        raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
     if q_work is None:
         if robot.q_work is None:
             raise InputError(f"{robot.name}: the model file has no q_work_deg; pass --q-work")
         q_work = robot.q_work
     q_work = np.asarray(q_work, dtype=float)
+    if q_work.ndim == 2 and q_work.shape[0] == 1:
+        q_work = q_work[0]
+    if q_work.shape[-1:] != (6,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
+        raise InputError(
+            f"{robot.name}: q_work must be (6,) or (K, 6) finite angles [rad], got {q_work.shape}"
+        )
     if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
         raise InputError(f"{robot.name}: q_work is outside the joint limits")
+    weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
     sigma = cell.sigma if sigma_mm is None else float(sigma_mm)
     if not np.isfinite(sigma) or sigma <= 0:
         raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
     exts = _parse_extensions(extend)
+    model = nominal_model(robot, cell)
+    if fixed is not None:
+        try:
+            model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
+        except ValueError as exc:
+            raise InputError(f"{robot.name}: {exc}") from None
     return Problem(
         extensions=exts,
         robot=robot,
         cell=cell,
-        model=nominal_model(robot, cell),
+        model=model,
         q_work=q_work,
         sigma=sigma,
         tool_offset=np.asarray(tool_offset_mm, dtype=float),
+        kpi_weights=weights,
+        kpi_aggregate=kpi_aggregate,
+        param_scaling=param_scaling,
+        kpi_point=kpi_point,
     )
+
+
+def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
+    """Checked, normalised (K,) weights of K working poses (None for one pose with no weights)."""
+    if aggregate not in KPI_AGGREGATES:
+        raise InputError(f"--kpi-aggregate must be one of {', '.join(KPI_AGGREGATES)}, got {aggregate!r}")
+    if kpi_weights is None:
+        return None if k == 1 else np.full(k, 1.0 / k)
+    w = np.asarray(kpi_weights, dtype=float).reshape(-1)
+    if w.shape != (k,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise InputError(
+            f"--kpi-weights: expected {k} positive numbers (one per working pose), got {w.tolist()}"
+        )
+    if aggregate == "max" and not np.allclose(w, w[0]):
+        raise InputError("--kpi-weights: the worst case (--kpi-aggregate max) takes no weights")
+    return w / w.sum()
 
 
 def _parse_extensions(extend) -> tuple:
     if not extend:
         return ()
-    from kpioed_drake.effects import parse_effect
-
     out = []
     for e in extend:
         eff = parse_effect(e) if isinstance(e, str) else e

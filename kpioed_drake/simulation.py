@@ -2,8 +2,9 @@
 
 :func:`simulate` draws a "true" robot: the nominal model plus random geometric errors on the 27
 estimated parameters (SPEC sizes: standard deviation 0.5 mm for lengths, 0.05 deg for angles; the 6
-gauge parameters stay nominal) and an arbitrary tracker frame (uniformly random orientation, position
-within +-100 mm of the cell's tracker position). It then measures the commanded poses, optionally
+gauge parameters stay nominal) and an arbitrary tracker frame (uniformly random orientation,
+position within +-100 mm of the cell's tracker position): :func:`true_model`, which the synthetic
+harness of :mod:`kpioed_drake.diagnosis` shares. It then measures the commanded poses, optionally
 with non-geometric effects (:mod:`kpioed_drake.effects`), and adds N(0, sigma^2) noise per
 coordinate. The result is a table in the measurement-file format of SPEC ("Measured data and model
 discrepancy") plus the truth.
@@ -21,11 +22,16 @@ import dataclasses
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
 
-from kpioed_drake.designio import Q_COLUMNS, atomic_write_json, atomic_write_text, read_design
+from kpioed_drake.arguments import check_paths, check_positive, check_seed
+from kpioed_drake.designio import Q_COLUMNS, read_design
+from kpioed_drake.effects import parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, measure, nominal_model
+from kpioed_drake.measurements import per_pose
 from kpioed_drake.models import Robot, load_cell, load_robot
+from kpioed_drake.outputs import Outputs
 
 LENGTH_ERROR_MM = 0.5
 ANGLE_ERROR_DEG = 0.05
@@ -35,42 +41,42 @@ Q_DECIMALS = 8  # joint angles written with 1e-8 deg resolution; the simulation 
 XYZ_DECIMALS = 6
 
 
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """A rotation matrix uniformly distributed on SO(3) (unit quaternion from 4 normals)."""
-    w, x, y, z = rng.standard_normal(4)
-    n = np.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+def random_rotation(rng: np.random.Generator, *, scalar_first: bool = True) -> np.ndarray:
+    """(3, 3) rotation uniformly distributed on SO(3): the unit quaternion of four standard normals.
+
+    Args:
+        rng: the generator (four normals are drawn).
+        scalar_first: read the normals as (w, x, y, z) (:func:`simulate`) or as (x, y, z, w), which
+            is ``scipy.spatial.transform.Rotation.random`` (the diagnosis' synthetic harness). Both
+            are uniform; the flag keeps seeded results as they were.
+    """
+    return Rotation.from_quat(rng.standard_normal(4), scalar_first=scalar_first).as_matrix()
 
 
 def true_model(
-    nominal: TrackerModel, rng: np.random.Generator, *, geometric_errors: bool = True
+    nominal: TrackerModel,
+    rng: np.random.Generator,
+    *,
+    geometric_errors: bool = True,
+    tracker_spread_mm: float = TRACKER_POSITION_SPREAD_MM,
+    scalar_first: bool = True,
 ) -> TrackerModel:
-    """Nominal + random geometric errors on the free parameters + an arbitrary tracker frame."""
+    """A "true" robot: nominal + random geometric errors + an arbitrary tracker frame.
+
+    Errors: N(0, ``LENGTH_ERROR_MM``) on the free lengths, N(0, ``ANGLE_ERROR_DEG``) on the free
+    angles of the joints and the reflector (the gauge parameters stay nominal); the tracker origin
+    uniform within +-``tracker_spread_mm`` of the nominal one per axis; its orientation uniform
+    (:func:`random_rotation` with ``scalar_first``). Draws in this order from ``rng``.
+    """
     lay = nominal.layout
     p = nominal.p.copy()
     if geometric_errors:
         size = np.where(lay.is_angle, np.deg2rad(ANGLE_ERROR_DEG), LENGTH_ERROR_MM)
-        joint_and_reflector = np.array([i for i in lay.free if not 24 <= i < 30])
-        p[joint_and_reflector] += size[joint_and_reflector] * rng.standard_normal(joint_and_reflector.size)
-    p[24:27] = nominal.p_WT + rng.uniform(-TRACKER_POSITION_SPREAD_MM, TRACKER_POSITION_SPREAD_MM, 3)
-    p[27:30] = 0.0
-    return dataclasses.replace(nominal, p=p, R_WT_ref=random_rotation(rng))
-
-
-def _per_pose(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise InputError(f"{name}: expected one finite number or {n} (one per pose)")
-    return arr
+        robot_side = lay.free_robot_side
+        p[robot_side] += size[robot_side] * rng.standard_normal(robot_side.size)
+    p[lay.tracker_position] = nominal.p_WT + rng.uniform(-tracker_spread_mm, tracker_spread_mm, 3)
+    p[lay.tracker_rotation] = 0.0
+    return dataclasses.replace(nominal, p=p, R_WT_ref=random_rotation(rng, scalar_first=scalar_first))
 
 
 def parameters_table(model: TrackerModel) -> list[dict]:
@@ -136,18 +142,16 @@ def simulate(
 
     rng = np.random.default_rng(seed)
     model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
-    t = np.arange(n) * SECONDS_PER_POSE if time_s is None else _per_pose(time_s, n, "time_s")
+    t = np.arange(n) * SECONDS_PER_POSE if time_s is None else per_pose(time_s, n, "time_s")
     if temperature_C is None:
         frac = t / t[-1] if n > 1 and t[-1] > 0 else np.zeros(n)
         temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
     else:
-        temp = _per_pose(temperature_C, n, "temperature_C")
-    payload = _per_pose(payload_kg, n, "payload_kg")
+        temp = per_pose(temperature_C, n, "temperature_C")
+    payload = per_pose(payload_kg, n, "payload_kg")
 
     effect_objs = []
     if effects:
-        from kpioed_drake.effects import parse_effect, resolve, true_measurements
-
         for e in effects:
             e = parse_effect(e, rng, model=model) if isinstance(e, str) else e
             effect_objs.append(resolve(e, model))
@@ -226,10 +230,25 @@ def simulate_file(
     truth_path: str | None = None,
     cell_path=None,
 ) -> tuple[pd.DataFrame, dict]:
-    """Read a design file, simulate it, write the measurement CSV (and the truth JSON) atomically.
+    """Simulated laser-tracker data of a design file (``kpioed simulate``), written atomically.
 
-    Nothing is written unless the whole simulation succeeds.
+    Args:
+        robot: model name or YAML path; design: design CSV; out: measurement CSV to write.
+        sigma_mm: noise per coordinate [mm]; seed: seed of the true robot, tracker frame and noise.
+        effects: non-geometric effects (e.g. ``["joint_elasticity:2"]``).
+        geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
+        payload_kg: payload at the reflector [kg] (>= 0).
+        truth_path: also write the true parameters as JSON.
+        cell_path: cell file (default ``models/cell.yaml``).
+
+    Returns:
+        (table, truth): the measurement table (pandas) and the truth dict. Nothing is written unless
+        the whole simulation succeeds.
     """
+    check_positive("sigma_mm", sigma_mm)
+    check_seed(seed)
+    check_positive("payload_kg", payload_kg, zero_ok=True)
+    check_paths(robot=robot, inputs=[design], outputs=[out, truth_path])
     rob = load_robot(robot)
     q = read_design(design, rob)
     table, truth = simulate(
@@ -242,9 +261,9 @@ def simulate_file(
         payload_kg=payload_kg,
         cell_path=cell_path,
     )
-    text = table_csv_text(table)
-    tj = truth_json(truth) if truth_path else None
-    atomic_write_text(out, text)
-    if truth_path:
-        atomic_write_json(truth_path, tj)
+    with Outputs() as staged:
+        staged.add_text(out, table_csv_text(table))
+        if truth_path:
+            staged.add_json(truth_path, truth_json(truth))
+        staged.commit()
     return table, truth

@@ -32,6 +32,7 @@ import numpy as np
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
+from kpioed_drake.designio import atomic_write_json
 
 DETECTABLE = 25.0
 
@@ -114,8 +115,6 @@ def main(argv=None) -> int:
     summary["families"] = list(fams)
     print(json.dumps(summary, indent=2))
     if a.json:
-        from kpioed_drake.designio import atomic_write_json
-
         atomic_write_json(a.json, {"summary": summary, "records": records})
     return 0
 

@@ -12,6 +12,7 @@ from kpioed_drake import calibration, measurement, models, problem, simulation
 from kpioed_drake.cli import main
 from kpioed_drake.designio import write_design
 from kpioed_drake.errors import InputError
+from kpioed_drake.measurements import Measurements, read_measurements
 
 SIGMA = 0.02
 
@@ -38,7 +39,8 @@ def z_scores(report, truth_model):
     free = res.free
     z = (res.model.p[free] - truth_model.p[free]) / res.std
     rot = Rotation.from_matrix(res.model.R_WT.T @ truth_model.R_WT).as_rotvec()
-    z[21:24] = rot / res.std[21:24]
+    r = res.model.layout.free_tracker_rotation
+    z[r] = rot / res.std[r]
     return z
 
 
@@ -82,7 +84,7 @@ def test_simulation_table_and_truth(robot, design):
 
 def test_noise_free_nominal_robot_calibrates_to_nominal(robot, design):
     table, truth = simulation.simulate(robot, design, sigma_mm=0.0, seed=1, geometric_errors=False)
-    rep = calibration.calibrate(robot, calibration.MeasurementData.from_table(table, robot))
+    rep = calibration.calibrate(robot, Measurements.from_table(table, robot))
     joint_ref = np.r_[rep.result.free[:18], 30, 31, 32]
     assert_allclose(rep.model.p[joint_ref], rep.nominal.p[joint_ref], atol=1e-7)
     assert_allclose(rep.kpi, rep.kpi_nominal, atol=1e-7)
@@ -98,7 +100,7 @@ def test_recovers_parameters_and_kpi_with_an_outlier(robot, design, tmp_path):
     table.loc[k_bad, "y_mm"] += 0.5  # 25 sigma
     path = tmp_path / "data.csv"
     path.write_text(simulation.table_csv_text(table))
-    data = calibration.read_measurements(path, robot)
+    data = read_measurements(path, robot)
     rep = calibration.calibrate(robot, data, sigma_mm=SIGMA)
     assert rep.result.converged
     assert rep.outliers == [k_bad]
@@ -120,7 +122,7 @@ def test_recovers_parameters_and_kpi_with_an_outlier(robot, design, tmp_path):
 
 def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     table, truth = simulated(robot, design, seed=12)
-    rep = calibration.calibrate(robot, calibration.MeasurementData.from_table(table, robot), sigma_mm=SIGMA)
+    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
     dof = rep.dof
     assert dof == 3 * 60 - 27
     lo, hi = chi2.ppf(0.0005, dof) / dof, chi2.ppf(0.9995, dof) / dof
@@ -131,11 +133,20 @@ def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     assert 0.015 < rep.rms_residual_mm < 0.025
     z = z_scores(rep, truth["model"])
     assert np.max(np.abs(z)) < 4.0
-    # sigma given too small: chi2/dof ~ 16, a warning, and outlier removal stops at the 10 % cap
-    rep2 = calibration.calibrate(robot, calibration.MeasurementData.from_table(table, robot), sigma_mm=0.005)
+    # sigma given 4x too small: most poses fail the outlier test at once; that is refused (these are
+    # no single bad points), and with force no pose is removed and the a-posteriori standard
+    # deviations (a-priori x sqrt(chi2/dof)) recover those of the right sigma
+    data = Measurements.from_table(table, robot)
+    with pytest.raises(InputError, match=r"poses fail the outlier test at sigma 0.005 mm.*about 0.02"):
+        calibration.calibrate(robot, data, sigma_mm=0.005)
+    rep2 = calibration.calibrate(robot, data, sigma_mm=0.005, force=True)
     assert 10.0 < rep2.chi2_per_dof < 25.0
-    assert len(rep2.outliers) <= 6
-    assert any("larger than a noise" in w for w in rep2.warnings)
+    assert rep2.outliers == []
+    assert any("forced" in w for w in rep2.warnings) and any("larger than a noise" in w for w in rep2.warnings)
+    post = np.array([p["std_aposteriori"] for p in rep2.parameter_table() if p["estimated"]])
+    right = np.array([p["std"] for p in rep.parameter_table() if p["estimated"]])
+    assert_allclose(post, right * np.sqrt(rep.chi2_per_dof), rtol=1e-6)  # both: the data's own scale
+    assert "a-posteriori" in rep2.summary()
 
 
 def test_monte_carlo_kpi_coverage(robot, design):
@@ -150,9 +161,7 @@ def test_monte_carlo_kpi_coverage(robot, design):
     d2 = np.empty(N)
     for seed in range(N):
         table, truth = simulated(robot, design, seed=1000 + seed)
-        rep = calibration.calibrate(
-            robot, calibration.MeasurementData.from_table(table, robot), sigma_mm=SIGMA
-        )
+        rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
         d2[seed] = kpi_distance2(rep, truth["model"])
     coverage = np.mean(d2 <= q95)
     print(f"KPI 95 % coverage {coverage:.3f}, mean d2 {d2.mean():.3f}")
@@ -240,7 +249,7 @@ def test_simulate_cli_then_calibrate(robot, design, tmp_path, capsys):
     assert main([*args, "--truth", str(truth_path)]) == 0
     truth = json.loads(truth_path.read_text())
     assert len(truth["parameters"]) == 33 and truth["effects"] == []
-    m = calibration.read_measurements(data, robot)
+    m = read_measurements(data, robot)
     assert m.n == 60 and m.temperature_C is not None and m.time_s is not None and m.payload_kg is None
     rep = calibration.calibrate(robot, m)
     true_p = np.array([p["value"] for p in truth["parameters"]])
@@ -353,13 +362,13 @@ def test_bad_input_library_errors(robot, design, tmp_path):
         path = tmp_path / f"{name}.csv"
         path.write_text(text)
         with pytest.raises(InputError) as exc:
-            calibration.read_measurements(path, robot)
+            read_measurements(path, robot)
         msg = str(exc.value)
         assert str(path) in msg, (name, msg)
         for needle in needles:
             assert needle in msg, (name, needle, msg)
     with pytest.raises(InputError, match="file not found"):
-        calibration.read_measurements(tmp_path / "nope.csv", robot)
+        read_measurements(tmp_path / "nope.csv", robot)
 
 
 def test_bad_input_cli_exit_2_without_output(robot, design, tmp_path, capsys):

@@ -1,12 +1,15 @@
 """Core: models, kinematics vs Drake, derivatives vs finite differences, eq. 19 identities."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from kpioed_drake import covariance
+from kpioed_drake import covariance, criteria
 from kpioed_drake.authoring import work_target
 from kpioed_drake.errors import InputError
+from kpioed_drake.feasibility import FeasibilityChecker
 from kpioed_drake.geometry import ClearanceModel, segment_distance
 from kpioed_drake.identifiability import check_identifiability
 from kpioed_drake.kinematics import flange_point, forward_kinematics
@@ -47,15 +50,21 @@ def test_plant_forward_kinematics_matches_numpy(name):
             assert_allclose(X.rotation().matrix(), fr.R[0, i], rtol=0, atol=1e-12)
 
 
-def test_every_shipped_robot_has_27_identifiable_parameters():
+def test_every_shipped_robot_has_all_its_parameters_identifiable():
+    """27 for every robot of the paper (93); the UR5 holds theta5 and alpha5 too (its target lies on
+    joint 6's axis), and without that extra gauge they are not identifiable."""
     names = list_robots()
-    assert len(names) == 93
+    assert len(names) == 94 and "ur5" in names
     for name in names:
         robot = load_robot(name)
         rep = check_identifiability(robot, load_cell(robot=robot), seed=3)
-        assert rep.n_candidates == 27
-        assert rep.rank == 27, (name, rep.unidentifiable)
+        assert rep.n_candidates == 27 - len(robot.extra_gauge)
+        assert rep.rank == rep.n_candidates, (name, rep.unidentifiable)
         assert rep.singular_values[-1] > 1e-3, name
+    assert load_robot("ur5").extra_gauge == ("theta5", "alpha5")
+    ur5 = dataclasses.replace(load_robot("ur5"), extra_gauge=())
+    rep = check_identifiability(ur5, load_cell(robot=ur5), seed=3)
+    assert rep.n_candidates == 27 and rep.rank == 25 and len(rep.unidentifiable) == 2  # two dependencies
 
 
 def test_all_33_candidates_have_exactly_six_dependencies():
@@ -164,8 +173,6 @@ def test_segment_distance_matches_brute_force():
 
 @pytest.mark.parametrize("name", ["kr16", "kr500", "notional-700-900"])
 def test_numpy_clearances_agree_with_drake_signed_distance(name):
-    from kpioed_drake.feasibility import FeasibilityChecker
-
     robot = load_robot(name)
     cell = load_cell(robot=robot)
     cm, fc = ClearanceModel(robot, cell), FeasibilityChecker(robot, cell)
@@ -196,8 +203,6 @@ def test_numpy_clearances_agree_with_drake_signed_distance(name):
 
 
 def test_drake_checks_exactly_the_declared_pairs():
-    from kpioed_drake.feasibility import FeasibilityChecker
-
     robot = load_robot("kr16")
     fc = FeasibilityChecker(robot, load_cell(robot=robot))
     keys = {k for k in fc.clearances(robot.q_work) if not k.startswith("beam")}
@@ -227,6 +232,61 @@ def test_covariance_forms_agree():
         assert_allclose(Cv[:k, :k], Cp, rtol=1e-9, atol=1e-9 * np.abs(Cp).max())
         assert_allclose(Cv[k:, k:], Cs, rtol=1e-9, atol=1e-9 * np.abs(Cs).max())
         assert_allclose(Cv[k:, :k], Js @ Cp, rtol=1e-9, atol=1e-9 * np.abs(Js @ Cp).max())
+
+
+@pytest.mark.parametrize("name", criteria.CRITERIA)
+def test_criteria_match_independent_formulas_and_their_adjoint(name):
+    prob = make_problem("kr16")
+    rng = np.random.default_rng(4)
+    q = rng.uniform(prob.robot.lower, prob.robot.upper, size=(30, 6))
+    F1, Js, scale = prob.F1(q), prob.Js(), prob.scale
+    crit = criteria.resolve(name)
+    value, dF1 = crit.evaluate(F1, Js, scale)
+    Cp, Cs = covariance.kpi_covariance(F1, Js)
+    mu = np.linalg.svd(F1, compute_uv=False)
+    expected = {
+        "kpi": np.trace(Cs) / 3.0,
+        "param": np.trace(np.diag(scale) @ Cp @ np.diag(scale)),
+        "d": -np.linalg.slogdet(F1.T @ F1)[1],
+        "o1": -np.exp(np.mean(np.log(mu))) / np.sqrt(len(mu)),
+    }[name]
+    assert_allclose(value, expected, rtol=1e-9)
+    assert crit.evaluate(F1, Js, scale, with_grad=False) == value
+    # d value / d F1 against central differences, on random entries
+    for i, j in zip(rng.integers(0, F1.shape[0], 12), rng.integers(0, F1.shape[1], 12), strict=True):
+        h = 1e-7 * np.abs(F1[:, j]).max()  # columns differ in size by 1e4
+        Fp, Fm = F1.copy(), F1.copy()
+        Fp[i, j] += h
+        Fm[i, j] -= h
+        fd = (
+            crit.evaluate(Fp, Js, scale, with_grad=False) - crit.evaluate(Fm, Js, scale, with_grad=False)
+        ) / (2 * h)
+        assert_allclose(dF1[i, j], fd, rtol=1e-5, atol=1e-7 * np.abs(dF1).max())
+    # information held fixed (M0) is the same as its rows appended to F1
+    v_fixed, g_fixed = crit.evaluate(F1[:45], Js, scale, M0=F1[45:].T @ F1[45:])
+    assert_allclose(v_fixed, value, rtol=1e-10)
+    assert_allclose(g_fixed, dF1[:45], rtol=1e-8, atol=1e-12 * np.abs(dF1).max())
+
+
+@pytest.mark.parametrize("name", criteria.CRITERIA)
+def test_normalised_changes_of_a_criterion_do_not_depend_on_the_noise_level(name):
+    """The optimiser's cost scale and the sweeps' stopping test see the same change whatever sigma:
+    F1 scales as 1/sigma, which multiplies kpi, param and o1 and shifts d (a log)."""
+    prob = make_problem("kr16")
+    rng = np.random.default_rng(5)
+    Fa, Fb = (prob.F1(rng.uniform(prob.robot.lower, prob.robot.upper, size=(20, 6))) for _ in range(2))
+    crit, Js, scale, k = criteria.resolve(name), prob.Js(), prob.scale, prob.n_params
+    changes = []
+    for c in (1.0, 7.0):  # sigma divided by c
+        va, vb = (crit.evaluate(c * F, Js, scale, with_grad=False) for F in (Fa, Fb))
+        changes.append((va - vb) / crit.normalisation(va, k))
+    assert abs(changes[0]) > 1e-3
+    assert_allclose(changes[1], changes[0], rtol=1e-9)
+
+
+def test_unknown_criterion_is_an_input_error():
+    with pytest.raises(InputError, match="unknown criterion 'e-optimal'; expected one of kpi, param, d, o1"):
+        criteria.resolve("e-optimal")
 
 
 def test_working_pose_reaches_the_work_point():

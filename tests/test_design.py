@@ -7,8 +7,10 @@ import json
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
 
-from kpioed_drake import design
+from kpioed_drake import api, design
+from kpioed_drake.cli import main
 from kpioed_drake.design import (
     DesignConstraints,
     DesignError,
@@ -18,8 +20,11 @@ from kpioed_drake.design import (
     incidence_rows,
     optimize_design,
 )
+from kpioed_drake.design import solve as design_solve
+from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import FeasibilityChecker
+from kpioed_drake.measurement import incidence_cosine
 from kpioed_drake.problem import make_problem
 
 
@@ -64,8 +69,6 @@ def test_objective_gradient_matches_central_differences(kr16, criterion):
 def test_incidence_gradient_matches_central_differences(kr16):
     q = _random_poses(kr16, 10, seed=2)
     c, dc = incidence_rows(kr16, q)
-    from kpioed_drake.measurement import incidence_cosine
-
     assert_allclose(c + np.cos(kr16.cell.max_incidence), incidence_cosine(kr16.model, q), atol=1e-14)
     fd = _central_fd(lambda x: incidence_rows(kr16, x)[0], q, 1e-6)  # (n, n, 6)
     assert_allclose(dc, np.einsum("kkj->kj", fd), rtol=1e-6, atol=1e-8)
@@ -87,8 +90,6 @@ def test_constraint_gradient_matches_central_differences(kr16):
 
 
 def test_autodiff_path_returns_the_same_values_and_gradients(kr16):
-    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
     n = 10
     q = heuristic_design(kr16, n=n, seed=4)
     dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, cost_scale=2.0, active_rows=None)
@@ -160,8 +161,6 @@ def test_active_rows_are_the_smallest_and_keep_their_slots():
 
 
 def test_program_with_active_rows_passes_the_smallest_clearances_and_their_gradient(kr16):
-    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
     n, m = 9, 4
     q = heuristic_design(kr16, n=n, seed=6)
     dp = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m)
@@ -191,8 +190,6 @@ def test_program_with_active_rows_passes_the_smallest_clearances_and_their_gradi
 
 
 def test_pose_blocks_compute_all_rows_once_and_never_reuse_rows_of_other_angles(kr16):
-    from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
-
     n, m = 25, 4
     q = heuristic_design(kr16, n=n, seed=3)
     one = DesignProgram(kr16, criterion="kpi", n=n, collision=True, active_rows=m, pose_block=None)
@@ -304,8 +301,6 @@ def test_q_work_outside_limits_is_an_input_error(tmp_path):
 
 
 def test_cli_bad_input_exits_2(tmp_path, capsys):
-    from kpioed_drake.cli import main
-
     out = str(tmp_path / "d.csv")
     assert main(["design", "--robot", "kr16", "--criterion", "kpi", "--n", "5", "--out", out]) == 2
     assert "at least 9 poses" in capsys.readouterr().err
@@ -321,21 +316,19 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
 # Optimised designs
 # ----------------------------------------------------------------------------------------------
 def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monkeypatch, capsys):
-    orig = design.solver_options
+    orig = design_solve.solver_options
 
     def one_iteration(solver, n):
         opts = orig(solver, n)
         opts["Major iterations limit"] = 1
         return opts
 
-    monkeypatch.setattr(design, "solver_options", one_iteration)
+    monkeypatch.setattr(design_solve, "solver_options", one_iteration)
     with pytest.raises(DesignError, match="failed") as exc:
         optimize_design(kr16, criterion="kpi", n=12)
     assert exc.value.result is not None and not exc.value.result.success
     res = optimize_design(kr16, criterion="kpi", n=12, allow_infeasible=True)
     assert not res.success and "snopt info" in res.status
-
-    from kpioed_drake.cli import main
 
     out, js = tmp_path / "d.csv", tmp_path / "d.json"
     code = main(f"design --robot kr16 --criterion kpi --n 12 --out {out} --json {js}".split())
@@ -346,10 +339,6 @@ def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monk
 
 
 def test_cli_writes_a_design_that_evaluate_reads(tmp_path, capsys):
-    from kpioed_drake import api
-    from kpioed_drake.cli import main
-    from kpioed_drake.designio import read_design
-
     out, js, png = tmp_path / "kpi.csv", tmp_path / "kpi.json", tmp_path / "kpi.png"
     code = main(
         f"design --robot kr16 --criterion kpi --n 15 --seed 1 --out {out} --json {js} --plot {png}".split()
@@ -373,8 +362,6 @@ def test_cli_writes_a_design_that_evaluate_reads(tmp_path, capsys):
 
 
 def test_heuristic_cli_with_json(tmp_path, capsys):
-    from kpioed_drake.cli import main
-
     out, js = tmp_path / "h.csv", tmp_path / "h.json"
     assert main(f"design --robot kr16 --criterion heuristic --n 20 --out {out} --json {js}".split()) == 0
     rec = json.loads(js.read_text())
@@ -418,10 +405,18 @@ def test_reduced_study_slow(robot):
 def test_design_without_collision_avoidance_reports_collisions(kr16):
     res = optimize_design(kr16, criterion="kpi", n=30, collision=False, seed=0)
     assert res.success and res.feasible  # joint limits and incidence hold
-    assert 0 <= res.n_colliding_poses <= 30
     assert res.n_infeasible_poses == 0
-    n_col = sum(any(f["check"] in ("collision", "beam") for f in r["failures"]) for r in res.reports)
-    assert n_col == res.n_colliding_poses
+    # the count equals an independent query: Drake's signed distances (and the beam distances)
+    # of every pose, below the checker's tolerance
+    checker = FeasibilityChecker(kr16.robot, kr16.cell)
+    clearances = [min(checker.clearances(qi).values()) for qi in res.q]
+    n_col = sum(c < -checker.tol_mm for c in clearances)
+    assert res.n_colliding_poses == n_col
+    assert n_col > 0  # without collision avoidance the KPI optimum moves poses into collision
+    colliding = {
+        r["index"] for r in res.reports if any(f["check"] in ("collision", "beam") for f in r["failures"])
+    }
+    assert colliding == {k for k, c in enumerate(clearances) if c < -checker.tol_mm}
 
 
 def test_fixed_information_equals_the_design_with_those_poses_added(kr16):

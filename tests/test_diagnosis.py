@@ -15,7 +15,9 @@ import pytest
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
+from kpioed_drake.calibration import calibrate
 from kpioed_drake.errors import InputError
+from kpioed_drake.measurements import Measurements
 from kpioed_drake.models import load_robot
 
 SIGMA = 0.02
@@ -111,8 +113,8 @@ def test_report_json_contract_cli_and_plots(kr16, tmp_path):
     assert {"tcp_shift_mm", "kpi_avg_var_mm2_baseline", "kpi_avg_var_mm2_extended"} <= set(d["kpi"])
     for name in ("residual_structure.png", "before_after.png"):
         assert (tmp_path / "p" / name).stat().st_size > 10_000
-    # the DataFrame path gives the same answer as the file path
-    rep = D.diagnose("kr16", case.data.to_frame())
+    # data from a DataFrame in the file format gives the same answer as the file
+    rep = D.diagnose("kr16", Measurements.from_table(case.data.to_frame()))
     assert rep.cause_keys == {("joint_elasticity", 2, None), ("gear_cyclic", 4, 2)}
     # the two top score statistics of the residual structure point at the two causes
     top = {s["candidate"] for s in rep.residual_structure[:3]}
@@ -120,11 +122,14 @@ def test_report_json_contract_cli_and_plots(kr16, tmp_path):
 
 
 def test_absorbed_candidate_is_reported_not_fitted(kr16):
-    """With joint 4 held still, a gear error of joint 4 is a constant angle offset: absorbed by theta4."""
+    """With joint 4 only at 0 and 180 deg, sin(n q4) is 0 and cos(2 q4) is 1: the gear error of joint 4
+    is a constant angle offset, absorbed by theta4 (reported, not fitted) while the geometry itself
+    stays determined (calibrate accepts these poses)."""
     rng = np.random.default_rng(5)
     q = D.random_poses(kr16, 80, rng)
-    q[:, 3] = np.deg2rad(30.0)
+    q[:, 3] = np.where(np.arange(80) % 2 == 0, 0.0, np.pi)
     case = D.synthetic_case(kr16, rng, [], q=q)
+    calibrate(kr16, case.data)  # no error: the poses determine the geometry
     rep = D.diagnose(kr16, case.data)
     rows = {r["candidate"]: r for r in rep.steps[0]["candidates"]}
     for n in (1, 2):
@@ -133,6 +138,18 @@ def test_absorbed_candidate_is_reported_not_fitted(kr16):
         assert "lr_stat" not in rows[f"gear_cyclic:4:{n}"]
     assert rows["gear_cyclic:5:2"]["remaining"] > 0.3
     assert not rep.discrepancy
+
+
+def test_undetermined_geometry_is_refused_like_calibrate(kr16):
+    """With joint 4 held still the geometric parameters are not determined: diagnose refuses, as
+    calibrate does (it used to go on with a pseudo-inverse and name causes)."""
+    rng = np.random.default_rng(5)
+    q = D.random_poses(kr16, 80, rng)
+    q[:, 3] = np.deg2rad(30.0)
+    case = D.synthetic_case(kr16, rng, [], q=q)
+    for run in (calibrate, D.diagnose):
+        with pytest.raises(InputError, match="do not determine"):
+            run(kr16, case.data)
 
 
 def test_candidates_follow_the_data(kr16):
@@ -159,7 +176,9 @@ def test_bad_inputs(kr16):
     with pytest.raises(InputError, match="sigma"):
         D.diagnose(kr16, case.data, sigma_mm=0.0)
     with pytest.raises(InputError, match="missing column 'z_mm'"):
-        D.diagnose(kr16, case.data.to_frame().drop(columns=["z_mm"]))
+        D.diagnose(kr16, Measurements.from_table(case.data.to_frame().drop(columns=["z_mm"])))
+    with pytest.raises(InputError, match="expected Measurements"):
+        D.diagnose(kr16, case.data.to_frame())
 
 
 # ------------------------------------------------------------------------------------------ rates (slow)

@@ -23,9 +23,10 @@ def model(kr16):
     nom = nominal_model(kr16, load_cell(robot=kr16))
     rng = np.random.default_rng(3)
     p = nom.p.copy()
-    p[:24] += 0.01 * rng.standard_normal(24)
-    p[27:30] = 0.01 * rng.standard_normal(3)
-    p[30:33] += rng.standard_normal(3)
+    lay = nom.layout
+    p[lay.joints] += 0.01 * rng.standard_normal(lay.joints.stop)
+    p[lay.tracker_rotation] = 0.01 * rng.standard_normal(3)
+    p[lay.target(0)] += rng.standard_normal(3)
     return nom.with_params(p)
 
 
@@ -192,8 +193,8 @@ def test_effect_models_match_their_definitions(model, poses):
     for i in range(len(q)):
         p = model.p.copy()
         s = 1 + k * (T[i] - fx.T_REF_C)
-        p[:24][is_len] *= s
-        p[30:33] *= s
+        p[model.layout.joints][is_len] *= s
+        p[model.layout.target(0)] *= s
         np.testing.assert_allclose(h[i], measure(model.with_params(p), q[i : i + 1])[0], atol=1e-9)
     # drift: the tracker origin moves by v t in W
     v = np.array([0.03, -0.01, 0.02])  # mm/min

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from kpioed_drake.calibration import calibrate_extended
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignObjective
 from kpioed_drake.designio import write_design
-from kpioed_drake.diagnosis import calibrate_extended, random_poses
+from kpioed_drake.diagnosis import random_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.models import load_robot
 from kpioed_drake.problem import make_problem

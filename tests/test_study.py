@@ -7,15 +7,23 @@ import dataclasses
 import json
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from kpioed_drake import study
+from kpioed_drake.cli import build_parser
+from kpioed_drake.design import DESIGN_METHODS
 from kpioed_drake.designio import read_design
+from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import FeasibilityChecker
+from kpioed_drake.geometry import ClearanceModel
+from kpioed_drake.measurement import incidence_cosine
 from kpioed_drake.problem import make_problem
+
+COMMITTED = Path(__file__).resolve().parents[1] / "studies" / "results"
 
 
 @dataclasses.dataclass
@@ -35,9 +43,6 @@ class FakeDesign:
 
     @staticmethod
     def heuristic_design(problem, *, n=60, seed=0, collision=True):
-        from kpioed_drake.geometry import ClearanceModel
-        from kpioed_drake.measurement import incidence_cosine
-
         rng = np.random.default_rng(seed)
         cm = ClearanceModel(problem.robot, problem.cell) if collision else None
         out = np.zeros((0, 6))
@@ -109,11 +114,7 @@ def _check_outputs(res, robots, n, draws):
         p = make_problem(robot)
         chk = FeasibilityChecker(p.robot, p.cell)
         for _, r in df[df["robot"] == robot].iterrows():
-            ca = "ca" if r["collision_avoidance"] else "noca"
-            name = f"{robot}_{r['criterion']}_{ca}" + (
-                f"_s{r['seed']}" if r["criterion"] == "heuristic" else ""
-            )
-            q = read_design(d / "designs" / f"{name}.csv", p.robot)
+            q = read_design(d / "designs" / study.Task.from_row(r).design_name, p.robot)
             assert q.shape == (n, 6)
             assert p.criteria(q)["kpi_avg_var_mm2"] == pytest.approx(r["kpi_avg_var_mm2"], rel=1e-4)
             if r["feasible"]:
@@ -132,6 +133,10 @@ def test_study_machinery_fake(tmp_path):
     _check_outputs(res, ROBOTS, 30, 2)
     assert {p.name for p in res.figures} == {"figure7_kr16.png", "figure8_notional.png"}
     assert len(list((tmp_path / "tasks").glob("*.json"))) == 12
+    # one design file per task, and each row names its own task
+    assert len(list((tmp_path / "designs").glob("*.csv"))) == 12
+    tasks = study.make_tasks(ROBOTS, n=30, heuristic_draws=2)
+    assert [study.Task.from_row(r) for _, r in res.results.iterrows()] == tasks
     # a second run resumes everything and changes nothing
     before = _tables(tmp_path)
     res2 = study.run_study(
@@ -180,7 +185,7 @@ def test_study_process_pool_same_numbers(tmp_path):
 def test_study_dask_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     tasks = study.make_tasks(["kr16"], n=30, heuristic_draws=2)
-    tasks = [t for t in tasks if t.criterion == "heuristic"] + tasks[:1]
+    tasks = [t for t in tasks if t.method == "heuristic"] + tasks[:1]
     with distributed.LocalCluster(
         n_workers=2,
         processes=False,
@@ -200,8 +205,6 @@ def test_study_dask_local_cluster(tmp_path):
 
 
 def test_study_cli_parser():
-    from kpioed_drake.cli import build_parser
-
     a = build_parser().parse_args(["study", "--quick", "--jobs", "2", "--out", "x"])
     assert (
         a.quick
@@ -213,8 +216,6 @@ def test_study_cli_parser():
 
 
 def test_study_bad_input(tmp_path):
-    from kpioed_drake.errors import InputError
-
     with pytest.raises(InputError, match="unknown robot"):
         study.run_study(tmp_path, robots=["kr17"], progress=False, design_api=FAKE)
 
@@ -222,6 +223,26 @@ def test_study_bad_input(tmp_path):
 def test_quick_robots_exist():
     names = set(study.study_robots(False))
     assert len(names) == 93 and set(study.study_robots(True)) <= names
+
+
+def test_study_methods_are_design_methods():
+    """The study's methods are design methods, in the row order of Tables 7 and 8."""
+    assert set(study.METHODS) <= set(DESIGN_METHODS)
+    assert {t.method for t in study.make_tasks(["kr16"])} == set(study.METHODS)
+
+
+def test_task_names_unique_and_match_the_committed_study():
+    """Task ids and design names are unique over the full study, the design names are the files the
+    full study wrote, and every committed result row parses back to its task."""
+    tasks = study.make_tasks(study.study_robots(False))
+    assert len({t.task_id for t in tasks}) == len(tasks) == 93 * 14
+    names = [t.design_name for t in tasks]
+    assert len(set(names)) == len(tasks)
+    assert set(names) == {p.name for p in (COMMITTED / "designs").glob("*.csv")}
+    rows = pd.read_csv(COMMITTED / "results.csv")
+    assert [study.Task.from_row(r) for _, r in rows.iterrows()] == tasks
+    # the quick study's tasks are the full study's (a full study in the same folder reuses them)
+    assert set(study.make_tasks(study.study_robots(True), heuristic_draws=3)) <= set(tasks)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -250,10 +271,7 @@ def _assert_findings(res):
         p = make_problem(robot)
         chk = FeasibilityChecker(p.robot, p.cell)
         for _, r in claimed[claimed["robot"] == robot].iterrows():
-            name = f"{robot}_{r['criterion']}_ca" + (
-                f"_s{r['seed']}" if r["criterion"] == "heuristic" else ""
-            )
-            q = read_design(res.out_dir / "designs" / f"{name}.csv", p.robot)
+            q = read_design(res.out_dir / "designs" / study.Task.from_row(r).design_name, p.robot)
             assert all(x.feasible for x in chk.check(q))
     # the heuristic draws are feasible by construction; an optimised CA design the optimiser did not
     # call feasible (e.g. SNOPT's iteration limit) is reported, not hidden

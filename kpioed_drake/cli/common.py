@@ -1,4 +1,7 @@
-"""Argument helpers shared by the subcommands."""
+"""Argument helpers shared by the subcommands, and JSON output.
+
+The values are checked by :mod:`kpioed_drake.api` (one place for the CLI and Python users).
+"""
 
 from __future__ import annotations
 
@@ -45,6 +48,31 @@ def add_json_out(p) -> None:
         metavar="FILE",
         help="write the report as JSON to FILE (or stdout)",
     )
+
+
+def add_html(p) -> None:
+    """``--html FILE``: a self-contained 3-D page (Drake Meshcat) of the result."""
+    p.add_argument(
+        "--html", default=None, metavar="FILE.html", help="write a 3-D page (Meshcat) of the result"
+    )
+
+
+def add_force_and_format(p) -> None:
+    """``--force`` (go on with implausible data) and ``--format F.yaml`` (a file of another layout)."""
+    p.add_argument(
+        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
+    )
+    p.add_argument(
+        "--format",
+        default=None,
+        metavar="F.yaml",
+        help="format file of a measurement file of another layout (docs/data-formats.md)",
+    )
+
+
+def json_file(target) -> str | None:
+    """The ``--json`` file to write (None for none or for stdout)."""
+    return None if target in (None, True, "-") else target
 
 
 def emit_json(data, target) -> None:

@@ -3,20 +3,36 @@
 Exit status: 0 success; 2 bad input; 3 the solver failed or the design is infeasible (nothing is
 written to ``--out``; ``--json`` still records the failure). ``--allow-infeasible`` writes the
 design anyway and exits 0 with a warning.
+
+Several KPIs (paper, Outlook): ``--q-work`` repeated, or ``--q-work-file`` (a CSV of working poses,
+e.g. a working path sampled at K points), with ``--kpi-weights`` and ``--kpi-aggregate mean|max``.
+Sequential re-identification (paper 3.1): ``--given D.csv`` adds ``--n`` new poses to poses
+already measured. Fewest poses for a precision (paper, Conclusion): ``--target-var V``.
+``--start approximate`` starts the KPI optimisation from the rounded approximate design;
+``--certify`` adds the optimality certificate (a lower bound on tr(Cs)/3 of any design of as many
+poses, and the design's efficiency) to the summary and the JSON record.
 """
 
 from __future__ import annotations
 
 import sys
 
-from kpioed_drake.cli.common import add_extend, add_q_work, add_robot, add_sigma
-
-EXIT_DESIGN_FAILED = 3
+from kpioed_drake import api
+from kpioed_drake.cli.common import add_extend, add_html, add_robot, add_sigma
+from kpioed_drake.criteria import TABLE
+from kpioed_drake.design import (
+    DEFAULT_START,
+    DESIGN_METHODS,
+    SOLVERS,
+    START_METHODS,
+    DesignError,
+    format_summary,
+)
+from kpioed_drake.errors import EXIT_SOLVER, InputError
+from kpioed_drake.problem import KPI_AGGREGATES
 
 
 def register(sub) -> None:
-    from kpioed_drake.design import DESIGN_CRITERIA, SOLVERS
-
     p = sub.add_parser(
         "design",
         help="compute measurement poses (KPI, standard, D, O1 optimal or heuristic)",
@@ -26,29 +42,100 @@ def register(sub) -> None:
     p.add_argument(
         "--criterion",
         required=True,
-        choices=DESIGN_CRITERIA,
-        help="kpi = tr(Cs)/3 (paper), param = scaled tr(Cp) (standard), d, o1, heuristic = random feasible",
+        choices=DESIGN_METHODS,
+        help="; ".join(
+            ["heuristic = random feasible poses (paper 3.2)"]
+            + [f"{c.name} = {c.description}" for c in TABLE.values()]
+        ),
     )
     p.add_argument("--n", type=int, default=60, help="number of poses (default 60)")
     p.add_argument("--no-collision", action="store_true", help="no collision or laser-beam constraints")
     p.add_argument("--solver", choices=SOLVERS, default="snopt", help="NLP solver (default snopt)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the heuristic start (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the start (default 0)")
+    p.add_argument(
+        "--start",
+        choices=START_METHODS,
+        default=None,
+        help="the optimiser's start: heuristic = random feasible poses; approximate = the approximate KPI "
+        f"design rounded to --n poses (criterion kpi only) (default {DEFAULT_START} for kpi, else heuristic)",
+    )
+    p.add_argument(
+        "--certify",
+        action="store_true",
+        help="add the optimality certificate: a lower bound on tr(Cs)/3 of any design of --n poses and the "
+        "design's efficiency (bound/value; 5-12 s per robot)",
+    )
     p.add_argument("--starts", type=int, default=1, help="number of starts, the best is kept (default 1)")
     add_sigma(p)
-    add_q_work(p)
+    _add_kpi_options(p)
+    p.add_argument(
+        "--given",
+        default=None,
+        metavar="D.csv",
+        help="design CSV of poses already measured: their information is held fixed and --n new poses "
+        "are optimised (--out gets the new poses; the values are those of the combined design)",
+    )
+    p.add_argument(
+        "--target-var",
+        type=float,
+        default=None,
+        metavar="V",
+        help="find the fewest poses whose design reaches tr(Cs)/3 <= V [mm^2] (warm-started search; "
+        "--n is not used)",
+    )
     p.add_argument("--out", required=True, metavar="FILE", help="design CSV to write")
     p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
     p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
-    p.add_argument("--plot", default=None, metavar="FILE.png", help="PNG picture of the poses")
+    p.add_argument("--plot", default=None, metavar="FILE.png", help="picture of the poses (.png, .pdf, .svg)")
+    add_html(p)
     add_extend(p)
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from kpioed_drake.design import DesignError, format_summary, run_design
+def _add_kpi_options(p) -> None:
+    """The working poses of the KPI: ``--q-work`` (repeatable), ``--q-work-file``, weights, aggregate."""
+    p.add_argument(
+        "--q-work",
+        action="append",
+        default=None,
+        metavar="q1,...,q6",
+        help="working pose [deg], overrides the model's; repeat it for several KPIs (working poses, or a "
+        "working path sampled at K points)",
+    )
+    p.add_argument(
+        "--q-work-file",
+        default=None,
+        metavar="FILE.csv",
+        help="CSV of working poses (q1_deg..q6_deg [deg], optional weight column) instead of --q-work",
+    )
+    p.add_argument(
+        "--kpi-weights",
+        default=None,
+        metavar="w1,...,wK",
+        help="weights of the working poses in the mean KPI (normalised to sum 1; default equal)",
+    )
+    p.add_argument(
+        "--kpi-aggregate",
+        choices=KPI_AGGREGATES,
+        default="mean",
+        help="KPI of several working poses: the weighted mean of their tr(Cs)/3 or the worst (default mean)",
+    )
 
+
+def _weights(text: str | None) -> list[float] | None:
+    """``--kpi-weights w1,...,wK`` as numbers (checked by :func:`~kpioed_drake.problem.make_problem`)."""
+    if text is None:
+        return None
     try:
-        res = run_design(
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise InputError(f"--kpi-weights: expected comma-separated numbers, got {text!r}") from None
+
+
+def run(args) -> int:
+    q_work = args.q_work[0] if args.q_work and len(args.q_work) == 1 else args.q_work
+    try:
+        res = api.design(
             args.robot,
             criterion=args.criterion,
             n=args.n,
@@ -57,24 +144,32 @@ def run(args) -> int:
             seed=args.seed,
             starts=args.starts,
             sigma_mm=args.sigma_mm,
-            q_work_deg=args.q_work,
+            q_work_deg=q_work,
+            q_work_file=args.q_work_file,
+            kpi_weights=_weights(args.kpi_weights),
+            kpi_aggregate=args.kpi_aggregate,
+            given=args.given,
+            target_var_mm2=args.target_var,
+            extend=args.extend,
             out=args.out,
             json_path=args.json,
-            allow_infeasible=args.allow_infeasible,
             plot=args.plot,
-            extend=args.extend,
+            html=args.html,
+            allow_infeasible=args.allow_infeasible,
+            start=args.start,
+            certify=args.certify,
         )
     except DesignError as exc:
         if exc.result is not None:
             print(format_summary(exc.result), file=sys.stderr)
         print(f"kpioed: design failed: {exc}", file=sys.stderr)
-        return EXIT_DESIGN_FAILED
+        return EXIT_SOLVER
     print(format_summary(res))
     if not (res.success and res.feasible):
         print(
             "kpioed: warning: the design failed or is infeasible (written because of --allow-infeasible)",
             file=sys.stderr,
         )
-    written = [str(x) for x in (args.out, args.json, args.plot) if x]
+    written = [str(x) for x in (args.out, args.json, args.plot, args.html) if x]
     print(f"  wrote {', '.join(written)}")
     return 0

@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from kpioed_drake.cli.common import add_json_out, add_robot, add_sigma, emit_json
+from kpioed_drake import api
+from kpioed_drake.cli.common import (
+    add_force_and_format,
+    add_html,
+    add_json_out,
+    add_robot,
+    add_sigma,
+    emit_json,
+    json_file,
+)
 
 
 def register(sub) -> None:
@@ -22,21 +31,27 @@ def register(sub) -> None:
     add_sigma(p, default=0.02)
     add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write residual plots (PNG) into DIR")
+    add_html(p)
+    add_force_and_format(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from kpioed_drake.diagnosis import diagnose
-
-    report = diagnose(args.robot, args.data, sigma_mm=args.sigma_mm)
-    if args.json:
-        emit_json(report.to_json(), args.json)
-        if args.json == "-":
-            return 0
+    report = api.diagnose(
+        args.robot,
+        args.data,
+        sigma_mm=args.sigma_mm,
+        json_path=json_file(args.json),
+        plots_dir=args.plots,
+        html=args.html,
+        force=args.force,
+        data_format=args.format,
+    )
+    if args.json == "-":
+        emit_json(report.to_json(), "-")
+        return 0
     print(report.summary())
-    if args.plots:
-        from kpioed_drake.diagnosis_plots import write_plots
-
-        for path in write_plots(report, args.plots):
-            print(f"  plot: {path}")
+    for path, what in ((args.plots, "plots"), (args.html, "3-D page")):
+        if path:
+            print(f"  {what}: {path}")
     return 0

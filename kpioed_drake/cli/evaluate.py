@@ -1,30 +1,46 @@
-"""``kpioed evaluate``: KPI variance, standard criterion and feasibility of a design file."""
+"""``kpioed evaluate``: KPI variance, standard criterion and feasibility of a design file; with
+``--certify`` its optimality certificate (:func:`kpioed_drake.design.certify`)."""
 
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_extend, add_json_out, add_q_work, add_robot, add_sigma, emit_json
+from kpioed_drake.cli.common import (
+    add_extend,
+    add_html,
+    add_json_out,
+    add_q_work,
+    add_robot,
+    add_sigma,
+    emit_json,
+    json_file,
+)
+from kpioed_drake.design import certificate_line
 
 
 def register(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate a design CSV (q1_deg..q6_deg)")
     add_robot(p)
     p.add_argument("--design", required=True, help="design CSV with columns q1_deg..q6_deg")
+    p.add_argument(
+        "--certify",
+        action="store_true",
+        help="add the optimality certificate: a lower bound on tr(Cs)/3 of any feasible design of as many "
+        "poses (collision avoidance) and the design's efficiency (bound/value; 5-12 s per robot)",
+    )
     add_sigma(p)
     add_q_work(p)
     add_extend(p)
     add_json_out(p)
+    add_html(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    d = api.evaluate(
-        args.robot, args.design, sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend
-    )
-    if args.json:
-        emit_json(d, args.json)
-        if args.json == "-":
-            return 0
+    options = dict(sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend, html=args.html)
+    d = api.evaluate(args.robot, args.design, json_path=json_file(args.json), certify=args.certify, **options)
+    if args.json == "-":
+        emit_json(d, "-")
+        return 0
     s = d["feasibility"]
     print(f"{d['robot']}: {d['n_poses']} poses, {d['n_params']} parameters, sigma {d['sigma_mm']} mm")
     print(f"  KPI average variance tr(Cs)/3 = {d['kpi_avg_var_mm2']:.4g} mm^2")
@@ -34,4 +50,6 @@ def run(args) -> int:
         f"{s['n_joint_limit']} joint limit, {s['n_incidence']} incidence, "
         f"{s['n_collision']} collision, {s['n_beam']} beam)"
     )
+    if args.certify:
+        print(f"  {certificate_line(d['certificate'])}")
     return 0

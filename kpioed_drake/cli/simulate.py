@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kpioed_drake import simulation
+from kpioed_drake import api
 from kpioed_drake.cli.common import add_robot
 
 
@@ -30,7 +30,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    table, truth = simulation.simulate_file(
+    table, truth = api.simulate(
         args.robot,
         args.design,
         args.out,

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from kpioed_drake.study import run_study
+from kpioed_drake import api
+from kpioed_drake.errors import EXIT_SOLVER
+from kpioed_drake.study import DEFAULT, VARIANTS
 
 
 def register(sub) -> None:
@@ -21,13 +23,18 @@ def register(sub) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--robots", default=None, help="comma-separated robot names (default: the study's)")
+    p.add_argument(
+        "--variant",
+        default=DEFAULT,
+        help=f"problem variant (docs/studies.md): {', '.join(VARIANTS)}, or a+b of two (default {DEFAULT})",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    robots = [r.strip() for r in args.robots.split(",") if r.strip()] if args.robots else None
-    res = run_study(
+    robots = None if args.robots is None else [r.strip() for r in args.robots.split(",") if r.strip()]
+    res = api.study(
         args.out,
         quick=args.quick,
         jobs=args.jobs,
@@ -37,9 +44,10 @@ def run(args) -> int:
         n=args.n,
         heuristic_draws=args.heuristic_draws,
         seed=args.seed,
+        variant=args.variant,
     )
     print(
         f"{res.n_tasks} tasks ({res.n_run} run, {res.n_skipped} resumed, {res.n_errors} failed) "
         f"in {res.wall_s:.0f} s; report: {res.out_dir / 'report.md'}"
     )
-    return 1 if res.n_errors else 0
+    return EXIT_SOLVER if res.n_errors else 0

@@ -1,6 +1,7 @@
 """Figures of the study (matplotlib, Agg): paper Figure 7 (95 % TCP confidence ellipses, KR 15 /
-our kr16, heuristic vs KPI design) and Figure 8 (improvement of the KPI design over the heuristic and
-over the standard design for the notional robots)."""
+our kr16, heuristic vs KPI design, from the linearised covariance Cs of eq. 25) and Figure 8
+(improvement of the KPI design over the heuristic and over the standard design for the notional
+robots, with the paper's Table 8 means marked)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from kpioed_drake.designio import read_design
+from kpioed_drake.paper import TABLE8
+from kpioed_drake.problem import make_problem
+from kpioed_drake.study.tasks import Task
+
 CHI2_2D_95 = 5.991  # chi-square quantile, 2 degrees of freedom, 95 %
 
 
 def _plt():
+    # matplotlib's backend is chosen before pyplot is imported, only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
@@ -22,7 +29,16 @@ def _plt():
 
 
 def ellipse_points(C2: np.ndarray, k2: float = CHI2_2D_95, m: int = 200) -> np.ndarray:
-    """(m, 2) points of the ellipse x^T C2^-1 x = k2 (centre 0)."""
+    """Points of the ellipse x^T C2^-1 x = k2 (centre 0).
+
+    Args:
+        C2: (2, 2) covariance [mm^2].
+        k2: squared radius (default: the 95 % quantile of chi2 with 2 degrees of freedom).
+        m: number of points.
+
+    Returns:
+        (m, 2) points [mm].
+    """
     w, V = np.linalg.eigh(np.asarray(C2, dtype=float))
     t = np.linspace(0.0, 2.0 * np.pi, m)
     circle = np.stack([np.cos(t), np.sin(t)])
@@ -30,7 +46,13 @@ def ellipse_points(C2: np.ndarray, k2: float = CHI2_2D_95, m: int = 200) -> np.n
 
 
 def figure7(out_path: Path, Cs_by_label: dict[str, np.ndarray], robot: str = "kr16") -> Path:
-    """95 % confidence ellipses of the TCP in the xy, xz and yz planes for each labelled Cs (3x3)."""
+    """95 % confidence ellipses of the TCP in the xy, xz and yz planes (paper Figure 7).
+
+    Args:
+        out_path: PNG file to write.
+        Cs_by_label: legend label -> Cs: (3, 3) [mm^2], the TCP covariance at q_work.
+        robot: name in the title.
+    """
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
     planes = (("x", "y", 0, 1), ("x", "z", 0, 2), ("y", "z", 1, 2))
@@ -74,11 +96,8 @@ def figure8(out_path: Path, pr: pd.DataFrame) -> Path | None:
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), gridspec_kw={"height_ratios": [3, 2]})
     lam, mu = nt["lambda_mm"].to_numpy(float), nt["mu_mm"].to_numpy(float)
     annotate = len(nt) <= 30
-    from kpioed_drake.study import PAPER
-
-    t8 = PAPER["table8"]
-    paper_h = 100.0 * (1.0 - t8["kpi"]["ca_mean"] / t8["heuristic"]["ca_mean"])
-    paper_p = 100.0 * (1.0 - t8["kpi"]["ca_mean"] / t8["param"]["ca_mean"])
+    paper_h = 100.0 * (1.0 - TABLE8["kpi"]["ca_mean"] / TABLE8["heuristic"]["ca_mean"])
+    paper_p = 100.0 * (1.0 - TABLE8["kpi"]["ca_mean"] / TABLE8["param"]["ca_mean"])
     for col, (imp, name, ref) in enumerate(
         ((imp_h, "heuristic", paper_h), (imp_p, "standard (phi_A(Cp)) design", paper_p))
     ):
@@ -118,10 +137,8 @@ def figure8(out_path: Path, pr: pd.DataFrame) -> Path | None:
 
 
 def make_figures(out_dir: Path, df: pd.DataFrame, pr: pd.DataFrame, robot: str = "kr16") -> list[Path]:
-    """Write ``figure7_<robot>.png`` (from the stored designs) and ``figure8_notional.png``."""
-    from kpioed_drake.designio import read_design
-    from kpioed_drake.problem import make_problem
-
+    """Write ``figure7_<robot>.png`` (from the stored designs of the first heuristic draw and the KPI
+    design with CA) and ``figure8_notional.png``; return the paths written."""
     out_dir = Path(out_dir)
     figs = []
     ok = df[(df["robot"] == robot) & df["error"].isna()]
@@ -129,15 +146,15 @@ def make_figures(out_dir: Path, df: pd.DataFrame, pr: pd.DataFrame, robot: str =
     kpi = ok[(ok["criterion"] == "kpi") & (ok["collision_avoidance"] == True)]  # noqa: E712
     if len(heur) and len(kpi):
         p = make_problem(robot)
-        s = int(heur["seed"].iloc[0])
-        qh = read_design(out_dir / "designs" / f"{robot}_heuristic_ca_s{s}.csv", p.robot)
-        qk = read_design(out_dir / "designs" / f"{robot}_kpi_ca.csv", p.robot)
+        task_h, task_k = Task.from_row(heur.iloc[0]), Task.from_row(kpi.iloc[0])
+        qh = read_design(out_dir / "designs" / task_h.design_name, p.robot)
+        qk = read_design(out_dir / "designs" / task_k.design_name, p.robot)
         Ch, Ck = p.covariances(qh)[1], p.covariances(qk)[1]
         figs.append(
             figure7(
                 out_dir / f"figure7_{robot}.png",
                 {
-                    f"heuristic (seed {s}), tr(Cs)/3 = {np.trace(Ch) / 3:.3f} mm2": Ch,
+                    f"heuristic (seed {task_h.seed}), tr(Cs)/3 = {np.trace(Ch) / 3:.3f} mm2": Ch,
                     f"phi_A(Cs) design with CA, tr(Cs)/3 = {np.trace(Ck) / 3:.3f} mm2": Ck,
                 },
                 robot,

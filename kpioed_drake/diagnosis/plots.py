@@ -15,24 +15,40 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import scipy.stats
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import scipy.stats  # noqa: E402
-
-from kpioed_drake.measurement import reflector_world  # noqa: E402
-from kpioed_drake.models import N_JOINTS  # noqa: E402
+from kpioed_drake.diagnosis.report import DiagnosisReport
+from kpioed_drake.measurement import reflector_world
+from kpioed_drake.models import N_JOINTS
 
 _BEFORE, _AFTER, _FIT = "tab:orange", "tab:blue", "black"
+
+
+def _pyplot():
+    """``pyplot`` with the Agg backend (selected on first use, so importing this module is cheap)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(plt, fig, path) -> Path:
+    """Write ``fig`` to ``path`` (folders created) and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _signatures(prob, fit):
     """Per pose: joint directions g (n, 6, 3) [mm/rad], scale direction u (n, 3) [mm], R_TW."""
     idx = np.arange(prob.data.n)
     _, H, _ = prob.response(fit.model, fit.effects, idx)
-    g = np.stack([H[:, :, 4 * j] for j in range(N_JOINTS)], axis=1)  # dh/dtheta_j = dh/dq_j
+    g = H[:, :, fit.model.layout.joint_angles].transpose(0, 2, 1)  # dh/dtheta_j = dh/dq_j
     u = reflector_world(fit.model, prob.data.q) @ fit.model.R_WT
     return g, u, fit.model.R_WT.T
 
@@ -49,8 +65,9 @@ def _score_title(report, name: str) -> str:
     return ""
 
 
-def plot_residual_structure(report, path) -> Path:
+def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     """Baseline residuals against every candidate variable (3 x 6 panels)."""
+    plt = _pyplot()
     prob, base = report.details["prob"], report.details["base"]
     d = prob.data
     r = base.residuals
@@ -120,11 +137,7 @@ def plot_residual_structure(report, path) -> Path:
         f"{report.robot}: residuals of the geometric model (chi2/dof {t['chi2_per_dof']:.2f}, "
         f"p = {t['p_value']:.2g}, sigma {report.sigma_mm:g} mm)"
     )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def _norm_hist(ax, report, which=("base", "ext")):
@@ -153,11 +166,8 @@ def _norm_hist(ax, report, which=("base", "ext")):
 def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     """x, y (n,) and the fitted curve (x, y) for one effect; y in display units."""
     d = prob.data
-    idx = np.arange(d.n)
     i = next(k for k, e in enumerate(fit.effects) if e.key == effect.key)
-    _, _, E = prob.response(fit.model, fit.effects, idx)
-    c = sum(e.n_params for e in fit.effects[:i])
-    sig = E[:, :, c : c + effect.n_params] @ fit.effects[i].value_array()  # (n,3)
+    sig = prob.effect_signal(fit, i)  # (n,3)
     r = residual + sig if partial else residual
     if effect.family in ("joint_elasticity", "gear_cyclic"):
         j = effect.joint - 1
@@ -181,8 +191,9 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     return d.time_s / 60.0, y, ys, "time [min]", "residual along the drift direction [mm]"
 
 
-def plot_before_after(report, path) -> Path:
+def plot_before_after(report: DiagnosisReport, path) -> Path:
     """Residuals before and after the extension against the variable that revealed each cause."""
+    plt = _pyplot()
     prob, base, ext = report.details["prob"], report.details["base"], report.details["ext"]
     causes = ext.effects
     rows = max(len(causes), 1)
@@ -249,14 +260,10 @@ def plot_before_after(report, path) -> Path:
         f"{report.robot}: held-out RMS {b['holdout_rms_mm']:.4f} -> {x_['holdout_rms_mm']:.4f} mm, "
         f"chi2/dof {b['chi2_per_dof']:.2f} -> {x_['chi2_per_dof']:.2f} (sigma {report.sigma_mm:g} mm)"
     )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
-def write_plots(report, folder) -> list[Path]:
+def write_plots(report: DiagnosisReport, folder) -> list[Path]:
     """``residual_structure.png`` and ``before_after.png`` in ``folder``."""
     folder = Path(folder)
     return [

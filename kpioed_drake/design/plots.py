@@ -57,7 +57,8 @@ def plot_design_poses(
         robot, cell: the models (the cell as loaded for this robot).
         q: (n, 6) measurement poses [rad].
         path: output PNG file (folders are created).
-        q_work: (6,) working pose [rad], drawn in black with its TCP marked.
+        q_work: (6,) working pose [rad], drawn in black with its TCP marked (and its capsules);
+            several: (K, 6), each drawn as a thinner black line with its TCP.
         infeasible: (n,) bool, poses drawn in red (e.g. those failing the feasibility check).
         title: figure title.
         show_beams: draw the line of sight from each reflector to the tracker.
@@ -90,12 +91,14 @@ def plot_design_poses(
     if bad.any():
         ax.scatter(*refl[bad].T, s=16, color="red", depthshade=False, label="infeasible pose")
     if q_work is not None:
-        fw = forward_kinematics(robot, np.asarray(q_work, dtype=float)[None, :])
+        fw = forward_kinematics(robot, np.atleast_2d(np.asarray(q_work, dtype=float)))
         pw = flange_point(fw, cell.p_FQ)
-        cw = np.concatenate([fw.o, pw[:, None, :]], axis=1)[0]
-        ax.plot(*cw.T, color="black", lw=2.5, label="working pose q_work")
+        cw = np.concatenate([fw.o, pw[:, None, :]], axis=1)
+        for i in range(len(cw)):
+            label = None if i else "working pose q_work"
+            ax.plot(*cw[i].T, color="black", lw=2.5 if len(cw) == 1 else 1.5, label=label)
         ax.scatter(*pw.T, s=40, color="black", marker="x", depthshade=False, label="TCP (KPI)")
-        for c in robot.capsules:
+        for c in robot.capsules if len(cw) == 1 else ():
             A = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.a
             B = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.b
             ax.plot_surface(*_capsule_mesh(A, B, c.radius, 12, 4), color="gray", alpha=0.08, linewidth=0)

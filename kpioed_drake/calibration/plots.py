@@ -15,8 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from kpioed_drake.calibration.report import CalibrationReport
+
 
 def _figure(*args, **kwargs):
+    """``pyplot`` (Agg backend, selected on first use only) and a new figure with axes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,7 +28,7 @@ def _figure(*args, **kwargs):
     return plt, plt.subplots(*args, **kwargs)
 
 
-def plot_calibration(report, outdir) -> list[Path]:
+def plot_calibration(report: CalibrationReport, outdir) -> list[Path]:
     """Write the residual plots of a :class:`~kpioed_drake.calibration.CalibrationReport`.
 
     Returns:

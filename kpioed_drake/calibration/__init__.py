@@ -1,0 +1,42 @@
+"""Calibration from measured laser-tracker data (SPEC "Measured data and model discrepancy").
+
+One module per concern:
+
+- :mod:`.fit`: :func:`calibrate`, registration, least squares on the free geometric parameters,
+  outlier handling, goodness of fit, the KPI and its covariance;
+- :mod:`.report`: :class:`CalibrationReport` (JSON report and text summary);
+- :mod:`.modelfile`: :func:`calibrated_robot_yaml`, the calibrated robot as a model file;
+- :mod:`.extended`: :func:`calibrate_extended`, geometry plus non-geometric effects
+  (``kpioed calibrate --extend``);
+- :mod:`.plots`: residual plots;
+- :mod:`.workflow`: :func:`calibrate_file`, the whole ``kpioed calibrate`` run;
+- :mod:`.common`: the working pose and the KPI shared by the plain and the extended fit.
+
+Reading and validating the data: :mod:`kpioed_drake.measurements`.
+"""
+
+from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
+from kpioed_drake.calibration.extended import calibrate_extended, extended_summary
+from kpioed_drake.calibration.fit import MIN_POSES_FOR_OUTLIER_TEST, calibrate
+from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
+from kpioed_drake.calibration.plots import plot_calibration
+from kpioed_drake.calibration.report import N_CORRELATIONS, CalibrationReport
+from kpioed_drake.calibration.workflow import calibrate_file
+from kpioed_drake.measurements import ROW_CONVENTION, Measurements, read_measurements
+
+__all__ = [
+    "MIN_POSES_FOR_OUTLIER_TEST",
+    "N_CORRELATIONS",
+    "ROW_CONVENTION",
+    "CalibrationReport",
+    "Measurements",
+    "calibrate",
+    "calibrate_extended",
+    "calibrate_file",
+    "calibrated_robot_yaml",
+    "extended_summary",
+    "kpi_and_covariance",
+    "plot_calibration",
+    "read_measurements",
+    "working_pose",
+]

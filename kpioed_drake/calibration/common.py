@@ -1,0 +1,50 @@
+"""What the geometric and the extended calibration share: the working pose and the KPI.
+
+The KPI is the TCP (reflector point) at the working pose ``q_work`` in W under KPI conditions (no
+payload, reference temperature) with its covariance ``Cs = Js Cp Js^T`` (paper eq. 24e), ``Js``
+the derivative of the TCP w.r.t. the estimated parameters: the free geometric ones and, for an
+extended model, the effects' (:func:`kpioed_drake.effects.effect_kpi_columns`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kpioed_drake import effects as fx
+from kpioed_drake.errors import InputError
+from kpioed_drake.estimation import EstimationResult
+from kpioed_drake.measurement import kpi_jacobian
+from kpioed_drake.models import N_JOINTS, Robot
+
+
+def working_pose(robot: Robot, q_work=None) -> np.ndarray:
+    """(6,) the working pose [rad]: ``q_work`` or the model file's.
+
+    Raises:
+        InputError: no working pose, or one outside the joint limits.
+    """
+    if q_work is None:
+        if robot.q_work is None:
+            raise InputError(f"{robot.name}: the model file has no q_work_deg; pass --q-work")
+        q_work = robot.q_work
+    q_work = np.asarray(q_work, dtype=float)
+    if (
+        q_work.shape != (N_JOINTS,)
+        or np.any(q_work < robot.lower - 1e-9)
+        or np.any(q_work > robot.upper + 1e-9)
+    ):
+        raise InputError(f"{robot.name}: q_work must be 6 angles within the joint limits")
+    return q_work
+
+
+def kpi_and_covariance(result: EstimationResult, q_work) -> tuple[np.ndarray, np.ndarray]:
+    """TCP at ``q_work`` in W of an estimation (effects included) and its covariance.
+
+    Returns:
+        s: (3,) [mm]; Cs: (3, 3) ``Js Cp Js^T`` [mm^2] (a priori, from the given sigma).
+    """
+    model, effects = result.model, list(result.effects)
+    s, Js = kpi_jacobian(model, q_work)
+    s = s + fx.effect_tcp_shift(model, q_work, effects)
+    Je = np.concatenate([Js[:, result.free], fx.effect_kpi_columns(model, q_work, effects)], axis=1)
+    return s, Je @ result.Cp @ Je.T

@@ -1,0 +1,114 @@
+"""The calibrated robot as a model file (same schema as ``models/robots/*.yaml``).
+
+:func:`calibrated_robot_yaml` writes the estimated joint rows, the estimated reflector offset
+(``reflector_position_mm``) and the estimated tracker pose (``tracker_position_mm``,
+``tracker_rpy_deg``) into the robot's :class:`~kpioed_drake.models.RobotSpec` (read back from its
+source file when available), so that the result is a complete model usable as ``--robot path.yaml``
+by every command: the reflector and tracker fields override the cell file's
+(:func:`kpioed_drake.models.load_cell`).
+"""
+
+from __future__ import annotations
+
+import datetime
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+from pydrake.math import RollPitchYaw, RotationMatrix
+
+from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.jointmap import joint_map_spec
+from kpioed_drake.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
+
+
+def _spec_from_robot(robot: Robot) -> RobotSpec:
+    """A RobotSpec rebuilt from a loaded robot (used when its source file is not available)."""
+    joints = []
+    for i, conv in enumerate(robot.conventions):
+        joints.append(
+            JointSpec(
+                name=robot.joint_names[i],
+                convention=conv,
+                lower_deg=float(np.rad2deg(robot.lower[i])),
+                upper_deg=float(np.rad2deg(robot.upper[i])),
+            )
+        )
+    links = []
+    for k in range(N_JOINTS + 1):
+        caps = [
+            CapsuleSpec(name=c.name, radius_mm=c.radius, a_mm=c.a.tolist(), b_mm=c.b.tolist())
+            for c in robot.capsules
+            if c.frame == k
+        ]
+        links.append(
+            LinkSpec(index=k, mass_kg=float(robot.masses[k]), com_mm=robot.coms[k].tolist(), capsules=caps)
+        )
+    return RobotSpec(
+        name=robot.name,
+        joints=joints,
+        links=links,
+        self_collision_pairs=[list(p) for p in robot.self_pairs],
+        beam_links=list(robot.beam_links),
+        q_work_deg=[] if robot.q_work is None else np.rad2deg(robot.q_work).tolist(),
+        car_shift_x_mm=robot.car_shift_x,
+        joint_map=joint_map_spec(robot.joint_map),
+        extra_gauge=list(robot.extra_gauge),
+    )
+
+
+def _robot_spec(robot: Robot) -> RobotSpec:
+    src = Path(robot.source) if robot.source else None
+    if src is not None and src.is_file():
+        try:
+            return yaml_load_typed(filename=str(src), schema=RobotSpec)
+        except Exception:  # fall back to the loaded object
+            pass
+    return _spec_from_robot(robot)
+
+
+def calibrated_robot_yaml(report: CalibrationReport) -> str:
+    """The calibrated robot as model-file text (RobotSpec schema, mm/deg).
+
+    Joint rows hold the estimated values (the gauge parameters theta1, d1, theta6, d6, a6, alpha6
+    and the file's ``extra_gauge`` keep their nominal values); ``reflector_position_mm`` the
+    estimated reflector offset; ``tracker_position_mm`` and ``tracker_rpy_deg`` the estimated
+    tracker pose of the calibration's data. Capsules, masses, limits, q_work and the joint map
+    are the nominal model's.
+    """
+    rob = report.robot
+    spec = _robot_spec(rob)
+    g = report.model.geometry
+    for i, j in enumerate(spec.joints):
+        conv = rob.conventions[i]
+        j.convention = conv
+        if conv == "dh":
+            th, d, a, al = g[i]
+            j.theta_deg, j.d_mm, j.a_mm, j.alpha_deg = (
+                float(np.rad2deg(th)),
+                float(d),
+                float(a),
+                float(np.rad2deg(al)),
+            )
+            j.beta_deg = 0.0
+        else:
+            th, a, al, be = g[i]
+            j.theta_deg, j.a_mm, j.alpha_deg = float(np.rad2deg(th)), float(a), float(np.rad2deg(al))
+            j.beta_deg, j.d_mm = float(np.rad2deg(be)), 0.0
+    spec.name = f"{rob.name}-calibrated"
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    spec.reflector_position_mm = report.model.p_FQ.tolist()
+    spec.tracker_position_mm = report.model.p_WT.tolist()
+    spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
+    cal_note = (
+        f"Calibrated by kpioed calibrate from {report.data.path} ({stamp}): "
+        f"{int(np.count_nonzero(report.used))} of {report.data.n} poses, sigma {report.result.sigma:g} mm, "
+        f"RMS residual {report.rms_residual_mm:.4g} mm"
+        + (f", chi2/dof {report.chi2_per_dof:.3g}" if report.chi2_per_dof is not None else "")
+        + ". Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm and "
+        "tracker_position_mm/tracker_rpy_deg hold the estimated reflector offset and tracker pose "
+        "(they override the cell file's)."
+    )
+    spec.notes = (spec.notes + " " if spec.notes else "") + cal_note
+    header = "# Calibrated robot model file (kpioed-drake). Units: mm, deg, kg. Format: models/README.md.\n"
+    return header + yaml_dump_typed(spec)

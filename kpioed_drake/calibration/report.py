@@ -1,0 +1,288 @@
+"""The calibration report: goodness of fit, parameters, tracker, KPI, in JSON and as text.
+
+:class:`CalibrationReport` holds the outcome of :func:`kpioed_drake.calibration.calibrate` in
+internal units (mm, rad); :meth:`CalibrationReport.to_dict` is the JSON report of
+``kpioed calibrate --json`` (mm, deg) and :meth:`CalibrationReport.summary` the text summary.
+Row numbers follow :data:`kpioed_drake.measurements.ROW_CONVENTION`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.math import RollPitchYaw, RotationMatrix
+from scipy.stats import chi2 as chi2_dist
+
+from kpioed_drake.estimation import EstimationResult
+from kpioed_drake.measurement import TrackerModel
+from kpioed_drake.measurements import ROW_CONVENTION, Measurements
+from kpioed_drake.models import Robot
+
+N_CORRELATIONS = 10
+"""Correlations listed in the report (the strongest)."""
+
+
+@dataclasses.dataclass
+class CalibrationReport:
+    """Outcome of :func:`~kpioed_drake.calibration.calibrate` (internal units) plus :meth:`to_dict`
+    in file units.
+
+    Attributes:
+        robot: the nominal robot.
+        nominal: the nominal model.
+        result: the final estimation.
+        data: the measurements.
+        q_work: (6,) working pose of the KPI [rad].
+        outliers: indices (0-based into the data) of the removed poses, in removal order.
+        normalized: (n,) studentised residual statistics of the final fit (chi^2(3) under H0).
+        outlier_threshold: the chi^2(3) threshold of the last test (or None if not tested).
+        outlier_alpha: family-wise level of the outlier test (None: no test).
+        kpi: (3,) TCP at q_work in W [mm].
+        kpi_cov: (3, 3) its covariance [mm^2].
+        kpi_nominal: (3,) TCP of the nominal model [mm].
+        warnings: human-readable remarks (non-convergence, poor fit, outlier cap).
+    """
+
+    robot: Robot
+    nominal: TrackerModel
+    result: EstimationResult
+    data: Measurements
+    q_work: np.ndarray
+    outliers: list[int]
+    normalized: np.ndarray
+    outlier_threshold: float | None
+    outlier_alpha: float | None
+    kpi: np.ndarray
+    kpi_cov: np.ndarray
+    kpi_nominal: np.ndarray
+    warnings: list[str]
+
+    # --- derived numbers ---------------------------------------------------------------------
+    @property
+    def model(self) -> TrackerModel:
+        return self.result.model
+
+    @property
+    def used(self) -> np.ndarray:
+        return self.result.mask
+
+    @property
+    def rms_residual_mm(self) -> float:
+        r = self.result.residuals[self.used]
+        return float(np.sqrt(np.mean(r**2)))
+
+    @property
+    def max_residual_mm(self) -> float:
+        return float(np.max(np.linalg.norm(self.result.residuals[self.used], axis=1)))
+
+    @property
+    def chi2(self) -> float:
+        return self.result.cost
+
+    @property
+    def dof(self) -> int:
+        return self.result.dof
+
+    @property
+    def chi2_per_dof(self) -> float | None:
+        return self.result.cost / self.dof if self.dof > 0 else None
+
+    @property
+    def p_value(self) -> float | None:
+        """P(chi^2_dof >= observed): small means the residuals are larger than the noise explains."""
+        return float(chi2_dist.sf(self.result.cost, self.dof)) if self.dof > 0 else None
+
+    @property
+    def outlier_rows(self) -> list[int]:
+        return [int(self.data.rows[i]) for i in sorted(self.outliers)]
+
+    @property
+    def aposteriori_factor(self) -> float | None:
+        """sqrt(chi2/dof): a-posteriori standard deviations are the a-priori ones times this."""
+        return None if self.dof <= 0 else float(np.sqrt(self.chi2 / self.dof))
+
+    @property
+    def rejects(self) -> bool:
+        """The goodness-of-fit test rejects the model at the 0.1 % level (residuals too large)."""
+        return self.p_value is not None and self.p_value < 1e-3
+
+    def parameter_table(self) -> list[dict]:
+        """All parameters (33 for six joints): name, value, nominal, std (mm/deg), unit, estimated."""
+        lay = self.model.layout
+        rotation = range(lay.size)[lay.tracker_rotation]
+        free = list(lay.free)
+        std = self.result.std
+        factor = self.aposteriori_factor
+        out = []
+        for i, name in enumerate(lay.names):
+            ang = bool(lay.is_angle[i])
+            conv = np.rad2deg if ang else (lambda x: x)
+            est = i in free
+            value = float(conv(self.model.p[i]))
+            nominal = float(conv(self.nominal.p[i]))
+            if i in rotation:  # small rotations about the estimated tracker axes: zero after rebasing
+                nominal = None
+            row = {
+                "name": name,
+                "value": value,
+                "nominal": nominal,
+                "deviation": None if nominal is None else value - nominal,
+                "std": float(conv(std[free.index(i)])) if est else 0.0,
+                "std_aposteriori": (
+                    float(conv(std[free.index(i)]) * factor) if est and factor is not None else None
+                ),
+                "unit": "deg" if ang else "mm",
+                "estimated": est,
+            }
+            out.append(row)
+        return out
+
+    def correlations(self, k: int = N_CORRELATIONS) -> list[dict]:
+        """The ``k`` strongest correlations between estimated parameters."""
+        Cp = self.result.Cp
+        s = np.sqrt(np.diag(Cp))
+        R = Cp / np.outer(s, s)
+        names = self.result.free_names
+        iu = np.triu_indices_from(R, 1)
+        order = np.argsort(-np.abs(R[iu]))[:k]
+        return [{"a": names[iu[0][j]], "b": names[iu[1][j]], "correlation": float(R[iu][j])} for j in order]
+
+    def kpi_reference(self) -> dict:
+        """What the KPI shift is measured against: the model the user gave (``--robot``), with
+        its reflector offset (the robot file's when it has one, else the cell file's)."""
+        return {
+            "model": self.robot.source or self.robot.name,
+            "reflector_mm": self.nominal.p_FQ.tolist(),
+            "reflector_from": "robot file" if self.robot.p_FQ is not None else "cell file",
+            "note": "kpi_nominal_mm is the TCP at q_work of this model before calibration; the KPI "
+            "shift is kpi_mm - kpi_nominal_mm",
+        }
+
+    def tracker(self) -> dict:
+        """The estimated tracker pose and its standard deviations (JSON units)."""
+        R = self.model.R_WT
+        rpy = RollPitchYaw(RotationMatrix(R)).vector()
+        std = self.result.std
+        lay = self.model.layout
+        return {
+            "R_WT": R.tolist(),
+            "rpy_deg": np.rad2deg(rpy).tolist(),
+            "p_WT_mm": self.model.p_WT.tolist(),
+            "p_WT_std_mm": std[lay.free_tracker_position].tolist(),
+            "rotation_std_deg": np.rad2deg(std[lay.free_tracker_rotation]).tolist(),
+            "note": "tracker frame T in W as estimated (p_W = R_WT p_T + p_WT); rotation_std_deg: small "
+            "rotations about the tracker axes",
+        }
+
+    def to_dict(self) -> dict:
+        """The JSON report (millimetres and degrees)."""
+        std = self.result.std
+        res = self.result
+        poses = []
+        for i in range(self.data.n):
+            r = res.residuals[i]
+            poses.append(
+                {
+                    "row": int(self.data.rows[i]),
+                    "used": bool(res.mask[i]),
+                    "residual_mm": r.tolist(),
+                    "residual_norm_mm": float(np.linalg.norm(r)),
+                    "normalized_chi2": float(self.normalized[i]),
+                    "p_value": float(chi2_dist.sf(self.normalized[i], 3)),
+                }
+            )
+        return {
+            "robot": self.robot.name,
+            "data": self.data.path,
+            "n_poses": self.data.n,
+            "n_used": int(np.count_nonzero(self.used)),
+            "sigma_mm": res.sigma,
+            "q_work_deg": np.rad2deg(self.q_work).tolist(),
+            "converged": bool(res.converged),
+            "iterations": int(res.iterations),
+            "stop_reason": res.message,
+            "rms_residual_mm": self.rms_residual_mm,
+            "rms_residual_note": "root mean square over the coordinates of the used poses",
+            "max_residual_mm": self.max_residual_mm,
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "chi2_per_dof": self.chi2_per_dof,
+            "p_value": self.p_value,
+            "n_outliers": len(self.outliers),
+            "outlier_rows": self.outlier_rows,
+            "row_convention": ROW_CONVENTION,
+            "outlier_test": {
+                "statistic": "studentised residual r^T (sigma^2 (I - H_ii))^-1 r ~ chi2(3)",
+                "alpha_familywise": self.outlier_alpha,
+                "threshold": self.outlier_threshold,
+            },
+            "kpi_mm": self.kpi.tolist(),
+            "kpi_cov_mm2": self.kpi_cov.tolist(),
+            "kpi_std_mm": np.sqrt(np.diag(self.kpi_cov)).tolist(),
+            "kpi_avg_var_mm2": float(np.trace(self.kpi_cov) / 3.0),
+            "kpi_cov_mm2_aposteriori": (self.kpi_cov * self.chi2_per_dof).tolist()
+            if self.chi2_per_dof is not None
+            else None,
+            "kpi_nominal_mm": self.kpi_nominal.tolist(),
+            "kpi_reference": self.kpi_reference(),
+            "kpi_note": "TCP (reflector point) at q_work in W; covariance Js Cp Js^T with Cp = (F1^T F1)^-1 "
+            "from the given sigma; the a-posteriori version is scaled by chi2/dof",
+            "parameters": self.parameter_table(),
+            "parameter_std_note": "a-priori standard deviations from the given sigma",
+            "correlations": self.correlations(),
+            "tracker": self.tracker(),
+            "reflector": {
+                "p_FQ_mm": self.model.p_FQ.tolist(),
+                "std_mm": std[self.model.layout.free_target(0)].tolist(),
+                "note": "estimated reflector offset in the flange frame; the cell file is not changed",
+            },
+            "poses": poses,
+            "warnings": list(self.warnings),
+        }
+
+    def summary(self) -> str:
+        """A human-readable summary."""
+        d = self
+        lines = [
+            f"{d.robot.name}: calibrated from {d.data.path}: {d.data.n} poses, "
+            f"{int(np.count_nonzero(d.used))} used, {d.result.n_params} parameters, "
+            f"sigma {d.result.sigma:g} mm",
+            f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",
+            f"  residuals: RMS {d.rms_residual_mm:.4f} mm per coordinate, max {d.max_residual_mm:.4f} mm",
+        ]
+        if d.dof > 0:
+            lines.append(f"  chi2/dof = {d.chi2_per_dof:.3f} (dof {d.dof}), p-value {d.p_value:.3g}")
+        if d.outliers:
+            lines.append(
+                f"  outliers removed: {len(d.outliers)} (rows {', '.join(map(str, d.outlier_rows))})"
+            )
+        else:
+            lines.append("  outliers removed: none")
+        sd = np.sqrt(np.diag(d.kpi_cov))
+        lines.append(
+            "  KPI (TCP at q_work in W): "
+            + ", ".join(f"{v:.4f} +- {s:.4f}" for v, s in zip(d.kpi, sd, strict=True))
+            + f" mm; tr(Cs)/3 = {np.trace(d.kpi_cov) / 3:.3e} mm^2"
+        )
+        dev = d.kpi - d.kpi_nominal
+        lines.append(
+            f"  KPI shift from the given model ({d.kpi_reference()['model']}): {np.linalg.norm(dev):.4f} mm"
+        )
+        table = [p for p in d.parameter_table() if p["estimated"] and not p["name"].startswith("tracker")]
+        table.sort(key=lambda p: -abs(p["deviation"]) / max(p["std"], 1e-300))
+        post = d.rejects and d.aposteriori_factor is not None
+        lines.append(
+            "  largest deviations from nominal (in standard deviations)"
+            + (
+                f"; a-posteriori std = a-priori x {d.aposteriori_factor:.3g} (the fit rejects):"
+                if post
+                else ":"
+            )
+        )
+        for p in table[:6]:
+            extra = f" (a-posteriori {p['std_aposteriori']:.5f})" if post else ""
+            lines.append(f"    {p['name']:<12} {p['deviation']:+.5f} +- {p['std']:.5f}{extra} {p['unit']}")
+        for w in d.warnings:
+            lines.append(f"  warning: {w}")
+        return "\n".join(lines)

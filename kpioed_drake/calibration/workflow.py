@@ -1,0 +1,112 @@
+"""The ``kpioed calibrate`` workflow: read, calibrate (geometric or extended), write the outputs.
+
+Outputs are staged while the work runs (:class:`~kpioed_drake.outputs.Outputs`) and written only
+after everything succeeded, each atomically; a failing run writes nothing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from kpioed_drake.arguments import check_paths, check_positive, require
+from kpioed_drake.calibration.extended import calibrate_extended
+from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
+from kpioed_drake.calibration.plots import plot_calibration
+from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.dataformats import read_data
+from kpioed_drake.designio import parse_q_work
+from kpioed_drake.errors import InputError
+from kpioed_drake.models import load_cell, load_robot
+from kpioed_drake.outputs import Outputs
+from kpioed_drake.scene3d import calibration_page
+
+
+def calibrate_file(
+    robot: str,
+    data_path: str | Path,
+    *,
+    sigma_mm: float = 0.02,
+    q_work_deg: str | None = None,
+    extend=(),
+    outlier_alpha: float = 0.01,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    plots_dir: str | Path | None = None,
+    html: str | Path | None = None,
+    cell_path=None,
+    force: bool = False,
+    data_format: str | Path | None = None,
+) -> CalibrationReport | dict:
+    """Read the measurements, calibrate, and write the requested outputs (only after all succeeded).
+
+    Args:
+        robot: model name or YAML path.
+        data_path: the measurement CSV.
+        sigma_mm: noise standard deviation per coordinate [mm].
+        q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
+        extend: effect texts (e.g. ``["joint_elasticity:2"]``): calibrate the geometry and these
+            effects together (:func:`calibrate_extended`; no outlier screening; only ``json_path``).
+        outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
+        out: calibrated robot model file (YAML) to write.
+        json_path: JSON report to write.
+        plots_dir: folder for the residual plots (PNG).
+        html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
+        force: go on with implausible data (:mod:`kpioed_drake.plausibility`), with a warning.
+        data_format: format file of a measurement file of another layout (docs/data-formats.md).
+
+    Returns:
+        :class:`CalibrationReport`, or with ``extend`` the JSON-ready dict of
+        :func:`calibrate_extended`.
+    """
+    check_positive("sigma_mm", sigma_mm)
+    ok = isinstance(outlier_alpha, int | float) and 0 <= outlier_alpha < 1
+    require(ok, f"outlier_alpha: expected a number in [0, 1), got {outlier_alpha!r}")
+    check_paths(
+        robot=robot, inputs=[data_path, data_format], outputs=[out, json_path], folders=[plots_dir], html=html
+    )
+    rob = load_robot(robot)
+    qw = parse_q_work(q_work_deg, rob) if q_work_deg else None
+    if extend:
+        if out or plots_dir or html:
+            raise InputError(
+                "--out, --plots and --html are not available with --extend (the report holds the fit)"
+            )
+        data = read_data(data_path, rob, data_format)
+        report = calibrate_extended(rob, data, list(extend), sigma_mm=sigma_mm, q_work=qw, force=force)
+        with Outputs() as staged:
+            if json_path:
+                staged.add_json(json_path, report)
+            staged.commit()
+        return report
+    data = read_data(data_path, rob, data_format)
+    report = calibrate(
+        rob,
+        data,
+        sigma_mm=sigma_mm,
+        q_work=qw,
+        outlier_threshold=outlier_alpha,
+        cell_path=cell_path,
+        force=force,
+    )
+    with Outputs() as staged:
+        if out:
+            staged.add_text(out, calibrated_robot_yaml(report))
+        if json_path:
+            staged.add_json(json_path, report.to_dict())
+        if plots_dir:
+            plot_calibration(report, staged.folder(plots_dir))
+        if html:
+            res = report.result
+            page = calibration_page(
+                rob,
+                load_cell(cell_path, robot=rob),
+                report.model,
+                data.q,
+                data.eta,
+                data.eta - res.residuals,
+                outliers=report.outliers,
+            )
+            staged.add_text(html, page)
+        staged.commit()
+    return report

@@ -1,0 +1,45 @@
+"""``kpioed validate``: how well does a (calibrated) model predict fresh measurements?"""
+
+from __future__ import annotations
+
+from kpioed_drake import api
+from kpioed_drake.cli.common import add_json_out, add_robot, emit_json, json_file
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "validate",
+        help="predict fresh measurements with a model (only the tracker frame is re-registered)",
+    )
+    add_robot(p)
+    p.add_argument("data", metavar="DATA.csv", help="measurement file (SPEC format, or see --format)")
+    p.add_argument(
+        "--format",
+        default=None,
+        metavar="F.yaml",
+        help="format file for a measurement file of another layout (docs/data-formats.md)",
+    )
+    p.add_argument(
+        "--keep-tracker",
+        action="store_true",
+        help="use the model's tracker pose instead of re-registering it to the data",
+    )
+    add_json_out(p)
+    p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    result = api.validate(
+        args.robot,
+        args.data,
+        data_format=args.format,
+        keep_tracker=args.keep_tracker,
+        json_path=json_file(args.json),
+        plots_dir=args.plots,
+    )
+    if args.json == "-":
+        emit_json(result.to_dict(), "-")
+        return 0
+    print(result.summary())
+    return 0

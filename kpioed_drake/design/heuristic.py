@@ -1,0 +1,87 @@
+"""The heuristic design (paper section 3.2, SPEC): uniform random poses kept if feasible.
+
+It is the paper's baseline design and the optimiser's starting point. A drawn pose is kept if its
+incidence angle is within the cell's limit (paper eq. 4) and, with collision avoidance, every
+capsule clearance of :class:`~kpioed_drake.geometry.ClearanceModel` (robot, obstacles, self pairs,
+laser beam; paper eq. 20-22) is at least :data:`~kpioed_drake.design.common.HEURISTIC_MARGIN_MM`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kpioed_drake.design.common import HEURISTIC_MARGIN_MM
+from kpioed_drake.errors import InputError
+from kpioed_drake.geometry import ClearanceModel
+from kpioed_drake.kinematics import forward_kinematics
+from kpioed_drake.measurement import incidence_cosine
+from kpioed_drake.models import N_JOINTS
+from kpioed_drake.problem import Problem
+
+
+def heuristic_design(
+    problem: Problem,
+    *,
+    n: int = 60,
+    seed: int = 0,
+    collision: bool = True,
+    max_draws: int = 200_000,
+    margin_mm: float = HEURISTIC_MARGIN_MM,
+    batch: int = 4096,
+) -> np.ndarray:
+    """The paper's heuristic: uniform random poses from the joint box, kept only if feasible.
+
+    Poses are drawn with ``numpy.random.default_rng(seed)`` in batches (the result does not depend
+    on ``batch``: the first ``n`` feasible draws are kept, in draw order). A pose is kept if its
+    incidence angle is within the cell's limit and, with ``collision``, every clearance of
+    :class:`~kpioed_drake.geometry.ClearanceModel` (robot, obstacles, self pairs, laser beam) is at
+    least ``margin_mm``.
+
+    Args:
+        problem: robot, cell and measurement model.
+        n: number of poses.
+        seed: random seed.
+        collision: require collision and beam clearance.
+        max_draws: give up after this many draws.
+        margin_mm: smallest admitted clearance [mm].
+        batch: poses drawn per vectorised feasibility evaluation.
+
+    Returns:
+        q: (n, 6) [rad].
+
+    Raises:
+        InputError: fewer than ``n`` feasible poses in ``max_draws`` draws.
+    """
+    if n < 1:
+        raise InputError(f"the number of poses must be positive, got {n}")
+    robot, cell = problem.robot, problem.cell
+    rng = np.random.default_rng(seed)
+    cos_max = math.cos(cell.max_incidence)
+    cm = ClearanceModel(robot, cell) if collision else None
+    kept, n_kept, draws = [], 0, 0
+    while n_kept < n and draws < max_draws:
+        b = min(batch, max_draws - draws)
+        q = rng.uniform(robot.lower, robot.upper, size=(b, N_JOINTS))
+        draws += b
+        frames = forward_kinematics(robot, q)
+        ok = incidence_cosine(problem.model, q, frames=frames) >= cos_max
+        if cm is not None and ok.any():
+            vals = cm.values(q[ok])
+            ok[ok] = np.all(vals >= margin_mm, axis=1)
+        kept.append(q[ok])
+        n_kept += int(ok.sum())
+    q = np.concatenate(kept, axis=0)[:n] if kept else np.zeros((0, N_JOINTS))
+    if q.shape[0] < n:
+        what = "incidence and collision-free" if collision else "incidence"
+        msg = (
+            f"no feasible pose found in {draws} draws"
+            if q.shape[0] == 0
+            else f"only {q.shape[0]} of {n} feasible poses found in {draws} draws"
+        )
+        raise InputError(
+            f"{robot.name}: {msg} ({what} constraints): check the cell (car position, tracker, "
+            "incidence limit) and the robot's joint limits"
+        )
+    return q

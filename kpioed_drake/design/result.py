@@ -1,0 +1,216 @@
+"""The result of a design run: :class:`DesignResult`, its JSON record and its printed summary."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.design.certificate import certificate_fields, certificate_line
+from kpioed_drake.designio import jsonable
+from kpioed_drake.errors import SolverError
+from kpioed_drake.problem import Problem
+
+
+@dataclasses.dataclass
+class DesignResult:
+    """An experimental design and how it was obtained.
+
+    Joint angles are in radians here and in degrees in :meth:`summary`; ``reports`` give
+    clearances [mm] and angles [deg].
+    """
+
+    q: np.ndarray
+    """(n, 6) measurement poses [rad]."""
+    criterion: str
+    """The design method: ``heuristic``, ``kpi``, ``param``, ``d`` or ``o1``."""
+    value: float
+    """The criterion's value at ``q`` (for ``heuristic``: tr(Cs)/3 [mm^2]) [criterion units]."""
+    kpi_avg_var_mm2: float
+    """tr(Cs)/3 of the design, the TCP's average variance at ``q_work`` [mm^2]; several working
+    poses: their weighted mean or the largest (``problem.kpi_aggregate``); with ``given`` poses,
+    of the combined design."""
+    param_crit: float
+    """SPEC's scaled tr(Cp) of the design [mm^2] (with ``given`` poses, of the combined design)."""
+    solver: str
+    """``snopt``, ``ipopt`` or ``none`` (heuristic)."""
+    status: str
+    """The solver's status text (e.g. ``"snopt info 1: optimality conditions satisfied"``; with
+    block sweeps a summary of the sweeps)."""
+    success: bool
+    """The solver reported success (always True for the heuristic)."""
+    solve_s: float
+    """Wall time of all solver calls [s] (all starts; with block sweeps, of the sweeps including
+    the checks of the block results)."""
+    n_evals: int
+    """Cost evaluations counted in our callback (all starts)."""
+    feasible: bool
+    """Every pose passes the independent check of the constraints that were imposed (joint limits
+    and incidence; and clearances when ``collision`` is True)."""
+    n_infeasible_poses: int
+    """Poses failing those checks."""
+    n_colliding_poses: int
+    """Poses with a collision or beam failure in the full check (reported also when the design was
+    made without collision avoidance)."""
+    reports: list[dict]
+    """Per pose, :meth:`~kpioed_drake.feasibility.PoseReport.as_dict` of the full check."""
+    start_values: list[float]
+    """The criterion's value reached from each start (NaN where the solve failed)."""
+    initial_values: list[float] = dataclasses.field(default_factory=list)
+    """The criterion's value at each starting design."""
+    collision: bool = True
+    """Whether collision avoidance was imposed."""
+    robot: str = ""
+    """Robot name."""
+    seed: int = 0
+    """Seed of the first start (start k uses ``seed + k``)."""
+    best_start: int = 0
+    """Index of the start that was kept."""
+    constraint_evals: int = 0
+    """Constraint evaluations (all starts)."""
+    all_rows_retries: int = 0
+    """Solves with each pose's smallest clearance rows that failed or were infeasible and were
+    repeated with all rows (times and evaluations include both solves)."""
+    sweeps: int = 0
+    """Block sweeps of the kept start (0: one solve over all poses; see ``max_block`` of
+    :func:`~kpioed_drake.design.optimize.optimize_design`)."""
+    kpi_vars_mm2: list[float] | None = None
+    """Several working poses: tr(Cs_k)/3 at each, (K,) [mm^2] (None: one working pose)."""
+    given: dict | None = None
+    """Poses already measured whose information was held fixed (``given`` of
+    :func:`~kpioed_drake.design.optimize.optimize_design`): ``n_given``, the given poses' own
+    ``given_kpi_avg_var_mm2`` [mm^2] and ``given_param_crit`` [mm^2] (NaN if they alone do not
+    determine the parameters) and ``given_q_deg`` (m, 6) [deg]. None: no given poses."""
+    start: str = "heuristic"
+    """How the kept start was made: ``heuristic``, ``approximate`` (the rounded approximate
+    design) or ``q0`` (given by the caller)."""
+    start_s: float = 0.0
+    """Wall time of making the starts [s] (not in ``solve_s``; for ``approximate`` the column
+    generation and the rounding; in the printed summary, not in the JSON record)."""
+    certificate: dict | None = None
+    """The optimality certificate (:func:`~kpioed_drake.design.certificate.certify`): a lower bound
+    ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how the
+    bound was found. None: not asked for."""
+    target: dict | None = None
+    """The search for the fewest poses reaching a target variance
+    (:func:`~kpioed_drake.design.target.design_for_target`): ``target_var_mm2``, ``n_poses``,
+    ``kpi_avg_var_mm2``, ``bound_mm2``, ``bound_note``, ``search_s`` and the ``trail`` of designs
+    tried. None: no search."""
+
+    @property
+    def n(self) -> int:
+        """Number of poses."""
+        return int(self.q.shape[0])
+
+    def summary(self) -> dict:
+        """JSON-ready record (angles in degrees); ``given``, ``target``, ``values.kpi_vars_mm2`` and
+        the certificate (:func:`~kpioed_drake.design.certificate.certificate_fields`) only when set."""
+        out = {
+            "robot": self.robot,
+            "criterion": self.criterion,
+            "n_poses": self.n,
+            "collision_avoidance": self.collision,
+            "values": {
+                "criterion_value": self.value,
+                "kpi_avg_var_mm2": self.kpi_avg_var_mm2,
+                "param_crit": self.param_crit,
+            },
+            "solver": self.solver,
+            "status": self.status,
+            "success": self.success,
+            "solve_s": self.solve_s,
+            "n_evals": self.n_evals,
+            "constraint_evals": self.constraint_evals,
+            "all_rows_retries": self.all_rows_retries,
+            "sweeps": self.sweeps,
+            "seed": self.seed,
+            "start": self.start,
+            "starts": len(self.start_values) if self.start_values else 1,
+            "best_start": self.best_start,
+            "start_values": self.start_values,
+            "initial_values": self.initial_values,
+            "feasible": self.feasible,
+            "n_infeasible_poses": self.n_infeasible_poses,
+            "n_colliding_poses": self.n_colliding_poses,
+            "poses": [
+                {"q_deg": np.rad2deg(qi).tolist(), **rep}
+                for qi, rep in zip(self.q, self.reports, strict=True)
+            ],
+        }
+        if self.kpi_vars_mm2 is not None:
+            out["values"]["kpi_vars_mm2"] = self.kpi_vars_mm2
+        for key in ("given", "target"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        if self.certificate is not None:
+            out.update(certificate_fields(self.certificate))
+        return out
+
+
+class DesignError(SolverError):
+    """The optimiser failed or returned an infeasible design (the CLI exits with status 3).
+
+    Attributes:
+        result: the :class:`DesignResult` that was rejected (None if there is none).
+    """
+
+    def __init__(self, message: str, result: DesignResult | None = None):
+        super().__init__(message)
+        self.result = result
+
+
+def json_record(res: DesignResult, problem: Problem, *, error: str | None = None) -> dict:
+    """The JSON record of a run (``kpioed design --json``): :meth:`DesignResult.summary` with the
+    working pose [deg] ((K, 6) and ``kpi_weights``, ``kpi_aggregate`` for several), the noise [mm]
+    and, for a rejected design, the error message; NaN as null."""
+    rec = res.summary()
+    rec["q_work_deg"] = np.rad2deg(problem.q_work).tolist()
+    if problem.n_kpis > 1:
+        rec["kpi_weights"] = problem.weights.tolist()
+        rec["kpi_aggregate"] = problem.kpi_aggregate
+    rec["sigma_mm"] = problem.sigma
+    if error is not None:
+        rec["error"] = error
+    return jsonable(rec)
+
+
+def format_summary(res: DesignResult) -> str:
+    """A few human-readable lines about a design."""
+    ca = "with" if res.collision else "without"
+    lines = [
+        f"{res.robot}: {res.criterion} design, {res.n} poses, {ca} collision avoidance",
+        f"  tr(Cs)/3 = {res.kpi_avg_var_mm2:.4g} mm^2   scaled tr(Cp) = {res.param_crit:.4g} mm^2",
+    ]
+    if res.kpi_vars_mm2 is not None:
+        each = ", ".join(f"{v:.4g}" for v in res.kpi_vars_mm2)
+        lines[1] += f"   (KPI of {len(res.kpi_vars_mm2)} working poses: {each} mm^2)"
+    if res.given is not None:
+        g = res.given
+        lines.insert(1, f"  {res.n} new poses added to {g['n_given']} given poses (values: combined design)")
+        lines.append(f"  given poses alone: tr(Cs)/3 = {g['given_kpi_avg_var_mm2']:.4g} mm^2")
+    if res.target is not None:
+        t = res.target
+        bound = "none" if t["bound_mm2"] is None else f"{t['bound_mm2']:.4g} mm^2"
+        lines.append(
+            f"  target tr(Cs)/3 <= {t['target_var_mm2']:.4g} mm^2: fewest poses {t['n_poses']} "
+            f"({len(t['trail'])} designs tried, {t['search_s']:.1f} s); "
+            f"lower bound for {t['n_poses']} poses {bound}"
+        )
+    if res.criterion != "heuristic":
+        start = res.initial_values[res.best_start] if res.initial_values else float("nan")
+        label = "start" if res.target is not None else f"{res.start} start"  # the search warm-starts
+        lines.append(f"  {res.criterion} criterion = {res.value:.6g} ({label} {start:.6g})")
+        lines.append(
+            f"  solver {res.solver}: {res.status}; {res.solve_s:.2f} s, {res.n_evals} cost evaluations"
+        )
+        if res.start == "approximate":
+            lines.append(f"  approximate start (column generation, rounding): {res.start_s:.2f} s")
+        if res.all_rows_retries:
+            lines.append("  (solved again with all clearance rows after the reduced rows failed)")
+    if res.certificate is not None:
+        lines.append("  " + certificate_line(res.certificate))
+    n_ok = res.n - res.n_infeasible_poses
+    lines.append(
+        f"  independent check: {n_ok}/{res.n} poses feasible; {res.n_colliding_poses} pose(s) collide"
+    )
+    return "\n".join(lines)

@@ -1,0 +1,249 @@
+"""The design workflows: ``kpioed design`` (:func:`run_design`) and ``make demo`` (:func:`demo`).
+
+:func:`run_design` builds the problem of a robot in the default cell, computes the design
+(:func:`~kpioed_drake.design.optimize.optimize_design`) and writes the design CSV (degrees), the
+JSON record and a picture; with several working poses (``--q-work`` repeated or a CSV of
+working poses), poses already measured (``--given``) or a target variance (``--target-var``,
+:func:`~kpioed_drake.design.target.design_for_target`); with ``--certify`` the optimality
+certificate (:func:`~kpioed_drake.design.certificate.certify`) of the design. :func:`demo`
+compares the heuristic, the standard (``param``) and the KPI design of one robot (default: the
+KR 16) in the default cell.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from kpioed_drake import designio
+from kpioed_drake.design import certificate
+from kpioed_drake.design.common import method_label
+from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.plots import plot_design_poses
+from kpioed_drake.design.result import DesignError, DesignResult, json_record
+from kpioed_drake.design.target import design_for_target
+from kpioed_drake.errors import InputError
+from kpioed_drake.models import Robot, load_robot
+from kpioed_drake.outputs import Outputs
+from kpioed_drake.problem import make_problem
+from kpioed_drake.scene3d import design_page
+
+WEIGHT_COLUMN = "weight"
+"""Optional column of a working-pose CSV: the pose's weight in the mean KPI."""
+
+
+def read_working_poses(path: str | Path, robot: Robot) -> tuple[np.ndarray, np.ndarray | None]:
+    """Working poses (or samples of a working path) from a CSV: ``q1_deg`` .. ``q6_deg`` and an
+    optional ``weight`` column.
+
+    Returns:
+        q_work (K, 6) [rad] and weights (K,) (None without the column).
+
+    Raises:
+        InputError: missing file or column, bad numbers, angles outside the limits.
+    """
+    q = designio.read_design(path, robot)
+    header, data = designio.read_csv_table(path, designio.Q_COLUMNS)
+    if WEIGHT_COLUMN not in header:
+        return q, None
+    return q, designio.parse_float_column(path, header, data, WEIGHT_COLUMN)
+
+
+def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(6,) or (K, 6) working poses [rad] (None: the model's) and weights from the file, if any."""
+    if q_work_file is not None:
+        if q_work_deg is not None:
+            raise InputError("give the working poses either by --q-work or by --q-work-file, not both")
+        return read_working_poses(q_work_file, robot)
+    if q_work_deg is None:
+        return None, None
+    if isinstance(q_work_deg, str):
+        return designio.parse_q_work(q_work_deg, robot), None
+    if all(isinstance(v, str) for v in q_work_deg):
+        return np.stack([designio.parse_q_work(v, robot) for v in q_work_deg]), None
+    q = np.asarray(q_work_deg, dtype=float)
+    rows = [designio.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
+    return (rows[0] if q.ndim == 1 else np.stack(rows)), None
+
+
+def run_design(
+    robot_name: str,
+    *,
+    criterion: str = "kpi",
+    n: int = 60,
+    collision: bool = True,
+    solver: str = "snopt",
+    seed: int = 0,
+    starts: int = 1,
+    sigma_mm: float | None = None,
+    q_work_deg=None,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    allow_infeasible: bool = False,
+    plot: str | Path | None = None,
+    extend=(),
+    q_work_file: str | Path | None = None,
+    kpi_weights=None,
+    kpi_aggregate: str = "mean",
+    given: str | Path | None = None,
+    target_var_mm2: float | None = None,
+    html: str | Path | None = None,
+    start: str | None = None,
+    certify: bool = False,
+) -> DesignResult:
+    """Compute a design for a robot in the default cell and write its files (what ``kpioed design`` runs).
+
+    Args:
+        robot_name: model name (``kr16``, ``notional-850-800``) or path to a robot YAML file.
+        criterion, n, collision, solver, seed, starts, allow_infeasible, start: see
+            :func:`optimize_design`.
+        sigma_mm: measurement noise per coordinate [mm] (default: the cell's).
+        q_work_deg: working pose [deg], a ``"q1,...,q6"`` string or 6 numbers (default: the model
+            file's); several working poses (K KPIs, e.g. a working path sampled at K points): a
+            list of K such strings or a (K, 6) array [deg].
+        q_work_file: CSV of K working poses (``q1_deg`` .. ``q6_deg`` [deg], optional ``weight``),
+            instead of ``q_work_deg``.
+        kpi_weights: (K,) positive weights of the working poses (normalised to sum 1; default:
+            the file's ``weight`` column, else equal).
+        kpi_aggregate: ``mean`` (weighted mean of the K variances tr(Cs_k)/3) or ``max`` (the
+            worst working pose, no weights).
+        given: design CSV of poses already measured (sequential re-identification): their
+            information is held fixed and ``n`` new poses are optimised; ``out`` gets the new
+            poses, the values are those of the combined design and the JSON's ``given`` record has
+            the given poses' own tr(Cs)/3.
+        target_var_mm2: find the fewest poses whose design reaches tr(Cs)/3 <= this [mm^2]
+            (:func:`~kpioed_drake.design.target.design_for_target`; ``n`` and ``allow_infeasible``
+            are then not used: only successful, feasible designs count).
+        out: design CSV (``q1_deg`` .. ``q6_deg`` plus per-pose ``incidence_deg`` and
+            ``min_clearance_mm``), written atomically.
+        json_path: JSON record of the run, written atomically (also when the design is rejected).
+        plot: picture of the poses (.png, .pdf or .svg).
+        html: self-contained 3-D page (Drake Meshcat) of the poses, their feasibility, the beams, the
+            smallest clearances and the TCP's 95 % ellipsoid at the (first) working pose.
+        extend: model extensions (e.g. ``["joint_elasticity:2"]``): the design then also estimates
+            their parameters and its KPI variance includes them (:func:`problem.make_problem`).
+        certify: add the optimality certificate of the design (``res.certificate``, in the JSON
+            record ``bound_mm2``, ``efficiency``, ``design_beyond_search`` and ``certificate``):
+            :func:`~kpioed_drake.design.certificate.certify` with this ``collision`` and ``seed``
+            (5-12 s once per robot; not with ``given``).
+
+    Returns:
+        :class:`DesignResult`.
+
+    Raises:
+        InputError: bad input. DesignError: solver failure or infeasible design.
+    """
+    if certify and given is not None:
+        raise InputError(
+            "--certify is not available with --given (the certificate bounds designs of N poses alone)"
+        )
+    robot = load_robot(robot_name)
+    q_work, file_weights = _working_poses(robot, q_work_deg, q_work_file)
+    problem = make_problem(
+        robot,
+        q_work=q_work,
+        sigma_mm=sigma_mm,
+        extend=extend,
+        kpi_weights=file_weights if kpi_weights is None else kpi_weights,
+        kpi_aggregate=kpi_aggregate,
+    )
+    q_given = None if given is None else designio.read_design(given, robot)
+    common = dict(
+        criterion=criterion, collision=collision, solver=solver, seed=seed, starts=starts, start=start
+    )
+    try:
+        if target_var_mm2 is None:
+            res = optimize_design(problem, n=n, allow_infeasible=allow_infeasible, given=q_given, **common)
+        else:
+            res = design_for_target(problem, target_var_mm2, given=q_given, **common)
+    except DesignError as exc:
+        if json_path is not None and exc.result is not None:
+            designio.atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
+        raise
+    if certify:
+        res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed)
+    with Outputs() as staged:
+        if out is not None:
+            extra = {
+                "incidence_deg": np.array([r["incidence_deg"] for r in res.reports]),
+                "min_clearance_mm": np.array([r["min_clearance_mm"] for r in res.reports]),
+            }
+            staged.add_text(out, designio.design_csv_text(res.q, extra))
+        if json_path is not None:
+            staged.add_json(json_path, json_record(res, problem))
+        if plot is not None:
+            plot_design_poses(
+                problem.robot,
+                problem.cell,
+                res.q,
+                staged.folder(Path(plot).parent) / Path(plot).name,
+                q_work=problem.q_works[0],
+                infeasible=np.array([not r["feasible"] for r in res.reports]),
+                title=f"{robot.name}: {criterion} design, {res.n} poses, "
+                f"tr(Cs)/3 = {res.kpi_avg_var_mm2:.4g} mm^2",
+            )
+        if html is not None:
+            staged.add_text(html, design_page(problem.robot, problem.cell, res.q, q_work=problem.q_works[0],
+                                              Cs=first_kpi_covariance(problem, res.q)))  # fmt: skip
+        staged.commit()
+    return res
+
+
+def first_kpi_covariance(problem, q) -> np.ndarray:
+    """(3, 3) covariance Cs [mm^2] of the TCP at the first working pose for the design ``q``."""
+    Cp, _ = problem.covariances(q)
+    Js = problem.Js_each()[0]
+    return Js @ Cp @ Js.T
+
+
+def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, seed: int = 0) -> dict:
+    """KPI design of ``robot`` in the default cell, compared with the heuristic and standard designs.
+
+    Prints tr(Cs)/3 of the heuristic, the standard (``param``) and the KPI design, and writes
+    ``<out_dir>/<robot>-kpi-design.csv``, ``.png`` and ``.html`` (a 3-D Meshcat page of the KPI
+    design with the heuristic's confidence ellipsoid beside its own).
+
+    Returns:
+        {criterion: tr(Cs)/3 [mm^2]}.
+    """
+    out_dir = Path(out_dir)
+    problem = make_problem(robot)
+    print(f"{robot}: {n} poses, collision avoidance on, SNOPT; average TCP variance tr(Cs)/3 [mm^2]")
+    results = {}
+    for crit in ("heuristic", "param", "kpi"):
+        res = optimize_design(problem, criterion=crit, n=n, seed=seed)
+        results[crit] = res
+        label = method_label(crit)
+        extra = "" if crit == "heuristic" else f"  ({res.solve_s:.1f} s, {res.status})"
+        print(f"  {label:18s} {res.kpi_avg_var_mm2:.4f}{extra}")
+    h, p, k = (results[c].kpi_avg_var_mm2 for c in ("heuristic", "param", "kpi"))
+    print(
+        f"  KPI vs heuristic: {100 * (1 - k / h):.0f} % lower; vs standard: {100 * (1 - k / p):.0f} % lower"
+    )
+    kres, hres = results["kpi"], results["heuristic"]
+    stem = out_dir / f"{robot}-kpi-design"
+    page = design_page(
+        problem.robot,
+        problem.cell,
+        kres.q,
+        reports=None,
+        q_work=problem.q_work,
+        Cs=first_kpi_covariance(problem, kres.q),
+        compare=("heuristic", hres.q, first_kpi_covariance(problem, hres.q)),
+    )
+    with Outputs() as staged:
+        staged.add_text(stem.with_suffix(".csv"), designio.design_csv_text(kres.q))
+        plot_design_poses(
+            problem.robot,
+            problem.cell,
+            kres.q,
+            staged.folder(out_dir) / f"{stem.name}.png",
+            q_work=problem.q_work,
+            title=f"{robot}: KPI design, {n} poses, tr(Cs)/3 = {k:.3f} mm^2",
+        )
+        staged.add_text(stem.with_suffix(".html"), page)
+        staged.commit()
+    print(f"  feasible (Drake check): {kres.feasible}; wrote {stem}.csv and {stem}.png")
+    print(f"  3-D scene (open in a browser; no network needed): {stem}.html")
+    return {c: r.kpi_avg_var_mm2 for c, r in results.items()}

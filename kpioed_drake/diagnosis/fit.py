@@ -1,0 +1,98 @@
+"""Fits of the geometric model plus any set of effects on any subset of the poses of one data set.
+
+:class:`FitProblem` binds the data, the noise and the per-pose conditions (gravity torques at the
+commanded angles, temperature, time) and fits with the package's one estimator
+(:func:`kpioed_drake.estimation.estimate`); :meth:`FitProblem.holdout` gives K-fold
+cross-validated residuals (every fold refitted).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kpioed_drake import estimation
+from kpioed_drake.diagnosis.common import FOLD_SEED, K_FOLDS
+from kpioed_drake.estimation import EstimationResult
+from kpioed_drake.measurement import nominal_model
+from kpioed_drake.measurements import Measurements
+from kpioed_drake.models import Robot, load_cell
+
+Fit = EstimationResult
+"""A fit of the geometric parameters and some effects (``effects``, ``Cp`` of both)."""
+
+
+class FitProblem:
+    """Data + sigma + the cached conditions: fits of any set of effects on any subset of poses.
+
+    Attributes:
+        robot: the robot; data: the measurements; sigma: noise per coordinate [mm].
+        cell: the cell; nominal: the nominal model (the start of every fit without ``start``).
+        conditions: per-pose inputs of the effects over all poses; the gravity torques hold the
+            payload at the nominal reflector point (fixed during the fit, so that the residual
+            function stays the same for every parameter value).
+    """
+
+    def __init__(self, robot: Robot, data: Measurements, sigma: float, *, cell=None):
+        self.robot, self.data, self.sigma = robot, data, float(sigma)
+        self.cell = load_cell(robot=robot) if cell is None else cell
+        self.nominal = nominal_model(robot, self.cell)
+        self.conditions = estimation.data_conditions(robot, data, p_FP=self.nominal.p_FQ)
+
+    @property
+    def tau(self) -> np.ndarray:
+        """(n, 6) gravity torques at the commanded angles [N m]."""
+        return self.conditions.tau
+
+    def response(self, model, effects, idx):
+        """h (m, 3), H (m, 3, n_full), E (m, 3, k) at poses ``idx``."""
+        return estimation.response(model, list(effects), self.data.q[idx], self.conditions.subset(idx))
+
+    def fit(self, effects, *, start: Fit | None = None, idx=None) -> Fit:
+        """Fit the geometric parameters and the effects' values on poses ``idx`` (default all).
+
+        Starts from ``start`` (its model and the values of effects it shares) or from the
+        registered nominal model with zero effect values.
+        """
+        n = self.data.n
+        mask = np.zeros(n, dtype=bool)
+        mask[np.arange(n) if idx is None else np.asarray(idx)] = True
+        known = {e.key: e for e in (start.effects if start is not None else ())}
+        effs = [
+            e.with_values(known[e.key].value_array() if e.key in known else np.zeros(e.n_params))
+            for e in effects
+        ]
+        return estimation.estimate(
+            self.nominal if start is None else start.model,
+            self.data.q,
+            self.data.eta,
+            sigma=self.sigma,
+            mask=mask,
+            register=start is None,
+            effects=effs,
+            conditions=self.conditions,
+            singular_ok=True,
+        )
+
+    def folds(self, k: int = K_FOLDS) -> list[np.ndarray]:
+        """``k`` disjoint test sets of poses (seeded random assignment)."""
+        n = self.data.n
+        k = int(min(k, n))
+        perm = np.random.default_rng(FOLD_SEED).permutation(n)
+        return [np.sort(perm[i::k]) for i in range(k)]
+
+    def holdout(self, full: Fit, *, k: int = K_FOLDS) -> np.ndarray:
+        """(n, 3) held-out residuals by K-fold cross-validation (each fold refitted from ``full``)."""
+        n = self.data.n
+        out = np.empty((n, 3))
+        for test in self.folds(k):
+            train = np.setdiff1d(np.arange(n), test)
+            f = self.fit(full.effects, start=full, idx=train)
+            out[test] = f.residuals[test]
+        return out
+
+    def effect_signal(self, fit: Fit, i: int) -> np.ndarray:
+        """(n, 3) contribution of effect i of ``fit`` to the measurements (linearised) [mm]."""
+        _, _, E = self.response(fit.model, fit.effects, np.arange(self.data.n))
+        c = sum(e.n_params for e in fit.effects[:i])
+        e = fit.effects[i]
+        return E[:, :, c : c + e.n_params] @ e.value_array()

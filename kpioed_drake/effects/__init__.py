@@ -1,0 +1,124 @@
+"""Non-geometric effects: what the kinematic model leaves out (SPEC "Measured data and model discrepancy").
+
+Four effect families, each a few parameters on top of the geometric parameter vector of
+:mod:`kpioed_drake.parameters` (joint numbers are 1-based, as in SPEC and on the command line):
+
+============================  ============================================  ====================
+family (``parse_effect``)     model                                         parameters (inside)
+============================  ============================================  ====================
+``joint_elasticity:i[=c]``    joint i deflects by ``c * tau_i(q)``          c [rad/(N m)]
+``gear_cyclic:i:n[=a,b]``     joint i angle error ``a sin(n q_i) + b cos``  a, b [rad] (text: deg)
+``thermal_expansion[=k]``     robot lengths scale by ``1 + k (T - T_ref)``  k [1/K]
+``tracker_drift[=vx,vy,vz]``  tracker origin moves by ``v t`` (v in W)      v [mm/s] (text: mm/min)
+============================  ============================================  ====================
+
+Conventions (the choices SPEC leaves open, kept here in one place):
+
+- Joint angles ``q`` in the data are the *commanded* (encoder) angles. Joint-angle effects act as
+  ``q_actual = q_cmd + delta(q_cmd)``; the deflection and the gear error are evaluated at the
+  commanded angles (the difference to evaluating them at ``q_actual`` is second order, below
+  1e-7 rad at SPEC sizes).
+- Gravity torque ``tau(q)`` [N m] is Drake's ``MultibodyPlant.CalcGravityGeneralizedForces`` on the
+  plant of :func:`kpioed_drake.plant.build_scene` built from the robot's *nominal* geometry, link
+  masses and centres of mass (metres inside Drake). Drake returns the generalized force that
+  gravity exerts on each joint (the term on the right of ``M v' + C v = tau_g + tau``), so a joint
+  held by a spring of compliance c at the commanded angle settles at
+  ``q_actual = q_cmd + c * tau_g``: a positive c means the joint yields in the direction gravity
+  pushes it. Joint 1 of every shipped robot turns about the vertical axis: gravity has no torque
+  there and elasticity of joint 1 cannot be seen (``parse_effect`` refuses it).
+- Payload: a point mass ``payload_kg`` at the reflector/TCP point ``p_FQ`` of the model; its torque
+  is ``J_v^T (m g)`` with ``J_v`` the translational Jacobian of that point from the numpy kinematics
+  (same nominal geometry). Its joint-angle derivative is closed form (see ``_payload_torque``).
+- Thermal expansion scales *every* length of the robot side by ``s = 1 + k (T - T_REF_C)``: all
+  ``a`` and ``d`` of the kinematic table and the reflector offset ``p_FQ`` (the reflector holder is
+  steel too). Because the reflector position is homogeneous of degree one in those lengths, this
+  is exactly ``p_WQ -> s p_WQ`` (a scaling about the base origin W). The tracker position does not
+  scale. ``T_REF_C`` = 20 C: the geometric parameters describe the robot at 20 C. A temperature that
+  is constant over the data only rescales the geometry (absorbed by the length parameters); only its
+  variation over the data identifies k.
+- Tracker drift: the tracker origin moves in W as ``p_WT(t) = p_WT + v t`` (``t`` = ``time_s``).
+  A constant offset is the tracker position itself; only the linear part is an effect.
+
+Measurement model with effects (everything in the tracker frame, mm)::
+
+    h = R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)
+
+:func:`true_measurements` evaluates it (noise-free) for simulation; :func:`augmented_jacobian`
+returns its Jacobian w.r.t. the geometric parameters and the effect parameters (closed form,
+finite-difference checked in ``tests/test_effects.py``); :func:`extension_columns` returns just the
+effect columns (and their joint-angle derivative) so that calibration and design can append them to
+``F1``.
+
+Realistic sizes (SPEC), used when ``parse_effect`` draws a value with a random generator:
+
+- elasticity: the largest tool displacement it causes over the joint box is drawn uniformly in
+  0.1-1 mm (``tool_mm``); c follows from the robot (:func:`resolve`: max over 2000 seeded poses
+  within the joint limits of ``|tau_i| * |dp_WQ/dq_i|``, no payload);
+- gear: a and b each uniform in 0.003-0.02 deg with a random sign;
+- thermal: k = 11.7e-6 /K (steel), not drawn (without ``rng``: unknown, like the others);
+- drift: speed uniform in 0.005-0.05 mm/min, direction uniform on the sphere.
+
+Modules: :mod:`.model` (:class:`Effect`, the text syntax, sizes), :mod:`.gravity` (gravity and
+payload torques, the elastic lever), :mod:`.response` (the measurement model with effects, its
+Jacobian, the effects' design and KPI columns).
+"""
+
+from kpioed_drake.effects.gravity import (
+    GravityModel,
+    elastic_lever,
+    gravity_model,
+    gravity_torques,
+    reference_poses,
+)
+from kpioed_drake.effects.model import (
+    DRIFT_MM_PER_MIN,
+    ELASTIC_TOOL_MM,
+    FAMILIES,
+    GEAR_DEG,
+    N_PARAMS,
+    STEEL_K,
+    T_REF_C,
+    UNITS,
+    Effect,
+    parse_effect,
+    parse_effects,
+    resolve,
+)
+from kpioed_drake.effects.response import (
+    augmented_jacobian,
+    augmented_response,
+    effect_kpi_columns,
+    effect_tcp_shift,
+    extension_columns,
+    extension_param_names,
+    joint_deltas,
+    true_measurements,
+)
+
+__all__ = [
+    "DRIFT_MM_PER_MIN",
+    "ELASTIC_TOOL_MM",
+    "FAMILIES",
+    "GEAR_DEG",
+    "N_PARAMS",
+    "STEEL_K",
+    "T_REF_C",
+    "UNITS",
+    "Effect",
+    "GravityModel",
+    "augmented_jacobian",
+    "augmented_response",
+    "effect_kpi_columns",
+    "effect_tcp_shift",
+    "elastic_lever",
+    "extension_columns",
+    "extension_param_names",
+    "gravity_model",
+    "gravity_torques",
+    "joint_deltas",
+    "parse_effect",
+    "parse_effects",
+    "reference_poses",
+    "resolve",
+    "true_measurements",
+]

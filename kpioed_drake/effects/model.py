@@ -1,0 +1,246 @@
+"""Non-geometric effects: the :class:`Effect` type, its text syntax and SPEC's realistic sizes.
+
+See :mod:`kpioed_drake.effects` for the families, the conventions and the measurement model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+
+from kpioed_drake.effects.gravity import elastic_lever
+from kpioed_drake.errors import InputError
+from kpioed_drake.measurement import TrackerModel
+
+FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
+"""Effect names as in SPEC (and ``none`` for a model that explains the data)."""
+
+N_PARAMS = {"joint_elasticity": 1, "gear_cyclic": 2, "thermal_expansion": 1, "tracker_drift": 3}
+UNITS = {
+    "joint_elasticity": "rad/(N m)",
+    "gear_cyclic": "deg",
+    "thermal_expansion": "1/K",
+    "tracker_drift": "mm/min",
+}
+"""Units of the *displayed* values (text syntax, reports); inside the code see :class:`Effect`."""
+
+T_REF_C = 20.0
+"""Reference temperature [C]: the geometric parameters describe the robot at this temperature."""
+STEEL_K = 11.7e-6
+"""Linear expansion coefficient of steel [1/K] (SPEC)."""
+ELASTIC_TOOL_MM = (0.1, 1.0)
+GEAR_DEG = (0.003, 0.02)
+DRIFT_MM_PER_MIN = (0.005, 0.05)
+_DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expansion": 1.0}
+_DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
+
+
+@dataclasses.dataclass(frozen=True)
+class Effect:
+    """One non-geometric effect.
+
+    Attributes:
+        family: one of :data:`FAMILIES`.
+        joint: 1-based joint (elasticity, gear) or None.
+        harmonic: n of ``gear_cyclic`` or None.
+        values: the parameters in internal units, or None if unknown (to be estimated):
+            elasticity ``(c,)`` [rad/(N m)]; gear ``(a, b)`` [rad]; thermal ``(k,)`` [1/K];
+            drift ``(vx, vy, vz)`` [mm/s] in W.
+        tool_mm: for an elasticity drawn by size: the largest tool displacement [mm] over the joint
+            box; :func:`resolve` turns it into c for a robot.
+    """
+
+    family: str
+    joint: int | None = None
+    harmonic: int | None = None
+    values: tuple[float, ...] | None = None
+    tool_mm: float | None = None
+
+    @property
+    def n_params(self) -> int:
+        return N_PARAMS[self.family]
+
+    @property
+    def key(self) -> tuple:
+        """(family, joint, harmonic): what a diagnosis has to name."""
+        return (self.family, self.joint, self.harmonic)
+
+    @property
+    def name(self) -> str:
+        """Text form without values, e.g. ``gear_cyclic:4:2``."""
+        parts = [self.family]
+        if self.joint is not None:
+            parts.append(str(self.joint))
+        if self.harmonic is not None:
+            parts.append(str(self.harmonic))
+        return ":".join(parts)
+
+    @property
+    def param_names(self) -> list[str]:
+        sub = {
+            "joint_elasticity": ["c"],
+            "gear_cyclic": ["a", "b"],
+            "thermal_expansion": ["k"],
+            "tracker_drift": ["vx", "vy", "vz"],
+        }[self.family]
+        return [f"{self.name}.{s}" for s in sub]
+
+    def value_array(self) -> np.ndarray:
+        """(n_params,) internal values; zeros when unknown."""
+        if self.values is None:
+            return np.zeros(self.n_params)
+        return np.asarray(self.values, dtype=float)
+
+    def with_values(self, values) -> Effect:
+        return dataclasses.replace(self, values=tuple(float(v) for v in np.ravel(values)))
+
+    def display_values(self, values=None) -> list[float]:
+        """Values (or any same-shaped array, e.g. standard deviations) in display units."""
+        v = self.value_array() if values is None else np.asarray(values, dtype=float)
+        return [float(x) for x in np.ravel(v) / _DISPLAY[self.family]]
+
+    def text(self) -> str:
+        """Parseable text with the values, e.g. ``gear_cyclic:4:2=0.01,-0.005`` (display units)."""
+        if self.values is None:
+            return self.name
+        return self.name + "=" + ",".join(f"{x:.6g}" for x in self.display_values())
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (SPEC names, 1-based joints, display units)."""
+        out: dict = {"effect": self.family}
+        if self.joint is not None:
+            out["joint"] = self.joint
+        if self.harmonic is not None:
+            out["harmonic"] = self.harmonic
+        if self.values is not None:
+            dv = self.display_values()
+            out["value"] = dv[0] if len(dv) == 1 else dv
+        out["unit"] = UNITS[self.family]
+        if self.tool_mm is not None:
+            out["tool_mm"] = self.tool_mm
+        return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Parsing
+# ----------------------------------------------------------------------------------------------
+_SYNTAX = (
+    "joint_elasticity:JOINT[=c rad/(N m)], gear_cyclic:JOINT:N[=a,b deg], thermal_expansion[=k 1/K], "
+    "tracker_drift[=vx,vy,vz mm/min]"
+)
+
+
+def _numbers(text: str, count: int, spec: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != count or not all(np.isfinite(vals)):
+        raise InputError(f"effect {spec!r}: expected {count} comma-separated number(s) after '='")
+    return vals
+
+
+def _joint(token: str, spec: str) -> int:
+    if not re.fullmatch(r"[1-6]", token.strip()):
+        raise InputError(f"effect {spec!r}: joint must be 1..6 (1-based), got {token!r}")
+    return int(token)
+
+
+def parse_effect(
+    text: str, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None
+) -> Effect:
+    """Parse an effect from its text form.
+
+    Syntax: ``joint_elasticity:2`` / ``joint_elasticity:2=2e-6`` (c in rad per N m);
+    ``gear_cyclic:4:2`` / ``gear_cyclic:4:2=0.01,-0.005`` (joint 4, harmonic 2, a and b in deg);
+    ``thermal_expansion`` / ``thermal_expansion=11.7e-6`` (k in 1/K, default steel);
+    ``tracker_drift`` / ``tracker_drift=0.01,0,-0.02`` (velocity in W, mm/min).
+
+    Without a value: with ``rng`` a value of SPEC's realistic size is drawn (an elasticity as a tool
+    displacement ``tool_mm``, turned into c by :func:`resolve` once the robot is known; pass
+    ``model`` to resolve at once); without ``rng`` the values stay unknown (``values=None``: an
+    extension to estimate). ``thermal_expansion`` drawn with ``rng`` is steel (``STEEL_K``), not random.
+
+    Raises:
+        InputError: unknown family, bad joint or harmonic, wrong number of values.
+    """
+    spec = str(text).strip()
+    lhs, eq, rhs = spec.partition("=")
+    parts = [p.strip() for p in lhs.split(":")]
+    family = parts[0]
+    if family not in FAMILIES:
+        raise InputError(f"unknown effect {family!r} in {spec!r}; expected one of: {_SYNTAX}")
+    given = rhs.strip() if eq else None
+    if eq and not given:
+        raise InputError(f"effect {spec!r}: nothing after '='")
+    if family == "joint_elasticity":
+        if len(parts) != 2:
+            raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
+        joint = _joint(parts[1], spec)
+        if joint == 1:
+            raise InputError(
+                f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
+                "so its elasticity has no effect (use joints 2..6)"
+            )
+        if given is not None:
+            (c,) = _numbers(given, 1, spec)
+            return Effect(family, joint, None, (c,))
+        if rng is None:
+            return Effect(family, joint)
+        eff = Effect(family, joint, tool_mm=float(rng.uniform(*ELASTIC_TOOL_MM)))
+        return resolve(eff, model) if model is not None else eff
+    if family == "gear_cyclic":
+        if len(parts) != 3:
+            raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
+        joint = _joint(parts[1], spec)
+        if not re.fullmatch(r"[1-9]\d*", parts[2]):
+            raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
+        n = int(parts[2])
+        if given is not None:
+            ab = np.deg2rad(_numbers(given, 2, spec))
+            return Effect(family, joint, n, tuple(float(x) for x in ab))
+        if rng is None:
+            return Effect(family, joint, n)
+        ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
+        return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+    if len(parts) != 1:
+        raise InputError(f"effect {spec!r}: {family} takes no joint")
+    if family == "thermal_expansion":
+        if given is None and rng is None:
+            return Effect(family)
+        k = _numbers(given, 1, spec)[0] if given is not None else STEEL_K
+        return Effect(family, values=(float(k),))
+    # tracker_drift
+    if given is not None:
+        v = np.asarray(_numbers(given, 3, spec)) / 60.0
+        return Effect(family, values=tuple(float(x) for x in v))
+    if rng is None:
+        return Effect(family)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    v = d * rng.uniform(*DRIFT_MM_PER_MIN) / 60.0
+    return Effect(family, values=tuple(float(x) for x in v))
+
+
+def parse_effects(texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None):
+    """Parse several effects (a list, or one comma-free text per effect); duplicates are an error."""
+    effects = [parse_effect(t, rng, model=model) for t in texts]
+    keys = [e.key for e in effects]
+    for k in keys:
+        if keys.count(k) > 1:
+            raise InputError(f"effect {effects[keys.index(k)].name!r} given more than once")
+    return effects
+
+
+def resolve(effect: Effect, model: TrackerModel) -> Effect:
+    """An effect with concrete values: an elasticity drawn by ``tool_mm`` gets its c for this robot."""
+    if effect.values is not None or effect.family != "joint_elasticity" or effect.tool_mm is None:
+        return effect
+    lever = elastic_lever(model, effect.joint)
+    if lever <= 0:
+        raise InputError(
+            f"effect {effect.name}: gravity exerts no torque on joint {effect.joint} of this robot"
+        )
+    return dataclasses.replace(effect, values=(effect.tool_mm / lever,))

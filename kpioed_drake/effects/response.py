@@ -1,0 +1,305 @@
+"""The measurement model with effects, its Jacobian, and the effects' columns for design and KPI.
+
+``h = R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)``; see :mod:`kpioed_drake.effects`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kpioed_drake.effects.gravity import gravity_model, gravity_torques
+from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
+from kpioed_drake.errors import InputError
+from kpioed_drake.kinematics import flange_point, point_jacobian
+from kpioed_drake.measurement import TrackerModel, tracker_jacobian
+from kpioed_drake.measurements import per_pose
+from kpioed_drake.models import N_JOINTS
+
+
+# ----------------------------------------------------------------------------------------------
+# The measurement model with effects and its Jacobian
+# ----------------------------------------------------------------------------------------------
+def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
+    if x is None:
+        raise InputError(f"effect {effect} needs {what} for every pose (column {what!r} in the data)")
+    return per_pose(x, n, f"effect {effect}: {what}")
+
+
+def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_dq: bool = False, tau=None):
+    """Joint-angle errors of the joint effects at their values [rad], and what their columns need.
+
+    Returns:
+        delta: (n, 6) angle errors; factors: list over effects of (n, n_params) or None (the
+        derivative of delta_joint w.r.t. the effect's parameters); with ``with_dq`` also
+        ddelta (n, 6, 6) ``d delta_i / d q_j`` and dfactors (list of (n, 6, n_params) or None).
+    """
+    q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+    n = q.shape[0]
+    need_tau = any(e.family == "joint_elasticity" for e in effects)
+    dtau = None
+    if need_tau and tau is None:
+        out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=with_dq)
+        tau, dtau = (out, None) if not with_dq else out
+    elif need_tau and with_dq:
+        _, dtau = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=True)
+    delta = np.zeros((n, N_JOINTS))
+    ddelta = np.zeros((n, N_JOINTS, N_JOINTS))
+    factors, dfactors = [], []
+    for e in effects:
+        if e.family == "joint_elasticity":
+            i = e.joint - 1
+            f = tau[:, i : i + 1]
+            df = dtau[:, i, :, None] if with_dq else None
+        elif e.family == "gear_cyclic":
+            i = e.joint - 1
+            nq = e.harmonic * q[:, i]
+            f = np.stack([np.sin(nq), np.cos(nq)], axis=1)
+            if with_dq:
+                df = np.zeros((n, N_JOINTS, 2))
+                df[:, i, 0] = e.harmonic * np.cos(nq)
+                df[:, i, 1] = -e.harmonic * np.sin(nq)
+            else:
+                df = None
+        else:
+            factors.append(None)
+            dfactors.append(None)
+            continue
+        v = e.value_array()
+        delta[:, i] += f @ v
+        if with_dq:
+            ddelta[:, i, :] += df @ v
+        factors.append(f)
+        dfactors.append(df)
+    if with_dq:
+        return delta, factors, ddelta, dfactors
+    return delta, factors
+
+
+def _scale_and_drift(effects, n: int, temperature_C, time_s):
+    """Length scale s (n,), tracker shift ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (or None)."""
+    s = np.ones(n)
+    temp = None
+    drift = np.zeros((n, 3))
+    tvec = None
+    for e in effects:
+        if e.family == "thermal_expansion":
+            temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
+            s = s + e.value_array()[0] * temp
+        elif e.family == "tracker_drift":
+            tvec = _per_pose(time_s, n, "time_s", e.name)
+            drift = drift + tvec[:, None] * e.value_array()[None, :]
+    return s, drift, temp, tvec
+
+
+def augmented_response(
+    model: TrackerModel, q_cmd, effects=(), *, temperature_C=None, time_s=None, payload_kg=None, tau=None
+) -> np.ndarray:
+    """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
+
+    The same ``h`` as :func:`augmented_jacobian` (same arguments), at a fraction of the cost.
+    """
+    q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+    effects = list(effects)
+    delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau)
+    p_WQ = flange_point(model.frames(q + delta), model.p_FQ)
+    s, drift, _, _ = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
+    return (s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT
+
+
+def augmented_jacobian(
+    model: TrackerModel,
+    q_cmd,
+    effects=(),
+    *,
+    temperature_C=None,
+    time_s=None,
+    payload_kg=None,
+    with_dq: bool = False,
+    tau=None,
+):
+    """Response of the measurement model with effects and its Jacobian.
+
+    ``h = R_TW (s p_WQ(p, q_cmd + delta) - p_WT - v t)`` with the effects at their values (unknown
+    values count as zero).
+
+    Args:
+        model: the geometric model.
+        q_cmd: (n, 6) commanded joint angles [rad].
+        effects: list of :class:`Effect`.
+        temperature_C, time_s, payload_kg: (n,) or scalars, as the effects need them.
+        with_dq: also the derivative of the effect columns w.r.t. the commanded joint angles.
+        tau: (n, 6) precomputed gravity torques (payload included) to skip Drake.
+
+    Returns:
+        h (n, 3) [mm]; H (n, 3, n_full) dh/dp; E (n, 3, k) dh/d(effect parameters), effects in order,
+        internal units; with ``with_dq`` also dE (n, 6, 3, k) ``dE / dq_cmd_j``.
+    """
+    q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+    n = q.shape[0]
+    effects = list(effects)
+    jd = joint_deltas(model, q, effects, payload_kg=payload_kg, with_dq=with_dq, tau=tau)
+    delta, factors = jd[0], jd[1]
+    q_act = q + delta
+    frames = model.frames(q_act)
+    out = point_jacobian(frames, model.p_FQ, with_dq=with_dq)
+    p_WQ, JW = out[0], out[1]
+    s, drift, temp, tvec = _scale_and_drift(effects, n, temperature_C, time_s)
+    lay = model.layout
+    R_TW = model.R_WT.T
+    h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift)
+    theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
+    if payload_kg is not None and np.any(np.asarray(payload_kg) != 0):
+        # the payload sits at p_FQ: its torque, hence an elastic deflection, depends on p_FQ
+        c_el = np.zeros(N_JOINTS)
+        for e in effects:
+            if e.family == "joint_elasticity":
+                c_el[e.joint - 1] += e.value_array()[0]
+        if np.any(c_el):
+            dtau_dp = gravity_model(model.robot).payload_torques_dp(q, payload_kg)  # (n,6,3)
+            dq_dp = c_el[None, :, None] * dtau_dp  # (n,6,3) d q_act / d p_FQ
+            dh_dq = s[:, None, None] * np.einsum("ab,nbj->naj", R_TW, theta)  # (n,3,6)
+            H[:, :, lay.target(0)] += np.einsum("naj,njd->nad", dh_dq, dq_dp)
+    k = sum(e.n_params for e in effects)
+    E = np.zeros((n, 3, k))
+    if with_dq:
+        dJW = out[2]
+        A = np.eye(N_JOINTS)[None] + jd[2]  # d q_act / d q_cmd
+        dE = np.zeros((n, N_JOINTS, 3, k))
+        dp_dq = np.einsum("nal,nlj->nja", theta, A)  # (n,6,3)
+    col = 0
+    for e, f, *rest in zip(effects, factors, *(jd[3:4] if with_dq else ()), strict=True):
+        m = e.n_params
+        if e.family in ("joint_elasticity", "gear_cyclic"):
+            c = lay.joint_angle(e.joint)
+            G = s[:, None] * (JW[:, :, c] @ R_TW.T)  # (n,3) s R_TW dp/dq_i
+            E[:, :, col : col + m] = G[:, :, None] * f[:, None, :]
+            if with_dq:
+                df = rest[0]
+                dG = np.einsum("nlb,nlj->njb", dJW[:, :, :, c], A) @ R_TW.T * s[:, None, None]  # (n,6,3)
+                dE[:, :, :, col : col + m] = (
+                    dG[..., None] * f[:, None, None, :] + G[:, None, :, None] * df[:, :, None, :]
+                )
+        elif e.family == "thermal_expansion":
+            E[:, :, col] = (p_WQ @ R_TW.T) * temp[:, None]
+            if with_dq:
+                dE[:, :, :, col] = (dp_dq @ R_TW.T) * temp[:, None, None]
+        else:
+            E[:, :, col : col + 3] = -R_TW[None] * tvec[:, None, None]
+        col += m
+    if with_dq:
+        return h, H, E, dE
+    return h, H, E
+
+
+def true_measurements(
+    model_true: TrackerModel,
+    q_cmd,
+    effects=(),
+    *,
+    temperature_C=None,
+    time_s=None,
+    payload_kg=None,
+) -> np.ndarray:
+    """Noise-free reflector positions in the tracker frame [mm] of a robot with these effects.
+
+    Args:
+        model_true: the true geometry, tracker pose and reflector offset.
+        q_cmd: (n, 6) commanded joint angles [rad] (what the data file records).
+        effects: list of :class:`Effect` (or texts for :func:`parse_effect` with given values);
+            each must have values (an elasticity drawn by ``tool_mm`` is resolved for this robot).
+        temperature_C, time_s, payload_kg: (n,) or scalars; required by thermal expansion and
+            drift; payload adds to the gravity torques of joint elasticity.
+
+    Returns:
+        (n, 3) positions [mm].
+    """
+    effs = []
+    for e in effects:
+        e = parse_effect(e) if isinstance(e, str) else e
+        e = resolve(e, model_true)
+        if e.values is None:
+            raise InputError(
+                f"effect {e.name} has no value: give one ('{e.name}=...') or draw one with a random generator"
+            )
+        effs.append(e)
+    h, _, _ = augmented_jacobian(
+        model_true, q_cmd, effs, temperature_C=temperature_C, time_s=time_s, payload_kg=payload_kg
+    )
+    return h
+
+
+def extension_columns(
+    model: TrackerModel,
+    q,
+    extensions,
+    *,
+    temperature_C=None,
+    time_s=None,
+    payload_kg=None,
+    with_dq: bool = False,
+):
+    """Jacobian columns of the measurement w.r.t. the parameters of model extensions.
+
+    To extend calibration or design by effects, append these columns to the geometric ones:
+    ``H_aug = concat(H[:, :, free], E)`` (and ``dH_aug`` likewise with ``dE``). Evaluated at the
+    extensions' values (unknown values = 0, the usual linearisation point of a design), in
+    internal units (see :class:`Effect`); scale them like the other columns (divide by sigma).
+
+    Args:
+        model: the geometric model.
+        q: (n, 6) joint angles [rad].
+        extensions: effects or texts (``"joint_elasticity:2"``, ``"gear_cyclic:4:2"``, ...).
+        temperature_C, time_s: (n,) per-pose values, required by thermal expansion and drift.
+        payload_kg: scalar or (n,), adds to the gravity torques.
+        with_dq: also return the derivative w.r.t. the joint angles.
+
+    Returns:
+        E (n, 3, k); with ``with_dq`` also dE (n, 6, 3, k) ``dE[i, j] = dE[i] / dq_j``.
+    """
+    effs = [parse_effect(e) if isinstance(e, str) else e for e in extensions]
+    out = augmented_jacobian(
+        model,
+        q,
+        effs,
+        temperature_C=temperature_C,
+        time_s=time_s,
+        payload_kg=payload_kg,
+        with_dq=with_dq,
+    )
+    if with_dq:
+        return out[2], out[3]
+    return out[2]
+
+
+def extension_param_names(extensions) -> list[str]:
+    """Names of the extension parameters in column order, e.g. ``gear_cyclic:4:2.a``."""
+    effs = [parse_effect(e) if isinstance(e, str) else e for e in extensions]
+    return [nm for e in effs for nm in e.param_names]
+
+
+def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(3, k) derivative of the TCP in W at ``q_work`` w.r.t. the effect parameters.
+
+    KPI conditions: no payload, temperature ``T_REF_C`` (thermal column 0), tracker irrelevant
+    (drift columns 0). Joint effects move the TCP by ``dp/dq_i * factor(q_work)``.
+    """
+    q = np.asarray(q_work, dtype=float)[None, :]
+    effects = list(effects)
+    _, factors = joint_deltas(model, q, effects)
+    frames = model.frames(q)
+    _, J = point_jacobian(frames, model.p_FQ + np.asarray(tool_offset, dtype=float))
+    cols = []
+    for e, f in zip(effects, factors, strict=True):
+        if f is None:
+            cols.append(np.zeros((3, e.n_params)))
+        else:
+            cols.append(J[0, :, model.layout.joint_angle(e.joint)][:, None] * f[0][None, :])
+    return np.concatenate(cols, axis=1) if cols else np.zeros((3, 0))
+
+
+def effect_tcp_shift(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(3,) TCP displacement in W at ``q_work`` caused by the effects at their values (KPI conditions)."""
+    q = np.asarray(q_work, dtype=float)[None, :]
+    delta, _ = joint_deltas(model, q, list(effects))
+    off = model.p_FQ + np.asarray(tool_offset, dtype=float)
+    return flange_point(model.frames(q + delta), off)[0] - flange_point(model.frames(q), off)[0]

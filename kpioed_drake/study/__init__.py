@@ -1,0 +1,215 @@
+"""The paper's studies (Tables 6, 7, 8; Figures 7, 8; sections 3.3-4): many independent design tasks,
+run in parallel and resumable.
+
+A study is a list of :class:`Task` (robot x design method x collision avoidance [x seed],
+:mod:`.tasks`), run on local processes or a Dask cluster with one atomic result file per task
+(:mod:`.runner`), summarised in Tables 6-8 beside the paper's numbers (:mod:`.tables`,
+:mod:`kpioed_drake.paper`), a markdown report (:mod:`.report`) and Figures 7 and 8 (:mod:`.plots`).
+:func:`run_study` does all of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+import pandas as pd
+
+from kpioed_drake import designio
+from kpioed_drake.errors import InputError, SolverError
+from kpioed_drake.models import list_robots, load_robot
+from kpioed_drake.paper import PAPER
+from kpioed_drake.parameters import parameter_layout
+from kpioed_drake.study.plots import make_figures
+from kpioed_drake.study.report import make_report
+from kpioed_drake.study.runner import run_tasks
+from kpioed_drake.study.tables import RESULT_COLUMNS, make_tables, per_robot, ratios, results_frame
+from kpioed_drake.study.tasks import (
+    KUKA,
+    METHODS,
+    QUICK_NOTIONAL,
+    Task,
+    is_notional,
+    make_tasks,
+    notional_lambda_mu,
+    run_task,
+    study_robots,
+)
+from kpioed_drake.study.variants import DEFAULT, VARIANTS, Variant, get_variant, variant_problem
+
+__all__ = [
+    "DEFAULT",
+    "KUKA",
+    "METHODS",
+    "PAPER",
+    "QUICK_NOTIONAL",
+    "RESULT_COLUMNS",
+    "StudyResult",
+    "Task",
+    "VARIANTS",
+    "Variant",
+    "get_variant",
+    "is_notional",
+    "make_report",
+    "make_tables",
+    "make_tasks",
+    "notional_lambda_mu",
+    "per_robot",
+    "ratios",
+    "results_frame",
+    "run_study",
+    "run_task",
+    "run_tasks",
+    "study_robots",
+    "variant_problem",
+    "write_outputs",
+]
+
+
+@dataclasses.dataclass
+class StudyResult:
+    """Outputs of :func:`run_study` (all also written to ``out_dir``)."""
+
+    out_dir: Path
+    """The study folder."""
+    results: pd.DataFrame
+    """One row per task (``results.csv``, :data:`RESULT_COLUMNS`)."""
+    table6: pd.DataFrame
+    """Table 6: KUKA robots, ours and the paper's [mm^2]."""
+    table7: pd.DataFrame
+    """Table 7: min and max over the notional robots [mm^2]."""
+    table8: pd.DataFrame
+    """Table 8: means over the notional robots [mm^2]."""
+    report: str
+    """The markdown of ``report.md``."""
+    figures: list[Path]
+    """The figure files written (Figures 7 and 8 when their data exist)."""
+    n_tasks: int
+    """Number of tasks of the study."""
+    n_run: int
+    """Tasks run by this call."""
+    n_skipped: int
+    """Tasks resumed from their result files."""
+    n_errors: int
+    """Tasks that recorded an error."""
+    wall_s: float
+    """Wall time of this call [s]."""
+
+
+def write_outputs(
+    out_dir: Path,
+    rows: list[dict],
+    *,
+    wall_s: float | None = None,
+    figures: bool = True,
+    title: str = "Study",
+) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame, pd.DataFrame, str, list[Path]]:
+    """Write ``results.csv``, ``per_robot.csv``, ``table6/7/8.csv``, ``report.md`` and (``figures``)
+    the figures into ``out_dir``, each atomically.
+
+    Returns:
+        the results frame, Tables 6, 7, 8, the report and the figure paths.
+    """
+    out_dir = Path(out_dir)
+    df = results_frame(rows)
+    t6, t7, t8, pr = make_tables(df)
+    designio.atomic_write_text(out_dir / "results.csv", df.to_csv(index=False, float_format="%.6g"))
+    designio.atomic_write_text(out_dir / "per_robot.csv", pr.to_csv(float_format="%.6g"))
+    designio.atomic_write_text(out_dir / "table6.csv", t6.to_csv(float_format="%.6g"))
+    designio.atomic_write_text(out_dir / "table7.csv", t7.to_csv(float_format="%.6g"))
+    designio.atomic_write_text(out_dir / "table8.csv", t8.to_csv(float_format="%.6g"))
+    report = make_report(df, t6, t7, t8, pr, wall_s=wall_s, title=title)
+    figs = make_figures(out_dir, df, pr) if figures else []
+    if figs:
+        report += "\n## Figures\n\n" + "\n".join(f"![{p.stem}]({p.name})" for p in figs) + "\n"
+    designio.atomic_write_text(out_dir / "report.md", report)
+    return df, t6, t7, t8, report, figs
+
+
+def run_study(
+    out_dir: str | Path,
+    *,
+    quick: bool = False,
+    jobs: int | None = None,
+    scheduler=None,
+    progress: bool = True,
+    robots: Iterable[str] | None = None,
+    n: int = 60,
+    heuristic_draws: int | None = None,
+    seed: int = 0,
+    figures: bool = True,
+    design_api=None,
+    variant: str = DEFAULT,
+) -> StudyResult:
+    """Run (or resume) the study and write ``results.csv``, ``table6/7/8.csv``, ``report.md`` and the
+    figures into ``out_dir``.
+
+    Args:
+        out_dir: study folder (created; existing task files are reused).
+        quick: KUKA robots + six notional robots, 3 heuristic draws (unless given).
+        jobs: local worker processes (default: the number of CPUs); 1 runs inline.
+        scheduler: Dask scheduler address (or a ``distributed.Client``): the tasks go there instead.
+        progress: show a progress bar.
+        robots: the robots to study (default: KUKA + all 90 notional, or the quick set).
+        n: poses per design.
+        heuristic_draws: seeded heuristic designs per robot (default 10; quick 3).
+        seed: first seed.
+        figures: draw Figures 7 and 8.
+        design_api: stand-in for :mod:`kpioed_drake.design` (tests).
+        variant: the problem variant (:data:`VARIANTS`); its name is in the task ids, the design
+            file names and the report's title unless ``default``.
+
+    Raises:
+        InputError: ``n`` below a robot's fewest poses, ``jobs`` below 1, an unknown robot or variant.
+        SolverError: every task failed (nothing to tabulate; the task files keep the errors).
+    """
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    if n < 1:
+        raise InputError(f"n must be a positive number of poses, got {n}")
+    if jobs is not None and jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {jobs}")
+    var = get_variant(variant)
+    robots = list(robots) if robots is not None else study_robots(quick)
+    known = set(list_robots())
+    unknown = [r for r in robots if r not in known]
+    if unknown:
+        raise InputError(f"unknown robot(s): {', '.join(unknown)}")
+    for r in robots:
+        need = parameter_layout(load_robot(r)).n_free // 3 + 1
+        if n < need:
+            raise InputError(
+                f"--n {n}: {r} needs designs of at least {need} poses (one more than its parameters / 3)"
+            )
+    draws = heuristic_draws if heuristic_draws is not None else (3 if quick else 10)
+    tasks = make_tasks(robots, n=n, heuristic_draws=draws, seed=seed, variant=var.name)
+    rows, n_run, n_skip = run_tasks(
+        tasks, out_dir, jobs=jobs, scheduler=scheduler, progress=progress, design_api=design_api
+    )
+    failed = [r for r in rows if r.get("error")]
+    if rows and len(failed) == len(rows):
+        raise SolverError(
+            f"{out_dir}: all {len(rows)} study tasks failed (first: {failed[0]['task_id']}: "
+            f"{failed[0]['error']}); each task file under tasks/ records its error; a new run retries them"
+        )
+    wall = time.perf_counter() - t0
+    title = "Quick study" if quick else "Study"
+    if var.name != DEFAULT:
+        title += f", variant `{var.name}` ({var.description})"
+    df, t6, t7, t8, report, figs = write_outputs(out_dir, rows, wall_s=wall, figures=figures, title=title)
+    return StudyResult(
+        out_dir=out_dir,
+        results=df,
+        table6=t6,
+        table7=t7,
+        table8=t8,
+        report=report,
+        figures=figs,
+        n_tasks=len(tasks),
+        n_run=n_run,
+        n_skipped=n_skip,
+        n_errors=int(df["error"].notna().sum()),
+        wall_s=time.perf_counter() - t0,
+    )

@@ -1,0 +1,213 @@
+"""The optimality certificate and the approximate design (issue 14, items 1 and 2)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from kpioed_drake.design import certificate, check_design, heuristic_design
+from kpioed_drake.design.approximate import (
+    approximate_design,
+    approximate_start,
+    efficient_rounding,
+    kpi_factor,
+    l_criterion,
+    replicate_poses,
+)
+from kpioed_drake.design.certificate import certified_design, certify, pool_certificate, verify_search
+from kpioed_drake.design.search import DualObjective, corner_poses, dual_values, maximize_dual, pose_rows
+from kpioed_drake.problem import make_problem
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return make_problem("kr16")
+
+
+@pytest.fixture(scope="module")
+def pool(kr16):
+    return heuristic_design(kr16, n=300, seed=3, margin_mm=0.0)
+
+
+@pytest.fixture(scope="module")
+def small_approx(kr16):
+    return approximate_design(kr16, seed=0, max_rounds=2, pool=200, starts=8, random_starts=4)
+
+
+def _kpi(problem, q) -> float:
+    return problem.criteria(q)["kpi_avg_var_mm2"]
+
+
+def test_pool_certificate_dual_and_equivalence_theorem_hold_to_1e6(kr16, pool):
+    cert = pool_certificate(kr16, pool)
+    F = pose_rows(kr16, pool)
+    assert dual_values(F, cert.Y).max() == pytest.approx(1.0, abs=1e-12)  # Y is dual feasible
+    assert cert.dual <= cert.phi
+    assert 0.0 <= cert.dual_gap < 1e-9  # measured 2e-12 to 5e-11
+    assert abs(cert.equivalence_gap) < 1e-6  # max_x d(x, w*) = Phi(w*) at the pool optimum
+    assert cert.equivalence <= cert.phi
+    assert cert.w.sum() == pytest.approx(1.0) and np.all(cert.w >= 0)
+    assert cert.phi == pytest.approx(l_criterion(F, cert.w, kpi_factor(kr16))[0], rel=1e-12)
+
+
+def test_pool_bound_is_below_every_design_from_the_pool(kr16, pool):
+    cert = pool_certificate(kr16, pool)
+    rng = np.random.default_rng(0)
+    for n in (10, 20, 60, 150):
+        for _ in range(5):
+            q = pool[rng.choice(len(pool), size=n, replace=True)]
+            assert cert.dual / n <= _kpi(kr16, q)
+    # and below every approximate design on the pool
+    F, K = pose_rows(kr16, pool), kpi_factor(kr16)
+    for _ in range(20):
+        w = rng.dirichlet(np.full(len(pool), 0.3))
+        assert cert.dual <= l_criterion(F, w, K)[0]
+
+
+def test_bound_with_any_dual_matrix_is_below_the_design_value(kr16):
+    # tr(Cs)/3 >= tr(K^T Y)^2 / (n max_i ||F_i Y||^2) for every Y and every design (module proof)
+    rng = np.random.default_rng(1)
+    K = kpi_factor(kr16)
+    for n in (9, 30, 60):
+        q = rng.uniform(kr16.robot.lower, kr16.robot.upper, size=(n, 6))
+        value = _kpi(kr16, q)
+        F = pose_rows(kr16, q)
+        for _ in range(10):
+            Y = rng.normal(size=K.shape)
+            assert np.sum(K * Y) ** 2 / (n * dual_values(F, Y).max()) <= value * (1 + 1e-12)
+        # the equivalence-theorem choice Y = M^-1 K of the design itself: Phi^2 / (n max d) <= Phi / n
+        phi, X = l_criterion(F, np.full(n, 1.0 / n), K)
+        assert phi / n == pytest.approx(value, rel=1e-10)
+        assert np.sum(K * X) ** 2 / (n * dual_values(F, X).max()) <= value * (1 + 1e-12)
+
+
+def test_dual_objective_gradient_matches_central_differences(kr16):
+    rng = np.random.default_rng(2)
+    q = rng.uniform(kr16.robot.lower, kr16.robot.upper, size=(4, 6))
+    obj = DualObjective(kr16, rng.normal(size=kpi_factor(kr16).shape))
+    value, grad = obj.value_and_grad(q)
+    assert value == pytest.approx(obj.value(q), rel=1e-12)
+    h = 1e-6
+    fd = np.zeros_like(q)
+    for i in range(q.shape[0]):
+        for j in range(6):
+            e = np.zeros_like(q)
+            e[i, j] = h
+            fd[i, j] = (obj.value(q + e) - obj.value(q - e)) / (2 * h)
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+
+def test_local_maximisation_raises_g_and_stays_feasible(kr16, pool):
+    cert = pool_certificate(kr16, pool)
+    starts = pool[np.argsort(-dual_values(pose_rows(kr16, pool), cert.Y))[:8]]
+    q, g, ok = maximize_dual(kr16, starts, cert.Y)
+    g0 = dual_values(pose_rows(kr16, starts), cert.Y)
+    assert ok.sum() >= 6
+    assert np.all(g[ok] >= g0[ok] - 1e-9)
+    assert g[ok].max() > 1.0  # the pool optimum is not optimal over the continuous feasible set
+    _, n_bad, _ = check_design(kr16, q[ok])
+    assert n_bad == 0
+
+
+def test_efficient_rounding_sums_to_n_and_is_an_efficient_apportionment():
+    rng = np.random.default_rng(4)
+    for n in (7, 30, 60, 61):
+        w = rng.dirichlet(np.ones(25))
+        w[rng.choice(25, 5, replace=False)] = 0.0
+        w /= w.sum()
+        c = efficient_rounding(w, n)
+        assert c.sum() == n and np.all(c >= 0) and np.all(c[w == 0] == 0)
+        sup = (w > 0) & (c > 0)
+        # multiplier property of efficient apportionment: max (c_i - 1)/w_i <= min c_j/w_j
+        assert np.max((c[sup] - 1) / w[sup]) <= np.min(c[w > 0] / w[w > 0]) + 1e-12
+    np.testing.assert_array_equal(efficient_rounding(np.array([0.5, 0.3, 0.2]), 10), [5, 3, 2])
+
+
+def test_replicated_poses_are_the_same_configuration(kr16, pool):
+    q = replicate_poses(kr16, pool[:3], np.array([3, 0, 2]))
+    assert q.shape == (5, 6)
+    assert np.all(q >= kr16.robot.lower) and np.all(q <= kr16.robot.upper)
+    F = pose_rows(kr16, q)
+    np.testing.assert_allclose(F[:3], np.repeat(pose_rows(kr16, pool[:1]), 3, axis=0), atol=1e-9)
+    np.testing.assert_allclose(F[3:], np.repeat(pose_rows(kr16, pool[2:3]), 2, axis=0), atol=1e-9)
+
+
+def test_certificate_of_designs_is_below_their_values(kr16, small_approx):
+    a = small_approx
+    assert a.dual / a.g_max <= a.phi and a.g_max >= 1.0
+    for seed in range(3):
+        for n in (20, 60):
+            q = heuristic_design(kr16, n=n, seed=seed)
+            c = certify(kr16, q, approx=a, refinements=0)
+            assert c["bound_mm2"] <= c["value_mm2"] and 0 < c["efficiency"] <= 1
+            assert c["value_mm2"] == pytest.approx(_kpi(kr16, q), rel=1e-12)
+            assert c["bound_mm2"] * n <= a.phi and c["n_candidates"] == len(a.q) + n + 8
+            assert c["bound_mm2"] <= c["search_bound_mm2"] * (1 + 1e-12)
+            assert c["bound_mm2"] == pytest.approx(
+                c["search_bound_mm2"] / max(1.0, c["design_beyond_search"])
+            )
+    # the approximate design's own rounding: a design of candidates, so bound <= its value
+    q0 = approximate_start(kr16, n=60, approx=a)
+    assert q0.shape == (60, 6)
+    c = certify(kr16, q0, approx=a, refinements=0)
+    assert c["bound_mm2"] <= c["value_mm2"]
+    assert c["value_mm2"] < _kpi(kr16, heuristic_design(kr16, n=60, seed=0))
+    _, n_bad, _ = check_design(kr16, q0)
+    assert n_bad == 0
+    with pytest.raises(ValueError, match="collision"):
+        certify(kr16, q0, approx=a, collision=False)
+
+
+def test_verify_search_and_certified_design_continue_the_column_generation(kr16, small_approx, monkeypatch):
+    a = small_approx
+    checked, found = verify_search(kr16, a, seed=7)
+    assert checked.g_max >= a.g_max and checked.n_checked >= certificate.VERIFY_POOL
+    assert checked.bound <= a.bound and np.all(checked.Y == a.Y)
+    if len(found):
+        assert np.all(dual_values(pose_rows(kr16, found), a.Y) > 1.0) and not checked.converged
+    for name, value in (
+        ("VERIFY_POOL", 300),
+        ("VERIFY_STARTS", 8),
+        ("CERTIFY_ROUNDS", 1),
+        ("VERIFY_ROUNDS", 2),
+    ):
+        monkeypatch.setattr(certificate, name, value)
+    cert = certified_design(kr16, seed=5, warm=a)
+    assert cert is certified_design(kr16, seed=5)  # cached per problem object and seed
+    assert cert.rounds > a.rounds and cert.n_checked >= 300
+    assert cert.bound <= cert.phi <= a.phi * (1 + 1e-9)  # more candidates: no worse
+    c = certify(kr16, heuristic_design(kr16, n=60, seed=0), seed=5, refinements=0)
+    assert c["n_candidates"] == len(cert.q) + cert.n_checked + 68 and c["efficiency"] <= 1
+
+
+def test_corner_poses_put_joints_at_limits_and_are_feasible(kr16, pool):
+    q = corner_poses(kr16, pool, seed=1)
+    lo, up = kr16.robot.lower, kr16.robot.upper
+    at_limit = np.isclose(q, lo) | np.isclose(q, up)
+    assert len(q) > 30 and np.all(at_limit.any(axis=1))
+    assert 0.2 < at_limit.mean() < 0.45  # each joint with probability 1/3
+    _, n_bad, _ = check_design(kr16, q)
+    assert n_bad == 0
+
+
+def test_certify_continues_the_search_with_poses_found_near_the_design(kr16, small_approx, monkeypatch):
+    for name, value in (("VERIFY_POOL", 300), ("VERIFY_STARTS", 8), ("CERTIFY_ROUNDS", 2)):
+        monkeypatch.setattr(certificate, name, value)
+    q0 = approximate_start(kr16, n=40, approx=small_approx)
+    # the rounded design's poses are candidates: nothing beyond the search, nothing to refine
+    plain = certify(kr16, q0, approx=small_approx, refinements=0)
+    assert plain["design_beyond_search"] <= 1.0 + certificate.ROUND_TOL
+    assert certify(kr16, q0, approx=small_approx)["bound_mm2"] == plain["bound_mm2"]
+    # a "search" of the candidates alone (g_max = 1): local maxima from the design's poses go beyond
+    weak = dataclasses.replace(small_approx, g_max=1.0)
+    plain = certify(kr16, q0, approx=weak, refinements=0)
+    refined = certify(kr16, q0, approx=weak, refinements=2)
+    assert plain["refinements"] == 0 and plain["design_beyond_search"] > 2.0  # measured 2.72
+    assert 1 <= refined["refinements"] <= 2
+    assert refined["rounds"] > plain["rounds"] and refined["n_candidates"] > plain["n_candidates"]
+    assert refined["design_beyond_search"] < plain["design_beyond_search"]
+    assert plain["bound_mm2"] < refined["bound_mm2"] <= refined["value_mm2"] == plain["value_mm2"]
+    assert 0 < refined["efficiency"] <= 1
+    assert weak.g_max == 1.0 and len(weak.q) == len(small_approx.q)  # the caller's design is unchanged

@@ -1,0 +1,151 @@
+"""The approximate-design start of the optimiser and the certificate in the design and evaluate
+outputs (issue 14): ``start=``, ``--start``, ``--certify``, ``certify=``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from kpioed_drake import api
+from kpioed_drake.cli import main
+from kpioed_drake.design import (
+    START_METHODS,
+    approximate_start,
+    certificate,
+    check_design,
+    optimize_design,
+    resolve_start,
+)
+from kpioed_drake.errors import InputError
+from kpioed_drake.problem import make_problem
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return make_problem("kr16")
+
+
+@pytest.fixture
+def quick_certificate(monkeypatch):
+    """A smaller search behind the certificate (the bound stays rigorous for the poses evaluated)."""
+    for name, value in (
+        ("CERTIFY_ROUNDS", 2),
+        ("VERIFY_ROUNDS", 1),
+        ("VERIFY_POOL", 500),
+        ("VERIFY_STARTS", 8),
+    ):
+        monkeypatch.setattr(certificate, name, value)
+
+
+def _run(capsys, *argv):
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_approximate_start_is_feasible_and_no_worse_than_the_heuristic_start(kr16):
+    n = 30
+    heuristic = optimize_design(kr16, n=n, seed=0, start="heuristic")
+    approx = optimize_design(kr16, n=n, seed=0, start="approximate")
+    assert heuristic.start == "heuristic" and approx.start == "approximate"
+    assert approx.feasible and approx.success
+    _, n_bad, _ = check_design(kr16, approx.q)
+    assert n_bad == 0
+    assert approx.kpi_avg_var_mm2 <= heuristic.kpi_avg_var_mm2
+    # the start itself is the rounded approximate design of the same seed
+    q0 = approximate_start(kr16, n=n, seed=0)
+    assert approx.initial_values[0] == pytest.approx(kr16.criteria(q0)["kpi_avg_var_mm2"], rel=1e-12)
+    assert approx.start_s > 0.0
+    assert approx.summary()["start"] == "approximate"
+    # a caller's q0 is recorded as such
+    assert optimize_design(kr16, n=n, seed=0, q0=q0).start == "q0"
+
+
+def test_default_start_and_bad_start_values(kr16):
+    assert resolve_start(None, "kpi") in START_METHODS
+    assert resolve_start(None, "param") == "heuristic"
+    assert resolve_start(None, "kpi", given=np.zeros((3, 6))) == "heuristic"
+    assert resolve_start("approximate", "kpi") == "approximate"
+    with pytest.raises(InputError, match="unknown start"):
+        optimize_design(kr16, n=20, start="random")
+    with pytest.raises(InputError, match="criterion 'kpi'"):
+        optimize_design(kr16, n=20, criterion="param", start="approximate")
+    with pytest.raises(InputError, match="given poses"):
+        optimize_design(kr16, n=20, start="approximate", given=approximate_start(kr16, n=10))
+    with pytest.raises(InputError, match="start"):
+        api.design("kr16", n=20, start="approx")
+
+
+def test_bad_start_and_certify_with_given_on_the_command_line(capsys, tmp_path):
+    code, _, err = _run(
+        capsys,
+        "design",
+        "--robot",
+        "kr16",
+        "--criterion",
+        "kpi",
+        "--start",
+        "best",
+        "--out",
+        str(tmp_path / "d.csv"),
+    )
+    assert code == 2 and "--start" in err
+    code, _, err = _run(
+        capsys,
+        "design",
+        "--robot",
+        "kr16",
+        "--criterion",
+        "param",
+        "--start",
+        "approximate",
+        "--n",
+        "20",
+        "--out",
+        str(tmp_path / "d.csv"),
+    )
+    assert code == 2 and "criterion 'kpi'" in err
+    given = tmp_path / "given.csv"
+    given.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,-90,90,0,10,0\n")
+    code, _, err = _run(
+        capsys, "design", "--robot", "kr16", "--criterion", "kpi", "--given", str(given), "--certify",
+        "--out", str(tmp_path / "d.csv"),
+    )  # fmt: skip
+    assert code == 2 and "--certify" in err
+    assert not (tmp_path / "d.csv").exists()
+
+
+def test_design_and_evaluate_certify(capsys, tmp_path, quick_certificate):
+    out, js = tmp_path / "d.csv", tmp_path / "d.json"
+    code, text, _ = _run(
+        capsys, "design", "--robot", "kr16", "--criterion", "kpi", "--n", "20", "--certify",
+        "--out", str(out), "--json", str(js),
+    )  # fmt: skip
+    assert code == 0
+    assert "lower bound for any 20-pose design:" in text and "efficiency" in text
+    rec = json.loads(js.read_text())
+    assert rec["start"] in START_METHODS
+    for key in ("bound_mm2", "efficiency", "design_beyond_search", "certificate"):
+        assert key in rec
+    assert 0.0 < rec["efficiency"] <= 1.0
+    assert rec["bound_mm2"] <= rec["values"]["kpi_avg_var_mm2"]
+    assert rec["certificate"]["value_mm2"] == pytest.approx(rec["values"]["kpi_avg_var_mm2"], rel=1e-12)
+    assert rec["certificate"]["n_poses"] == 20 and rec["design_beyond_search"] > 0
+
+    # evaluate the written design: the same search (same problem and seed), the same search bound
+    d = api.evaluate("kr16", out, certify=True)
+    assert 0.0 < d["efficiency"] <= 1.0 and d["bound_mm2"] <= d["kpi_avg_var_mm2"]
+    assert d["certificate"]["search_bound_mm2"] == pytest.approx(
+        rec["certificate"]["search_bound_mm2"], rel=1e-9
+    )
+    assert d["certificate"]["value_mm2"] == pytest.approx(d["kpi_avg_var_mm2"], rel=1e-9)
+    code, text, _ = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(out), "--certify")
+    assert code == 0 and "lower bound for any 20-pose design:" in text
+    # without --certify nothing is added
+    plain = api.evaluate("kr16", out)
+    assert "bound_mm2" not in plain and "certificate" not in plain
