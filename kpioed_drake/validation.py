@@ -177,7 +177,7 @@ def validate_file(
     plots_dir: str | Path | None = None,
     cell_path=None,
 ) -> ValidationResult:
-    """Read the model and the data, validate, write the outputs (only after everything succeeded).
+    """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.
 
     Args:
         robot: model name or YAML path (e.g. the file ``kpioed calibrate --out`` wrote).

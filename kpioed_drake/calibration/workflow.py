@@ -38,7 +38,7 @@ def calibrate_file(
     force: bool = False,
     data_format: str | Path | None = None,
 ) -> CalibrationReport | dict:
-    """Read the measurements, calibrate, and write the requested outputs (only after all succeeded).
+    """Calibrate from a measurement file (``kpioed calibrate``); outputs written after all succeeded.
 
     Args:
         robot: model name or YAML path.

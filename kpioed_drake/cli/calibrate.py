@@ -5,14 +5,12 @@ from __future__ import annotations
 from kpioed_drake import api
 from kpioed_drake.calibration import extended_summary
 from kpioed_drake.cli.common import (
+    add_data_outputs,
     add_extend,
-    add_force_and_format,
-    add_html,
-    add_json_out,
     add_q_work,
     add_robot,
+    data_outputs,
     emit_json,
-    json_file,
 )
 
 
@@ -26,9 +24,7 @@ def register(sub) -> None:
     p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
     add_q_work(p)
     p.add_argument("--out", default=None, metavar="PARAMS.yaml", help="write the calibrated robot model file")
-    add_json_out(p)
-    p.add_argument("--plots", default=None, metavar="DIR", help="write residual plots (PNG) to DIR")
-    add_html(p)
+    add_data_outputs(p, plots_help="write residual plots (PNG) to DIR")
     p.add_argument(
         "--outlier-alpha",
         type=float,
@@ -36,7 +32,6 @@ def register(sub) -> None:
         help="family-wise false-alarm level of the outlier test (Bonferroni); 0 disables (0.01)",
     )
     add_extend(p)
-    add_force_and_format(p)
     p.set_defaults(func=run)
 
 
@@ -49,11 +44,7 @@ def run(args) -> int:
         extend=args.extend,
         outlier_alpha=args.outlier_alpha,
         out=args.out,
-        json_path=json_file(args.json),
-        plots_dir=args.plots,
-        html=args.html,
-        force=args.force,
-        data_format=args.format,
+        **data_outputs(args),
     )
     data = report if args.extend else report.to_dict()
     if args.json == "-":

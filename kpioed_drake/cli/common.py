@@ -70,6 +70,26 @@ def add_force_and_format(p) -> None:
     )
 
 
+def add_data_outputs(p, *, plots_help: str) -> None:
+    """The outputs of a command on measured data: ``--json``, ``--plots``, ``--html``, and its
+    ``--force`` and ``--format`` options."""
+    add_json_out(p)
+    p.add_argument("--plots", default=None, metavar="DIR", help=plots_help)
+    add_html(p)
+    add_force_and_format(p)
+
+
+def data_outputs(args) -> dict:
+    """The keyword arguments of :func:`add_data_outputs`' options for the API."""
+    return {
+        "json_path": json_file(args.json),
+        "plots_dir": args.plots,
+        "html": args.html,
+        "force": args.force,
+        "data_format": args.format,
+    }
+
+
 def json_file(target) -> str | None:
     """The ``--json`` file to write (None for none or for stdout)."""
     return None if target in (None, True, "-") else target

@@ -3,15 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import (
-    add_force_and_format,
-    add_html,
-    add_json_out,
-    add_robot,
-    add_sigma,
-    emit_json,
-    json_file,
-)
+from kpioed_drake.cli.common import add_data_outputs, add_robot, add_sigma, data_outputs, emit_json
 
 
 def register(sub) -> None:
@@ -29,10 +21,7 @@ def register(sub) -> None:
         help="measurements: q1_deg..q6_deg, x_mm, y_mm, z_mm [, temperature_C, time_s, payload_kg]",
     )
     add_sigma(p, default=0.02)
-    add_json_out(p)
-    p.add_argument("--plots", default=None, metavar="DIR", help="write residual plots (PNG) into DIR")
-    add_html(p)
-    add_force_and_format(p)
+    add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
     p.set_defaults(func=run)
 
 
@@ -41,11 +30,7 @@ def run(args) -> int:
         args.robot,
         args.data,
         sigma_mm=args.sigma_mm,
-        json_path=json_file(args.json),
-        plots_dir=args.plots,
-        html=args.html,
-        force=args.force,
-        data_format=args.format,
+        **data_outputs(args),
     )
     if args.json == "-":
         emit_json(report.to_json(), "-")

@@ -41,7 +41,9 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.target`: :func:`design_for_target`, the fewest poses reaching a target
   tr(Cs)/3 (paper, Conclusion);
 - :mod:`~kpioed_drake.design.plots` and :mod:`~kpioed_drake.design.workflow`: pictures, the
-  ``kpioed design`` file workflow (:func:`run_design`) and :func:`demo`.
+  ``kpioed design`` file workflow (:func:`run_design`) and :func:`demo`;
+- :mod:`~kpioed_drake.design.evaluate`: ``kpioed evaluate`` (:func:`evaluate_file`), a given design's
+  KPI variance, criteria and feasibility.
 
 Every returned design is checked independently by :class:`~kpioed_drake.feasibility.FeasibilityChecker`
 (Drake signed-distance queries), never by the optimiser's own constraint functions.
@@ -78,6 +80,7 @@ from kpioed_drake.design.common import (
     method_label,
 )
 from kpioed_drake.design.constraints import DesignConstraints, incidence_rows, update_active_rows
+from kpioed_drake.design.evaluate import evaluate_file
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.optimize import min_new_poses, optimize_design, resolve_start
@@ -125,6 +128,7 @@ __all__ = [
     "certify",
     "check_design",
     "demo",
+    "evaluate_file",
     "design_for_target",
     "format_summary",
     "heuristic_design",

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import designio
+from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed, require
 from kpioed_drake.design import certificate
-from kpioed_drake.design.common import method_label
+from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS, method_label
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
@@ -72,12 +73,12 @@ def run_design(
     *,
     criterion: str = "kpi",
     n: int = 60,
+    sigma_mm: float | None = None,
+    q_work_deg=None,
     collision: bool = True,
     solver: str = "snopt",
     seed: int = 0,
     starts: int = 1,
-    sigma_mm: float | None = None,
-    q_work_deg=None,
     out: str | Path | None = None,
     json_path: str | Path | None = None,
     allow_infeasible: bool = False,
@@ -138,6 +139,17 @@ def run_design(
         raise InputError(
             "--certify is not available with --given (the certificate bounds designs of N poses alone)"
         )
+    require(
+        criterion in DESIGN_METHODS,
+        f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {criterion!r}",
+    )
+    require(solver in SOLVERS, f"solver: expected one of {', '.join(SOLVERS)}, got {solver!r}")
+    check_count("n", n)
+    check_count("starts", starts)
+    check_seed(seed)
+    check_positive("sigma_mm", sigma_mm, allow_none=True)
+    check_positive("target_var_mm2", target_var_mm2, allow_none=True)
+    check_paths(robot=robot_name, inputs=[q_work_file, given], outputs=[out, json_path], plot=plot, html=html)
     robot = load_robot(robot_name)
     q_work, file_weights = _working_poses(robot, q_work_deg, q_work_file)
     problem = make_problem(

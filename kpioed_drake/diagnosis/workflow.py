@@ -172,7 +172,7 @@ def diagnose_file(
     force: bool = False,
     data_format: str | Path | None = None,
 ) -> rp.DiagnosisReport:
-    """:func:`diagnose` a measurement file and write the requested outputs (only after all succeeded).
+    """Diagnose a measurement file (``kpioed diagnose``); outputs written after all succeeded.
 
     Args:
         robot: model name or YAML path.

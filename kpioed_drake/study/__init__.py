@@ -18,6 +18,7 @@ from pathlib import Path
 import pandas as pd
 
 from kpioed_drake import designio
+from kpioed_drake.arguments import check_count, check_seed, require
 from kpioed_drake.errors import InputError, SolverError
 from kpioed_drake.models import list_robots, load_robot
 from kpioed_drake.paper import PAPER
@@ -143,8 +144,8 @@ def run_study(
     design_api=None,
     variant: str = DEFAULT,
 ) -> StudyResult:
-    """Run (or resume) the study and write ``results.csv``, ``table6/7/8.csv``, ``report.md`` and the
-    figures into ``out_dir``.
+    """Run (or resume) the paper's study (``kpioed study``) and write ``results.csv``,
+    ``table6/7/8.csv``, ``report.md`` and the figures into ``out_dir``.
 
     Args:
         out_dir: study folder (created; existing task files are reused).
@@ -167,12 +168,14 @@ def run_study(
     """
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
-    if n < 1:
-        raise InputError(f"n must be a positive number of poses, got {n}")
-    if jobs is not None and jobs < 1:
-        raise InputError(f"--jobs must be at least 1, got {jobs}")
-    var = get_variant(variant)
+    check_seed(seed)
+    check_count("n", n)
+    check_count("heuristic_draws", heuristic_draws, allow_none=True)
+    check_count("jobs", jobs, allow_none=True)
     robots = list(robots) if robots is not None else study_robots(quick)
+    require(len(robots) > 0, "robots: expected at least one robot name")
+    require(not Path(out_dir).is_file(), f"{out_dir}: is a file; expected a folder for the study")
+    var = get_variant(variant)
     known = set(list_robots())
     unknown = [r for r in robots if r not in known]
     if unknown:
