@@ -5,6 +5,12 @@ unit length (so millimetres and radians compare), tells which parameters the mea
 determine: the numerical rank, the singular values, and the parameters that trail the pivoting
 order when the rank is short. The same check serves the shipped robots (a test) and a user's own
 robot (``kpioed info``).
+
+:func:`undetermined_parameters` applies the same test to the user's own poses before a calibration
+(:func:`kpioed_drake.calibration.calibrate`): the parameters beyond the near-rank
+(``NEAR_RANK_RTOL``) and, of every pair whose a-priori correlation exceeds ``MAX_CORRELATION`` in
+magnitude, the one later in the pivoting order are held at nominal, so a calibration never writes
+values the data do not determine (e.g. the wrist parameters of a reflector on joint 6's axis).
 """
 
 from __future__ import annotations
@@ -16,6 +22,15 @@ import scipy.linalg
 
 from kpioed_drake.measurement import measurement_jacobian, nominal_model
 from kpioed_drake.models import Cell, Robot
+
+NEAR_RANK_RTOL = 1e-3
+"""Relative threshold on the diagonal of R (QR with column pivoting of the column-normalised
+Jacobian): columns whose diagonal is below this times the largest are not determined. Measured on
+the kr16 (27 free parameters): the 60-pose KPI design gives 5.6e-2 at least (60 random poses
+1.2e-1), a reflector on joint 6's axis 4e-16, 0.1 mm off the axis 1e-4, 1.8 mm off 1.8e-3 (that one
+is caught by the correlation test: |r| = 0.999997)."""
+MAX_CORRELATION = 0.999
+"""Pairs of parameters whose a-priori correlation exceeds this in magnitude are not separable."""
 
 
 @dataclasses.dataclass
@@ -75,3 +90,73 @@ def check_identifiability(
         unidentifiable=[names[i] for i in piv[rank:]],
         names=names,
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class Undetermined:
+    """Result of :func:`undetermined_parameters`: the parameters to hold at nominal, and why.
+
+    Attributes:
+        rank: names beyond the near-rank of the column-normalised Jacobian, in pivoting order.
+        correlated: ``(held, partner, correlation)`` of every pair found above ``MAX_CORRELATION``
+            (``held`` is the one held at nominal).
+    """
+
+    rank: tuple[str, ...] = ()
+    correlated: tuple[tuple[str, str, float], ...] = ()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every parameter to hold at nominal."""
+        return self.rank + tuple(c[0] for c in self.correlated)
+
+    def describe(self) -> str:
+        """Which parameters and why, one clause per reason."""
+        parts = []
+        if self.rank:
+            parts.append(f"{', '.join(self.rank)} (Jacobian rank deficient)")
+        parts += [f"{a} (correlation {r:+.6f} with {b})" for a, b, r in self.correlated]
+        return "; ".join(parts)
+
+
+def undetermined_parameters(
+    J: np.ndarray,
+    names,
+    *,
+    rtol: float = NEAR_RANK_RTOL,
+    max_correlation: float = MAX_CORRELATION,
+) -> Undetermined:
+    """The parameters a weighted Jacobian does not determine.
+
+    QR with column pivoting of ``J`` with unit columns: the columns past the first diagonal entry
+    below ``rtol`` times the largest are not determined. Of the others, while some pair's a-priori
+    correlation (from ``(F^T F)^-1``) exceeds ``max_correlation`` in magnitude, the one later in the
+    pivoting order (the less independent) is dropped too.
+
+    Args:
+        J: (m, k) weighted Jacobian of the estimated parameters (m >= k) [1 / parameter unit].
+        names: (k,) their names.
+        rtol: near-rank threshold on R's diagonal, relative to the largest.
+        max_correlation: correlation magnitude above which a pair is not separable.
+
+    Returns:
+        :class:`Undetermined` (empty when every parameter is determined).
+    """
+    F = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.argmax(d <= rtol * d[0])) if np.any(d <= rtol * d[0]) else d.size
+    keep = list(piv[:rank])
+    correlated = []
+    while len(keep) > 1:
+        C = np.linalg.inv(F[:, keep].T @ F[:, keep])
+        s = np.sqrt(np.diag(C))
+        corr = C / np.outer(s, s)
+        np.fill_diagonal(corr, 0.0)
+        i, j = np.unravel_index(np.argmax(np.abs(corr)), corr.shape)
+        if abs(corr[i, j]) <= max_correlation:
+            break
+        held, partner = (keep[j], keep[i]) if j > i else (keep[i], keep[j])
+        correlated.append((names[held], names[partner], float(corr[i, j])))
+        keep.remove(held)
+    return Undetermined(rank=tuple(names[i] for i in piv[rank:]), correlated=tuple(correlated))

@@ -25,7 +25,13 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake import covariance
-from kpioed_drake.effects import effect_kpi_columns, extension_columns, extension_param_names, parse_effect
+from kpioed_drake.effects import (
+    JOINT_FAMILIES,
+    effect_kpi_columns,
+    extension_columns,
+    extension_param_names,
+    parse_effect,
+)
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
 from kpioed_drake.models import Cell, Robot, load_cell, load_robot
@@ -329,10 +335,11 @@ def _parse_extensions(extend) -> tuple:
     out = []
     for e in extend:
         eff = parse_effect(e) if isinstance(e, str) else e
-        if eff.family not in ("joint_elasticity", "gear_cyclic"):
+        if eff.family not in JOINT_FAMILIES:
             raise InputError(
-                f"--extend {eff.name}: only joint_elasticity and gear_cyclic can extend a design or an "
-                "evaluation (thermal_expansion and tracker_drift need per-pose temperature and time)"
+                f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) can extend a "
+                "design or an evaluation (thermal_expansion, tracker_drift and tracker_scale need per-pose "
+                "temperature and time)"
             )
         if any(o.key == eff.key for o in out):
             raise InputError(f"--extend {eff.name} is given twice")

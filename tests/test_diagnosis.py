@@ -140,16 +140,24 @@ def test_absorbed_candidate_is_reported_not_fitted(kr16):
     assert not rep.discrepancy
 
 
-def test_undetermined_geometry_is_refused_like_calibrate(kr16):
-    """With joint 4 held still the geometric parameters are not determined: diagnose refuses, as
-    calibrate does (it used to go on with a pseudo-inverse and name causes)."""
+def test_undetermined_geometry_is_handled_like_calibrate(kr16):
+    """With joint 4 held still its row's parameters are not determined: diagnose holds the same
+    parameters at nominal as calibrate does and says so (it used to go on with a pseudo-inverse);
+    calibrate --strict refuses."""
     rng = np.random.default_rng(5)
     q = D.random_poses(kr16, 80, rng)
     q[:, 3] = np.deg2rad(30.0)
     case = D.synthetic_case(kr16, rng, [], q=q)
-    for run in (calibrate, D.diagnose):
-        with pytest.raises(InputError, match="do not determine"):
-            run(kr16, case.data)
+    cal = calibrate(kr16, case.data)
+    held = cal.held_at_nominal
+    assert 1 <= len(held) <= 4 and any(
+        w.startswith(f"these {case.data.n} poses do not determine") for w in cal.warnings
+    )
+    rep = D.diagnose(kr16, case.data)
+    assert rep.details["prob"].nominal.layout.n_free == 27 - len(held)
+    assert any("held at nominal" in n for n in rep.notes)
+    with pytest.raises(InputError, match="do not determine"):
+        calibrate(kr16, case.data, strict=True)
 
 
 def test_candidates_follow_the_data(kr16):

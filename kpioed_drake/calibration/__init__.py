@@ -17,7 +17,7 @@ Reading and validating the data: :mod:`kpioed_drake.measurements`.
 
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
 from kpioed_drake.calibration.extended import calibrate_extended, extended_summary
-from kpioed_drake.calibration.fit import MIN_POSES_FOR_OUTLIER_TEST, calibrate
+from kpioed_drake.calibration.fit import MIN_POSES_FOR_OUTLIER_TEST, calibrate, hold_undetermined
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import N_CORRELATIONS, CalibrationReport
@@ -31,6 +31,7 @@ __all__ = [
     "CalibrationReport",
     "Measurements",
     "calibrate",
+    "hold_undetermined",
     "calibrate_extended",
     "calibrate_file",
     "calibrated_robot_yaml",

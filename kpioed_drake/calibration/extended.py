@@ -23,6 +23,9 @@ from kpioed_drake.measurements import Measurements, as_measurements
 from kpioed_drake.models import Robot, load_cell, load_robot
 from kpioed_drake.plausibility import check_data
 
+_MIN_SIDE = 3
+"""Poses needed on each side of a backlash (gravity torque positive and negative)."""
+
 
 def calibrate_extended(
     robot: str | Path | Robot,
@@ -56,8 +59,8 @@ def calibrate_extended(
     nominal = nominal_model(robot, load_cell(robot=robot) if cell is None else cell)
     n_params = nominal.layout.n_free + sum(e.n_params for e in effects)
     warnings = check_data(nominal, data, n_params=n_params, force=force)
-    _check_conditions(effects, data)
     conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)
+    _check_conditions(effects, data, conditions.tau)
     try:
         fit = estimate(nominal, data.q, data.eta, sigma=sigma_mm, effects=effects, conditions=conditions)
     except InputError as exc:
@@ -104,16 +107,28 @@ def calibrate_extended(
     }
 
 
-def _check_conditions(effects, data: Measurements) -> None:
-    """Refuse effects whose variable the data does not vary (their parameter would be arbitrary)."""
+def _check_conditions(effects, data: Measurements, tau: np.ndarray) -> None:
+    """Refuse effects whose variable the data does not vary (their parameter would be arbitrary).
+
+    ``tau``: (n, 6) gravity torques at the commanded angles [N m]; a backlash needs joint i's torque
+    to take both signs at >= ``_MIN_SIDE`` poses each (else it is a constant offset: the joint's zero).
+    """
     for e in effects:
-        if e.family == "thermal_expansion" and (
+        if e.family in ("thermal_expansion", "tracker_scale") and (
             data.temperature_C is None or np.ptp(data.temperature_C) <= 0.5
         ):
             raise InputError(
                 f"{data.source}: {e.name} cannot be estimated: the temperature_C column is missing or varies "
                 "by less than 0.5 K (a constant temperature only rescales lengths: the geometry absorbs it)"
             )
+        if e.family == "backlash":
+            side = np.sign(tau[:, e.joint - 1])
+            if min(np.sum(side > 0), np.sum(side < 0)) < _MIN_SIDE:
+                raise InputError(
+                    f"{data.source}: {e.name} cannot be estimated: the gravity torque of joint {e.joint} "
+                    f"must take both signs at {_MIN_SIDE} poses or more (else the backlash is a constant "
+                    "offset that the joint's zero absorbs)"
+                )
         if e.family == "tracker_drift" and (data.time_s is None or np.ptp(data.time_s) <= 0):
             raise InputError(
                 f"{data.source}: {e.name} cannot be estimated: the time_s column is missing or constant"
@@ -129,7 +144,8 @@ def extended_summary(report: dict, extend) -> str:
         f"  rms residual {rms_mm:.4f} mm, chi2/dof {chi2:.3f} (p {pv:.3g})",
     ]
     for e in d["extensions"]:
-        lines.append(f"  {e['effect']} {e.get('joint', '')}: {e['value']} +- {e['std']} {e['unit']}")
+        on = f"{e.get('joint', '')}" + (f" (by joint {e['coupled_joint']})" if "coupled_joint" in e else "")
+        lines.append(f"  {e['effect']} {on}: {e['value']} +- {e['std']} {e['unit']}")
     kpi = ", ".join(f"{x:.4f}" for x in d["kpi_mm"])
     lines.append(f"  KPI at q_work: ({kpi}) mm, tr(Cs)/3 = {d['kpi_avg_var_mm2']:.3g} mm^2")
     lines += [f"  warning: {w}" for w in d.get("warnings", [])]

@@ -12,6 +12,11 @@ it exceeds it, that pose is removed and the fit repeated, until no pose exceeds 
 most ``max_outlier_fraction`` of the poses are removed, or removing one more would leave fewer than
 10 poses. Many "outliers" are a sign of model discrepancy rather than of bad points (see
 ``kpioed diagnose``); the report warns when the cap is reached.
+
+Identifiability: before the fit, the Jacobian of the registered nominal model over the poses is
+tested (:func:`kpioed_drake.identifiability.undetermined_parameters`: near-rank of the
+column-scaled Jacobian and correlations above 0.999); the parameters these poses do not determine
+are held at nominal, with a warning naming them (``strict``: refused).
 """
 
 from __future__ import annotations
@@ -24,15 +29,21 @@ from scipy.stats import chi2 as chi2_dist
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import estimate, normalized_residuals
-from kpioed_drake.measurement import kpi_jacobian, nominal_model
+from kpioed_drake.estimation import estimate, normalized_residuals, registered_model
+from kpioed_drake.identifiability import undetermined_parameters
+from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
 from kpioed_drake.measurements import Measurements
 from kpioed_drake.models import Robot, load_cell, load_robot
+from kpioed_drake.parameters import FIXED_NAMES, parameter_layout
 from kpioed_drake.plausibility import check_data
 
 MIN_POSES_FOR_OUTLIER_TEST = 10
 MAX_OUTLIER_SHARE = 1.0 / 3.0
 """More poses than this share failing the outlier test at once is refused (sigma or model wrong)."""
+MAX_HELD_SHARE = 1.0 / 3.0
+"""Poses leaving more than this share of the free parameters undetermined are refused: holding a
+few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving only joints 1 and
+2: 17 of 27) means the poses do not exercise the robot."""
 
 
 def _few_outliers(res, data: Measurements, alpha: float, force: bool, warnings: list[str]) -> bool:
@@ -59,6 +70,40 @@ def _few_outliers(res, data: Measurements, alpha: float, force: bool, warnings: 
     return False
 
 
+def hold_undetermined(
+    nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str]
+) -> TrackerModel:
+    """``nominal`` with the parameters the poses do not determine held at nominal (not estimated).
+
+    Tested on the Jacobian of the registered nominal model over every pose (with fewer coordinates
+    than parameters the estimator refuses anyway). Raises InputError with ``strict`` or when more
+    than ``MAX_HELD_SHARE`` of the free parameters are undetermined.
+    """
+    lay = nominal.layout
+    if 3 * data.n < lay.n_free:
+        return nominal
+    _, H = measurement_jacobian(registered_model(nominal, data.q, data.eta), data.q)
+    found = undetermined_parameters(H[:, :, lay.free].reshape(3 * data.n, -1), lay.free_names)
+    if not found.names:
+        return nominal
+    what = f"these {data.n} poses do not determine {found.describe()}"
+    if len(found.names) > MAX_HELD_SHARE * lay.n_free:
+        raise InputError(
+            f"{data.path}: {what}: {len(found.names)} of the {lay.n_free} parameters, too many to hold "
+            "at nominal; use more varied poses (move every joint over its range)"
+        )
+    if strict:
+        raise InputError(
+            f"{data.path}: {what}; use more varied poses (a reflector on joint 6's axis leaves wrist "
+            "parameters undetermined); without --strict they are held at nominal"
+        )
+    warnings.append(
+        f"{what}: held at nominal (not estimated); the values written for them are the nominal ones"
+    )
+    layout = parameter_layout(nominal.robot, fixed=FIXED_NAMES + found.names)
+    return dataclasses.replace(nominal, layout=layout)
+
+
 def calibrate(
     robot: str | Robot,
     data: Measurements,
@@ -70,6 +115,7 @@ def calibrate(
     cell_path=None,
     max_iter: int = 100,
     force: bool = False,
+    strict: bool = False,
 ) -> CalibrationReport:
     """Calibrate the free geometric parameters (27 for six joints) from measured data.
 
@@ -84,13 +130,16 @@ def calibrate(
         max_outlier_fraction: remove at most this fraction of the poses.
         cell_path: cell file (default models/cell.yaml): nominal tracker position, reflector offset.
         force: go on with implausible data (:func:`kpioed_drake.plausibility.check_data`), warning.
+        strict: refuse poses that do not determine every free parameter instead of holding the
+            undetermined ones at nominal with a warning.
 
     Returns:
         :class:`CalibrationReport`.
 
     Raises:
         InputError: bad sigma or q_work, too few poses (no degree of freedom), implausible data
-            (unless ``force``), or poses that do not determine the parameters.
+            (unless ``force``), or poses that do not determine the parameters (exactly singular,
+            or with ``strict`` near-singular).
     """
     rob = load_robot(robot) if isinstance(robot, str) else robot
     if not (np.isfinite(sigma_mm) and sigma_mm > 0):
@@ -110,6 +159,7 @@ def calibrate(
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
     n = data.n
     warnings = check_data(nominal, data, n_params=nominal.layout.n_free, force=force)
+    nominal = hold_undetermined(nominal, data, strict, warnings)
     mask = np.ones(n, dtype=bool)
     outliers: list[int] = []
     max_out = int(np.floor(max_outlier_fraction * n))

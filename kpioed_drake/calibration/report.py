@@ -18,6 +18,7 @@ from kpioed_drake.estimation import EstimationResult
 from kpioed_drake.measurement import TrackerModel
 from kpioed_drake.measurements import ROW_CONVENTION, Measurements
 from kpioed_drake.models import Robot
+from kpioed_drake.parameters import parameter_layout
 
 N_CORRELATIONS = 10
 """Correlations listed in the report (the strongest)."""
@@ -41,7 +42,7 @@ class CalibrationReport:
         kpi: (3,) TCP at q_work in W [mm].
         kpi_cov: (3, 3) its covariance [mm^2].
         kpi_nominal: (3,) TCP of the nominal model [mm].
-        warnings: human-readable remarks (non-convergence, poor fit, outlier cap).
+        warnings: human-readable remarks (non-convergence, poor fit, outlier cap, parameters held).
     """
 
     robot: Robot
@@ -62,6 +63,13 @@ class CalibrationReport:
     @property
     def model(self) -> TrackerModel:
         return self.result.model
+
+    @property
+    def held_at_nominal(self) -> list[str]:
+        """Parameters the robot's layout estimates but this fit held at nominal (the poses do not
+        determine them: :func:`kpioed_drake.identifiability.undetermined_parameters`)."""
+        estimated = set(self.model.layout.free_names)
+        return [n for n in parameter_layout(self.robot).free_names if n not in estimated]
 
     @property
     def used(self) -> np.ndarray:
@@ -238,6 +246,7 @@ class CalibrationReport:
                 "note": "estimated reflector offset in the flange frame; the cell file is not changed",
             },
             "poses": poses,
+            "held_at_nominal": list(self.held_at_nominal),
             "warnings": list(self.warnings),
         }
 

@@ -37,6 +37,7 @@ def calibrate_file(
     cell_path=None,
     force: bool = False,
     data_format: str | Path | None = None,
+    strict: bool = False,
 ) -> CalibrationReport | dict:
     """Calibrate from a measurement file (``kpioed calibrate``); outputs written after all succeeded.
 
@@ -54,6 +55,8 @@ def calibrate_file(
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
         force: go on with implausible data (:mod:`kpioed_drake.plausibility`), with a warning.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
+        strict: refuse poses that do not determine every parameter (InputError) instead of holding
+            the undetermined ones at nominal with a warning (geometric calibration only).
 
     Returns:
         :class:`CalibrationReport`, or with ``extend`` the JSON-ready dict of
@@ -80,15 +83,8 @@ def calibrate_file(
             staged.commit()
         return report
     data = read_data(data_path, rob, data_format)
-    report = calibrate(
-        rob,
-        data,
-        sigma_mm=sigma_mm,
-        q_work=qw,
-        outlier_threshold=outlier_alpha,
-        cell_path=cell_path,
-        force=force,
-    )
+    options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict)
+    report = calibrate(rob, data, sigma_mm=sigma_mm, cell_path=cell_path, **options)
     with Outputs() as staged:
         if out:
             staged.add_text(out, calibrated_robot_yaml(report))

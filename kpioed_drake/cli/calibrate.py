@@ -31,6 +31,11 @@ def register(sub) -> None:
         default=0.01,
         help="family-wise false-alarm level of the outlier test (Bonferroni); 0 disables (0.01)",
     )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse poses that do not determine every parameter (default: hold those at nominal, warn)",
+    )
     add_extend(p)
     p.set_defaults(func=run)
 
@@ -44,6 +49,7 @@ def run(args) -> int:
         extend=args.extend,
         outlier_alpha=args.outlier_alpha,
         out=args.out,
+        strict=args.strict,
         **data_outputs(args),
     )
     data = report if args.extend else report.to_dict()

@@ -34,7 +34,8 @@ def add_extend(p) -> None:
         action="append",
         default=[],
         metavar="EFFECT",
-        help="extend the model, e.g. joint_elasticity:2 or gear_cyclic:4:2 (repeatable)",
+        help="extend the model, e.g. joint_elasticity:2, gear_cyclic:4:2, joint_scale:2, joint_coupling:5:4, "
+        "backlash:3, tracker_scale (repeatable)",
     )
 
 

@@ -25,6 +25,7 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import check_paths, check_positive
+from kpioed_drake.calibration import hold_undetermined
 from kpioed_drake.dataformats import read_data
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
@@ -99,6 +100,8 @@ def diagnose(
     data.check()
     prob = _problem(robot, data, sigma_mm, k_folds, cell)
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=force)
+    # as calibrate: parameters these poses do not determine are held at nominal, with a note
+    prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
     if candidates is None:
         cands, notes = candidate_effects(data)
     else:

@@ -10,7 +10,22 @@ family (``parse_effect``)     model                                         para
 ``gear_cyclic:i:n[=a,b]``     joint i angle error ``a sin(n q_i) + b cos``  a, b [rad] (text: deg)
 ``thermal_expansion[=k]``     robot lengths scale by ``1 + k (T - T_ref)``  k [1/K]
 ``tracker_drift[=vx,vy,vz]``  tracker origin moves by ``v t`` (v in W)      v [mm/s] (text: mm/min)
+``joint_scale:i[=eps]``       gear-ratio error: joint i angle ``q_i (1+eps)`` eps [1] (text: ppm)
+``joint_coupling:i:j[=c]``    joint i angle error ``c q_j`` (coupled drives)  c [1] (text: ppm)
+``tracker_scale[=k]``         distances from the tracker scale by           k [1/K] (text: ppm/K)
+                              ``s_T = 1 + k (T - T_REF)`` (air refraction)
+``backlash:i[=b]``            joint i angle error ``b sign(tau_i(q))``      b [rad] (text: deg)
 ============================  ============================================  ====================
+
+The first four (:data:`FAMILIES`) are SPEC's and diagnosis's candidates; the last four
+(:data:`EXTRA_FAMILIES`) are for simulation and ``--extend`` only. ``joint_scale``,
+``joint_coupling`` and ``backlash`` are joint-angle effects like elasticity and gear
+(:data:`JOINT_FAMILIES`): their column is joint i's theta column times the factor ``q_i``, ``q_j``
+or ``sign(tau_i)``. A backlash follows the sign of the gravity torque (the data format has no
+approach direction); its derivative w.r.t. q is zero almost everywhere. The tracker scale has one
+parameter, its temperature part: a constant scale about the tracker is a scale of every length and
+of the tracker position, which the geometric parameters absorb (as for a constant temperature of
+thermal expansion), so it is not a parameter; it multiplies the whole measurement (all columns).
 
 Conventions (the choices SPEC leaves open, kept here in one place):
 
@@ -41,7 +56,7 @@ Conventions (the choices SPEC leaves open, kept here in one place):
 
 Measurement model with effects (everything in the tracker frame, mm)::
 
-    h = R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)
+    h = s_T R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)
 
 :func:`true_measurements` evaluates it (noise-free) for simulation; :func:`augmented_jacobian`
 returns its Jacobian w.r.t. the geometric parameters and the effect parameters (closed form,
@@ -56,7 +71,9 @@ Realistic sizes (SPEC), used when ``parse_effect`` draws a value with a random g
   within the joint limits of ``|tau_i| * |dp_WQ/dq_i|``, no payload);
 - gear: a and b each uniform in 0.003-0.02 deg with a random sign;
 - thermal: k = 11.7e-6 /K (steel), not drawn (without ``rng``: unknown, like the others);
-- drift: speed uniform in 0.005-0.05 mm/min, direction uniform on the sphere.
+- drift: speed uniform in 0.005-0.05 mm/min, direction uniform on the sphere;
+- joint scale and coupling: 100-1000 ppm (``SCALE_PPM``), random sign; backlash: 0.003-0.02 deg
+  (``BACKLASH_DEG``), positive; tracker scale: -0.93 ppm/K (``AIR_PPM_PER_K``, not drawn).
 
 Modules: :mod:`.model` (:class:`Effect`, the text syntax, sizes), :mod:`.gravity` (gravity and
 payload torques, the elastic lever), :mod:`.response` (the measurement model with effects, its
@@ -71,11 +88,17 @@ from kpioed_drake.effects.gravity import (
     reference_poses,
 )
 from kpioed_drake.effects.model import (
+    AIR_PPM_PER_K,
+    ALL_FAMILIES,
+    BACKLASH_DEG,
     DRIFT_MM_PER_MIN,
     ELASTIC_TOOL_MM,
+    EXTRA_FAMILIES,
     FAMILIES,
     GEAR_DEG,
+    JOINT_FAMILIES,
     N_PARAMS,
+    SCALE_PPM,
     STEEL_K,
     T_REF_C,
     UNITS,
@@ -96,11 +119,17 @@ from kpioed_drake.effects.response import (
 )
 
 __all__ = [
+    "AIR_PPM_PER_K",
+    "ALL_FAMILIES",
+    "BACKLASH_DEG",
     "DRIFT_MM_PER_MIN",
     "ELASTIC_TOOL_MM",
+    "EXTRA_FAMILIES",
     "FAMILIES",
     "GEAR_DEG",
+    "JOINT_FAMILIES",
     "N_PARAMS",
+    "SCALE_PPM",
     "STEEL_K",
     "T_REF_C",
     "UNITS",

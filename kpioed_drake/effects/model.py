@@ -15,14 +15,32 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
-"""Effect names as in SPEC (and ``none`` for a model that explains the data)."""
+"""Effect names as in SPEC (and ``none`` for a model that explains the data): diagnosis's candidates."""
+EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
+"""Further families for simulation and ``--extend`` (not diagnosis candidates)."""
+ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES
+JOINT_FAMILIES = ("joint_elasticity", "gear_cyclic", "joint_scale", "joint_coupling", "backlash")
+"""Families that act as a joint-angle error ``delta_i(q)`` (no per-pose temperature or time needed)."""
 
-N_PARAMS = {"joint_elasticity": 1, "gear_cyclic": 2, "thermal_expansion": 1, "tracker_drift": 3}
+N_PARAMS = {
+    "joint_elasticity": 1,
+    "gear_cyclic": 2,
+    "thermal_expansion": 1,
+    "tracker_drift": 3,
+    "joint_scale": 1,
+    "joint_coupling": 1,
+    "tracker_scale": 1,
+    "backlash": 1,
+}
 UNITS = {
     "joint_elasticity": "rad/(N m)",
     "gear_cyclic": "deg",
     "thermal_expansion": "1/K",
     "tracker_drift": "mm/min",
+    "joint_scale": "ppm",
+    "joint_coupling": "ppm",
+    "tracker_scale": "ppm/K",
+    "backlash": "deg",
 }
 """Units of the *displayed* values (text syntax, reports); inside the code see :class:`Effect`."""
 
@@ -33,8 +51,22 @@ STEEL_K = 11.7e-6
 ELASTIC_TOOL_MM = (0.1, 1.0)
 GEAR_DEG = (0.003, 0.02)
 DRIFT_MM_PER_MIN = (0.005, 0.05)
+SCALE_PPM = (100.0, 1000.0)
+"""Range of a drawn gear-ratio error (joint_scale) or coupling (joint_coupling) [ppm], random sign."""
+AIR_PPM_PER_K = -0.93
+"""Tracker scale per kelvin of uncompensated air refraction [ppm/K] (dn/dT of air at 20 C, 1 atm)."""
+BACKLASH_DEG = (0.003, 0.02)
+"""Range of a drawn backlash [deg] (positive: the joint settles where gravity pushes it)."""
 _DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expansion": 1.0}
 _DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
+_DISPLAY.update(joint_scale=1e-6, joint_coupling=1e-6, tracker_scale=1e-6, backlash=np.pi / 180.0)
+_DRAW = {
+    "joint_scale": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
+    "joint_coupling": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
+    "tracker_scale": lambda rng: AIR_PPM_PER_K * 1e-6,
+    "backlash": lambda rng: np.deg2rad(rng.uniform(*BACKLASH_DEG)),
+}
+"""Realistic value of the further families, internal units (tracker_scale: air, not random)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,14 +74,16 @@ class Effect:
     """One non-geometric effect.
 
     Attributes:
-        family: one of :data:`FAMILIES`.
-        joint: 1-based joint (elasticity, gear) or None.
+        family: one of :data:`ALL_FAMILIES`.
+        joint: 1-based joint (elasticity, gear, scale, coupling: the joint that errs, backlash) or None.
         harmonic: n of ``gear_cyclic`` or None.
         values: the parameters in internal units, or None if unknown (to be estimated):
             elasticity ``(c,)`` [rad/(N m)]; gear ``(a, b)`` [rad]; thermal ``(k,)`` [1/K];
-            drift ``(vx, vy, vz)`` [mm/s] in W.
+            drift ``(vx, vy, vz)`` [mm/s] in W; joint scale ``(eps,)`` [1]; coupling ``(c,)`` [1];
+            tracker scale ``(k,)`` [1/K]; backlash ``(b,)`` [rad].
         tool_mm: for an elasticity drawn by size: the largest tool displacement [mm] over the joint
             box; :func:`resolve` turns it into c for a robot.
+        coupled: 1-based joint j whose angle drives ``joint_coupling:i:j``, else None.
     """
 
     family: str
@@ -57,6 +91,7 @@ class Effect:
     harmonic: int | None = None
     values: tuple[float, ...] | None = None
     tool_mm: float | None = None
+    coupled: int | None = None
 
     @property
     def n_params(self) -> int:
@@ -64,8 +99,8 @@ class Effect:
 
     @property
     def key(self) -> tuple:
-        """(family, joint, harmonic): what a diagnosis has to name."""
-        return (self.family, self.joint, self.harmonic)
+        """(family, joint, harmonic or coupled joint): what a diagnosis has to name."""
+        return (self.family, self.joint, self.harmonic if self.coupled is None else self.coupled)
 
     @property
     def name(self) -> str:
@@ -75,6 +110,8 @@ class Effect:
             parts.append(str(self.joint))
         if self.harmonic is not None:
             parts.append(str(self.harmonic))
+        if self.coupled is not None:
+            parts.append(str(self.coupled))
         return ":".join(parts)
 
     @property
@@ -84,6 +121,10 @@ class Effect:
             "gear_cyclic": ["a", "b"],
             "thermal_expansion": ["k"],
             "tracker_drift": ["vx", "vy", "vz"],
+            "joint_scale": ["eps"],
+            "joint_coupling": ["c"],
+            "tracker_scale": ["k"],
+            "backlash": ["b"],
         }[self.family]
         return [f"{self.name}.{s}" for s in sub]
 
@@ -114,6 +155,8 @@ class Effect:
             out["joint"] = self.joint
         if self.harmonic is not None:
             out["harmonic"] = self.harmonic
+        if self.coupled is not None:
+            out["coupled_joint"] = self.coupled
         if self.values is not None:
             dv = self.display_values()
             out["value"] = dv[0] if len(dv) == 1 else dv
@@ -128,7 +171,8 @@ class Effect:
 # ----------------------------------------------------------------------------------------------
 _SYNTAX = (
     "joint_elasticity:JOINT[=c rad/(N m)], gear_cyclic:JOINT:N[=a,b deg], thermal_expansion[=k 1/K], "
-    "tracker_drift[=vx,vy,vz mm/min]"
+    "tracker_drift[=vx,vy,vz mm/min], joint_scale:JOINT[=eps ppm], joint_coupling:JOINT:JOINT[=c ppm], "
+    "tracker_scale[=k ppm/K], backlash:JOINT[=b deg]"
 )
 
 
@@ -156,12 +200,15 @@ def parse_effect(
     Syntax: ``joint_elasticity:2`` / ``joint_elasticity:2=2e-6`` (c in rad per N m);
     ``gear_cyclic:4:2`` / ``gear_cyclic:4:2=0.01,-0.005`` (joint 4, harmonic 2, a and b in deg);
     ``thermal_expansion`` / ``thermal_expansion=11.7e-6`` (k in 1/K, default steel);
-    ``tracker_drift`` / ``tracker_drift=0.01,0,-0.02`` (velocity in W, mm/min).
+    ``tracker_drift`` / ``tracker_drift=0.01,0,-0.02`` (velocity in W, mm/min);
+    ``joint_scale:2=300`` (eps in ppm); ``joint_coupling:5:4=-200`` (joint 5 errs by c q_4, c in ppm);
+    ``tracker_scale=-0.93`` (k in ppm/K); ``backlash:3=0.01`` (b in deg).
 
     Without a value: with ``rng`` a value of SPEC's realistic size is drawn (an elasticity as a tool
     displacement ``tool_mm``, turned into c by :func:`resolve` once the robot is known; pass
     ``model`` to resolve at once); without ``rng`` the values stay unknown (``values=None``: an
-    extension to estimate). ``thermal_expansion`` drawn with ``rng`` is steel (``STEEL_K``), not random.
+    extension to estimate). ``thermal_expansion`` drawn with ``rng`` is steel (``STEEL_K``), not random;
+    ``tracker_scale`` is air (``AIR_PPM_PER_K``); the other further families see ``_DRAW``.
 
     Raises:
         InputError: unknown family, bad joint or harmonic, wrong number of values.
@@ -170,7 +217,7 @@ def parse_effect(
     lhs, eq, rhs = spec.partition("=")
     parts = [p.strip() for p in lhs.split(":")]
     family = parts[0]
-    if family not in FAMILIES:
+    if family not in ALL_FAMILIES:
         raise InputError(f"unknown effect {family!r} in {spec!r}; expected one of: {_SYNTAX}")
     given = rhs.strip() if eq else None
     if eq and not given:
@@ -205,6 +252,8 @@ def parse_effect(
             return Effect(family, joint, n)
         ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
         return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+    if family in EXTRA_FAMILIES:
+        return _parse_extra(family, parts, given, rng, spec)
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
     if family == "thermal_expansion":
@@ -222,6 +271,34 @@ def parse_effect(
     d /= np.linalg.norm(d)
     v = d * rng.uniform(*DRIFT_MM_PER_MIN) / 60.0
     return Effect(family, values=tuple(float(x) for x in v))
+
+
+def _parse_extra(family: str, parts: list[str], given, rng, spec: str) -> Effect:
+    """The further families (:data:`EXTRA_FAMILIES`): ``parts`` = the ':'-separated left side."""
+    form = {
+        "joint_scale": "joint_scale:JOINT[=eps ppm]",
+        "joint_coupling": "joint_coupling:JOINT:JOINT[=c ppm]",
+        "tracker_scale": "tracker_scale[=k ppm/K]",
+        "backlash": "backlash:JOINT[=b deg]",
+    }[family]
+    n_idx = form.count(":JOINT")
+    if len(parts) != 1 + n_idx:
+        raise InputError(f"effect {spec!r}: expected {form}")
+    idx = [_joint(p, spec) for p in parts[1:]]
+    if family == "backlash" and idx[0] == 1:
+        raise InputError(
+            f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
+            "so the side its backlash settles on is undefined (use joints 2..6)"
+        )
+    if family == "joint_coupling" and idx[0] == idx[1]:
+        raise InputError(f"effect {spec!r}: a joint coupled to itself is joint_scale:{idx[0]}")
+    kw = {"joint": idx[0] if idx else None, "coupled": idx[1] if n_idx == 2 else None}
+    if given is not None:
+        (v,) = _numbers(given, 1, spec)
+        return Effect(family, values=(float(v * _DISPLAY[family]),), **kw)
+    if rng is None:
+        return Effect(family, **kw)
+    return Effect(family, values=(float(_DRAW[family](rng)),), **kw)
 
 
 def parse_effects(texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None):

@@ -1,6 +1,6 @@
 """The measurement model with effects, its Jacobian, and the effects' columns for design and KPI.
 
-``h = R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)``; see :mod:`kpioed_drake.effects`.
+``h = s_T R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)``; see :mod:`kpioed_drake.effects`.
 """
 
 from __future__ import annotations
@@ -28,6 +28,10 @@ def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
 def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_dq: bool = False, tau=None):
     """Joint-angle errors of the joint effects at their values [rad], and what their columns need.
 
+    The joint effects (:data:`~kpioed_drake.effects.model.JOINT_FAMILIES`) add ``factor(q) @ values``
+    to joint i: elasticity ``tau_i``, gear ``(sin n q_i, cos n q_i)``, scale ``q_i``, coupling
+    ``q_j``, backlash ``sign(tau_i)`` (``tau``: gravity torques at the commanded angles).
+
     Returns:
         delta: (n, 6) angle errors; factors: list over effects of (n, n_params) or None (the
         derivative of delta_joint w.r.t. the effect's parameters); with ``with_dq`` also
@@ -35,13 +39,13 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
     """
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     n = q.shape[0]
-    need_tau = any(e.family == "joint_elasticity" for e in effects)
+    need_dtau = with_dq and any(e.family == "joint_elasticity" for e in effects)
+    need_tau = any(e.family in ("joint_elasticity", "backlash") for e in effects)
     dtau = None
-    if need_tau and tau is None:
-        out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=with_dq)
-        tau, dtau = (out, None) if not with_dq else out
-    elif need_tau and with_dq:
-        _, dtau = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=True)
+    if (need_tau and tau is None) or need_dtau:
+        out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=need_dtau)
+        tau_g, dtau = out if need_dtau else (out, None)
+        tau = tau_g if tau is None else tau
     delta = np.zeros((n, N_JOINTS))
     ddelta = np.zeros((n, N_JOINTS, N_JOINTS))
     factors, dfactors = [], []
@@ -60,6 +64,13 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
                 df[:, i, 1] = -e.harmonic * np.sin(nq)
             else:
                 df = None
+        elif e.family in ("joint_scale", "joint_coupling", "backlash"):
+            i = e.joint - 1
+            j = e.coupled - 1 if e.family == "joint_coupling" else i
+            f = np.sign(tau[:, i : i + 1]) if e.family == "backlash" else q[:, j : j + 1]
+            df = np.zeros((n, N_JOINTS, 1)) if with_dq else None
+            if with_dq and e.family != "backlash":  # d sign(tau)/dq = 0 almost everywhere
+                df[:, j, 0] = 1.0
         else:
             factors.append(None)
             dfactors.append(None)
@@ -76,19 +87,24 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
 
 
 def _scale_and_drift(effects, n: int, temperature_C, time_s):
-    """Length scale s (n,), tracker shift ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (or None)."""
+    """Length scale s (n,), tracker shift ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (or None), and
+    the tracker's distance scale s_T (n,)."""
     s = np.ones(n)
+    s_T = np.ones(n)
     temp = None
     drift = np.zeros((n, 3))
     tvec = None
     for e in effects:
-        if e.family == "thermal_expansion":
+        if e.family in ("thermal_expansion", "tracker_scale"):
             temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
-            s = s + e.value_array()[0] * temp
+            if e.family == "thermal_expansion":
+                s = s + e.value_array()[0] * temp
+            else:
+                s_T = s_T + e.value_array()[0] * temp
         elif e.family == "tracker_drift":
             tvec = _per_pose(time_s, n, "time_s", e.name)
             drift = drift + tvec[:, None] * e.value_array()[None, :]
-    return s, drift, temp, tvec
+    return s, drift, temp, tvec, s_T
 
 
 def augmented_response(
@@ -102,8 +118,8 @@ def augmented_response(
     effects = list(effects)
     delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau)
     p_WQ = flange_point(model.frames(q + delta), model.p_FQ)
-    s, drift, _, _ = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
-    return (s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT
+    s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
+    return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
 
 def augmented_jacobian(
@@ -119,7 +135,7 @@ def augmented_jacobian(
 ):
     """Response of the measurement model with effects and its Jacobian.
 
-    ``h = R_TW (s p_WQ(p, q_cmd + delta) - p_WT - v t)`` with the effects at their values (unknown
+    ``h = s_T R_TW (s p_WQ(p, q_cmd + delta) - p_WT - v t)`` with the effects at their values (unknown
     values count as zero).
 
     Args:
@@ -143,7 +159,7 @@ def augmented_jacobian(
     frames = model.frames(q_act)
     out = point_jacobian(frames, model.p_FQ, with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
-    s, drift, temp, tvec = _scale_and_drift(effects, n, temperature_C, time_s)
+    s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
     lay = model.layout
     R_TW = model.R_WT.T
     h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift)
@@ -169,7 +185,7 @@ def augmented_jacobian(
     col = 0
     for e, f, *rest in zip(effects, factors, *(jd[3:4] if with_dq else ()), strict=True):
         m = e.n_params
-        if e.family in ("joint_elasticity", "gear_cyclic"):
+        if f is not None:  # a joint-angle error of joint e.joint
             c = lay.joint_angle(e.joint)
             G = s[:, None] * (JW[:, :, c] @ R_TW.T)  # (n,3) s R_TW dp/dq_i
             E[:, :, col : col + m] = G[:, :, None] * f[:, None, :]
@@ -183,9 +199,19 @@ def augmented_jacobian(
             E[:, :, col] = (p_WQ @ R_TW.T) * temp[:, None]
             if with_dq:
                 dE[:, :, :, col] = (dp_dq @ R_TW.T) * temp[:, None, None]
-        else:
+        elif e.family == "tracker_drift":
             E[:, :, col : col + 3] = -R_TW[None] * tvec[:, None, None]
         col += m
+    # the tracker's distance scale multiplies everything: h = s_T h_0
+    ts = [k for k, e in enumerate(effects) if e.family == "tracker_scale"]
+    if ts:
+        col = sum(e.n_params for e in effects[: ts[0]])
+        E[:, :, col] = h * temp[:, None]
+        if with_dq:
+            dE *= s_T[:, None, None, None]
+            dE[:, :, :, col] = (dp_dq @ R_TW.T) * (s * temp)[:, None, None]
+        h, H = s_T[:, None] * h, s_T[:, None, None] * H
+        E[:, :, np.arange(k) != col] *= s_T[:, None, None]
     if with_dq:
         return h, H, E, dE
     return h, H, E

@@ -1,0 +1,172 @@
+"""Honest results on the user's own poses (issue 12, item 6): parameters the poses do not determine.
+
+A reflector on joint 6's axis makes two wrist parameters trade exactly against the others; the
+calibration holds them at nominal with a warning naming them, ``--strict`` refuses, and well-posed
+data calibrate exactly as without the check.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from kpioed_drake import api, calibration, estimation, identifiability, measurement, models, simulation
+from kpioed_drake.cli import main
+from kpioed_drake.dataformats import read_data
+from kpioed_drake.designio import write_design
+from kpioed_drake.errors import InputError
+from kpioed_drake.measurements import Measurements
+
+SIGMA = 0.02
+ON_AXIS_MM = (0.0, 0.0, 150.0)
+"""A reflector on joint 6's axis, 150 mm in front of the flange."""
+WRIST = ("theta5", "d5", "a5", "alpha5")
+"""Joint 5's row: the reflector on joint 6's axis leaves two of them undetermined (which two the
+pivoting names depends on the last digits of the registered tracker pose)."""
+REPO = Path(__file__).resolve().parents[1]
+
+
+def named(text: str, names) -> int:
+    """How many of ``names`` appear in ``text`` as whole words (``a5`` is not in ``alpha5``)."""
+    return sum(re.search(rf"\b{n}\b", text) is not None for n in names)
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return models.load_robot("kr16")
+
+
+@pytest.fixture(scope="module")
+def on_axis(kr16):
+    return dataclasses.replace(kr16, p_FQ=np.array(ON_AXIS_MM))
+
+
+@pytest.fixture(scope="module")
+def design(kr16):
+    rng = np.random.default_rng(20240601)
+    return rng.uniform(kr16.lower, kr16.upper, size=(60, 6))
+
+
+def measurements(robot, q, seed):
+    table, truth = simulation.simulate(robot, q, sigma_mm=SIGMA, seed=seed)
+    return Measurements.from_table(table, robot), truth["model"]
+
+
+def test_on_axis_reflector_holds_the_wrist_parameters(on_axis, design):
+    """The truth has joint 5's row at nominal (the data cannot reveal the held pair, a gauge here);
+    the warning names the held pair, it stays nominal, the other parameters within 3 sigma."""
+    truth_robot = dataclasses.replace(on_axis, extra_gauge=WRIST)
+    data, truth = measurements(truth_robot, design, seed=3)
+    report = calibration.calibrate(on_axis, data, sigma_mm=SIGMA)
+    held = report.held_at_nominal
+    assert len(held) == 2 and set(held) <= set(WRIST)
+    warning = next(w for w in report.warnings if "do not determine" in w)
+    assert named(warning, held) == 2 and named(warning, WRIST) == 2 and "held at nominal" in warning
+    res = report.result
+    assert not set(held) & set(res.free_names) and len(res.free_names) == 25
+    lay = report.model.layout
+    idx = [lay.names.index(n) for n in held]
+    assert_array_equal(report.model.p[idx], report.nominal.p[idx])
+    robot_side = [i for i, n in enumerate(res.free_names) if not n.startswith("tracker")]
+    z = (res.model.p[res.free] - truth.p[res.free]) / res.std
+    assert np.max(np.abs(z[robot_side])) < 3.0
+    table = {p["name"]: p for p in report.parameter_table()}
+    assert all(not table[n]["estimated"] and table[n]["std"] == 0.0 for n in held)
+    assert report.to_dict()["held_at_nominal"] == held
+
+
+def test_on_axis_kpi_is_consistent_with_any_truth(on_axis, design):
+    """With random errors on every parameter (the held pair too) the determined quantity, the
+    KPI, still agrees with the true robot's within its covariance (chi^2(3) at 0.1 %)."""
+    data, truth = measurements(on_axis, design, seed=4)
+    report = calibration.calibrate(on_axis, data, sigma_mm=SIGMA)
+    assert len(report.held_at_nominal) == 2 and set(report.held_at_nominal) <= set(WRIST)
+    d = report.kpi - measurement.kpi_jacobian(truth, report.q_work)[0]
+    assert float(d @ np.linalg.solve(report.kpi_cov, d)) < 16.27
+
+
+def test_strict_refuses_on_axis_data_and_writes_nothing(on_axis, design, tmp_path, capsys):
+    text = (REPO / "models" / "robots" / "kr16.yaml").read_text()
+    robot_file = tmp_path / "kr16_on_axis.yaml"
+    robot_file.write_text(text + f"reflector_position_mm: {list(ON_AXIS_MM)}\n")
+    design_file = tmp_path / "design.csv"
+    write_design(design_file, design)
+    data_file = tmp_path / "data.csv"
+    assert (
+        main(["simulate", "--robot", str(robot_file), "--design", str(design_file), "--out", str(data_file)])
+        == 0
+    )
+    out, js = tmp_path / "cal.yaml", tmp_path / "cal.json"
+    args = ["calibrate", "--robot", str(robot_file), str(data_file), "--out", str(out), "--json", str(js)]
+    capsys.readouterr()
+    assert main([*args, "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert "do not determine" in err and named(err, WRIST) == 2
+    assert not out.exists() and not js.exists()
+    with pytest.raises(InputError, match="do not determine"):
+        api.calibrate(str(robot_file), data_file, strict=True)
+    assert main(args) == 0  # without --strict: held, warned, written
+    held = json.loads(js.read_text())["held_at_nominal"]
+    assert len(held) == 2 and set(held) <= set(WRIST)
+
+
+def test_well_posed_data_unchanged_by_the_check(kr16, design):
+    """No warning, nothing held, and the same numbers as the estimator on the full free set."""
+    data, _ = measurements(kr16, design, seed=5)
+    report = calibration.calibrate(kr16, data, sigma_mm=SIGMA, strict=True)
+    assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
+    assert report.to_dict()["held_at_nominal"] == []
+    nominal = measurement.nominal_model(kr16, models.load_cell(robot=kr16))
+    direct = estimation.estimate(nominal, data.q, data.eta, sigma=SIGMA, mask=report.used)
+    assert report.result.n_params == 27 and not report.outliers
+    assert_array_equal(report.result.model.p, direct.model.p)
+    assert_array_equal(report.result.Cp, direct.Cp)
+
+
+def test_undetermined_parameters_threshold_and_correlation():
+    """Rank: an exact copy of a column is held; correlation: a nearly parallel column is held
+    (the later one in the pivoting order); independent columns give nothing."""
+    rng = np.random.default_rng(1)
+    J = rng.standard_normal((40, 4))
+    names = ["p", "q", "r", "s"]
+    assert identifiability.undetermined_parameters(J, names).names == ()
+    exact = J.copy()
+    exact[:, 3] = 2.0 * exact[:, 1]
+    found = identifiability.undetermined_parameters(exact, names)
+    assert len(found.rank) == 1 and found.rank[0] in ("q", "s") and not found.correlated
+    near = J.copy()
+    near[:, 3] = J[:, 1] + 1e-2 * rng.standard_normal(40) * np.linalg.norm(J[:, 1]) / np.sqrt(40)
+    found = identifiability.undetermined_parameters(near, names)
+    assert not found.rank and len(found.correlated) == 1
+    held, partner, r = found.correlated[0]
+    assert {held, partner} == {"q", "s"} and abs(r) > identifiability.MAX_CORRELATION
+    assert "correlation" in found.describe() and held in found.describe()
+
+
+def test_poses_moving_two_joints_are_refused_not_held(kr16):
+    """Holding is for a gauge of a few parameters; poses that leave most undetermined are refused."""
+    q = np.tile(kr16.q_work, (60, 1))
+    q[:, 0] += np.linspace(-1.0, 1.0, 60)
+    q[:, 1] += 0.3 * np.sin(np.linspace(0.0, 6.0, 60))
+    data, _ = measurements(kr16, q, seed=3)
+    with pytest.raises(InputError, match="too many to hold"):
+        calibration.calibrate(kr16, data, sigma_mm=SIGMA)
+
+
+UR5_DATA = Path(os.environ.get("KPIOED_SHARED_DATA", REPO.parent / "shared" / "data")) / "ur5-laser-tracker"
+
+
+@pytest.mark.skipif(not UR5_DATA.is_dir(), reason=f"{UR5_DATA} not available")
+def test_ur5_extra_gauge_leaves_nothing_to_hold():
+    """The UR5's model file already holds theta5 and alpha5 (reflector on joint 6's axis)."""
+    robot = models.load_robot("ur5")
+    grid = read_data(UR5_DATA / "ur5_grid.csv", robot, REPO / "models" / "formats" / "ur5-laser-tracker.yaml")
+    report = calibration.calibrate(robot, grid.subset(np.arange(0, 1000, 5)), sigma_mm=0.065, strict=True)
+    assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
