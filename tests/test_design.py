@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from fd import central_fd
 from numpy.testing import assert_allclose
 from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
 
@@ -38,19 +39,6 @@ def _random_poses(problem, n, seed):
     return rng.uniform(problem.robot.lower, problem.robot.upper, size=(n, 6))
 
 
-def _central_fd(f, q, h):
-    """Central differences of f: (n,6) -> array, w.r.t. every entry of q; shape f.shape + (n, 6)."""
-    f0 = np.asarray(f(q))
-    out = np.zeros(f0.shape + q.shape)
-    for k in range(q.shape[0]):
-        for j in range(q.shape[1]):
-            qp, qm = q.copy(), q.copy()
-            qp[k, j] += h
-            qm[k, j] -= h
-            out[..., k, j] = (np.asarray(f(qp)) - np.asarray(f(qm))) / (2 * h)
-    return out
-
-
 # ----------------------------------------------------------------------------------------------
 # Derivatives
 # ----------------------------------------------------------------------------------------------
@@ -61,7 +49,7 @@ def test_objective_gradient_matches_central_differences(kr16, criterion):
     value, grad = obj.value_and_grad(q)
     assert grad.shape == (12, 6)
     assert_allclose(value, obj.value(q), rtol=1e-12)
-    fd = _central_fd(obj.value, q, 1e-6)
+    fd = central_fd(obj.value, q, 1e-6)
     scale = np.max(np.abs(fd))
     assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * scale)
 
@@ -70,7 +58,7 @@ def test_incidence_gradient_matches_central_differences(kr16):
     q = _random_poses(kr16, 10, seed=2)
     c, dc = incidence_rows(kr16, q)
     assert_allclose(c + np.cos(kr16.cell.max_incidence), incidence_cosine(kr16.model, q), atol=1e-14)
-    fd = _central_fd(lambda x: incidence_rows(kr16, x)[0], q, 1e-6)  # (n, n, 6)
+    fd = central_fd(lambda x: incidence_rows(kr16, x)[0], q, 1e-6)  # (n, n, 6)
     assert_allclose(dc, np.einsum("kkj->kj", fd), rtol=1e-6, atol=1e-8)
     off = fd.copy()
     off[np.arange(10), np.arange(10)] = 0.0
@@ -83,7 +71,7 @@ def test_constraint_gradient_matches_central_differences(kr16):
     v, J = cons.evaluate(q)
     assert v.shape == (8, cons.rows_per_pose) and J.shape == (8, cons.rows_per_pose, 6)
     assert cons.rows_per_pose == 1 + cons.clearance.n_rows
-    fd = _central_fd(lambda x: cons.evaluate(x)[0], q, 1e-6)  # (n, r, n, 6)
+    fd = central_fd(lambda x: cons.evaluate(x)[0], q, 1e-6)  # (n, r, n, 6)
     own = np.stack([fd[k, :, k, :] for k in range(8)])
     assert_allclose(J[:, 0], own[:, 0], rtol=1e-6, atol=1e-8)  # incidence [1/rad]
     assert_allclose(J[:, 1:], own[:, 1:], rtol=1e-5, atol=1e-5)  # clearances [mm/rad]

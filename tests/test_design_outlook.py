@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from fd import central_fd
 from numpy.testing import assert_allclose
 
 from kpioed_drake import criteria
@@ -39,19 +40,6 @@ def kr16():
 @pytest.fixture(scope="module")
 def path(kr16):
     return kr16.q_work + np.deg2rad(PATH_OFFSETS_DEG)
-
-
-def _central_fd(f, q, h):
-    """Central differences of f: (n, 6) -> array, w.r.t. every entry of q; shape f.shape + (n, 6)."""
-    f0 = np.asarray(f(q))
-    out = np.zeros(f0.shape + q.shape)
-    for k in range(q.shape[0]):
-        for j in range(q.shape[1]):
-            qp, qm = q.copy(), q.copy()
-            qp[k, j] += h
-            qm[k, j] -= h
-            out[..., k, j] = (np.asarray(f(qp)) - np.asarray(f(qm))) / (2 * h)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -104,7 +92,7 @@ def test_each_variance_and_its_gradient_match_central_differences(kr16, path):
     q = heuristic_design(prob, n=12, seed=4)
     obj = DesignObjective(prob, "kpi")
     v, g = obj.values_and_grads(q)
-    fd = _central_fd(lambda x: obj.values_and_grads(x)[0], q, 1e-6)
+    fd = central_fd(lambda x: obj.values_and_grads(x)[0], q, 1e-6)
     assert g.shape == (3, 12, 6)
     assert_allclose(g, fd, rtol=1e-5, atol=1e-6 * np.abs(g).max())
     # kpi_each agrees with the kpi criterion of each single Jacobian

@@ -9,25 +9,7 @@ import pytest
 from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
 from kpioed_drake.kinematics import forward_kinematics, point_velocity_jacobian
-from kpioed_drake.measurement import measure, measurement_jacobian, nominal_model
-from kpioed_drake.models import load_cell, load_robot
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
-
-
-@pytest.fixture(scope="module")
-def model(kr16):
-    nom = nominal_model(kr16, load_cell(robot=kr16))
-    rng = np.random.default_rng(3)
-    p = nom.p.copy()
-    lay = nom.layout
-    p[lay.joints] += 0.01 * rng.standard_normal(lay.joints.stop)
-    p[lay.tracker_rotation] = 0.01 * rng.standard_normal(3)
-    p[lay.target(0)] += rng.standard_normal(3)
-    return nom.with_params(p)
+from kpioed_drake.measurement import measure, measurement_jacobian
 
 
 @pytest.fixture(scope="module")

@@ -9,27 +9,10 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurement import measure, nominal_model
-from kpioed_drake.models import load_cell, load_robot
+from kpioed_drake.measurement import measure
 from kpioed_drake.simulation import simulate
 
 DESIGN = "studies/results/designs/kr16_kpi_ca.csv"
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
-
-
-@pytest.fixture(scope="module")
-def model(kr16):
-    nom = nominal_model(kr16, load_cell(robot=kr16))
-    rng = np.random.default_rng(3)
-    p = nom.p.copy()
-    lay = nom.layout
-    p[lay.joints] += 0.01 * rng.standard_normal(lay.joints.stop)
-    p[lay.tracker_rotation] = 0.01 * rng.standard_normal(3)
-    return nom.with_params(p)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,24 @@
+"""Fixtures shared by the effect tests."""
+
+import numpy as np
+import pytest
+
+from kpioed_drake.measurement import nominal_model
+from kpioed_drake.models import load_cell, load_robot
+
+
+@pytest.fixture(scope="module")
+def kr16():
+    return load_robot("kr16")
+
+
+@pytest.fixture(scope="module")
+def model(kr16):
+    nom = nominal_model(kr16, load_cell(robot=kr16))
+    rng = np.random.default_rng(3)
+    p = nom.p.copy()
+    lay = nom.layout
+    p[lay.joints] += 0.01 * rng.standard_normal(lay.joints.stop)
+    p[lay.tracker_rotation] = 0.01 * rng.standard_normal(3)
+    p[lay.target(0)] += rng.standard_normal(3)
+    return nom.with_params(p)
