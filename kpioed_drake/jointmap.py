@@ -58,11 +58,6 @@ class JointMap:
     A: np.ndarray
     b: np.ndarray
 
-    @property
-    def is_identity(self) -> bool:
-        """True when the map changes nothing."""
-        return bool(np.array_equal(self.A, np.eye(N_JOINTS)) and not np.any(self.b))
-
     def to_model(self, J) -> np.ndarray:
         """Model angles of controller angles.
 

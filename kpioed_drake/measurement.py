@@ -113,7 +113,7 @@ def measure(model: TrackerModel, q) -> np.ndarray:
     return (p_WQ - model.p_WT) @ model.R_WT
 
 
-def tracker_jacobian(model: TrackerModel, p_WQ, JW, *, scale=None, offset=None, rotation_point=None):
+def tracker_jacobian(model: TrackerModel, p_WQ, JW, *, scale=None, offset=None):
     """Response in the tracker frame and its Jacobian w.r.t. the full parameter vector.
 
     ``h = R_TW (s p_WQ - p_WT - offset)``: the reflector points ``p_WQ``, optionally scaled about W

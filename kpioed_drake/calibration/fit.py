@@ -46,18 +46,18 @@ few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving
 2: 17 of 27) means the poses do not exercise the robot."""
 
 
-def _few_outliers(res, data: Measurements, alpha: float, force: bool, warnings: list[str]) -> bool:
+def _few_outliers(t, res, data: Measurements, alpha: float, force: bool, warnings: list[str]) -> bool:
     """False (forced) or an InputError when over a third of the poses fail the outlier test at once.
 
     So many "outliers" are not single bad points: the noise is larger than the given sigma, or the
-    model misses an effect; removing them would throw good poses away.
+    model misses an effect; removing them would throw good poses away. ``t``: the normalised
+    residuals of ``res`` (:func:`~kpioed_drake.estimation.normalized_residuals`).
     """
-    t = normalized_residuals(res)
     n = data.n
     n_fail = int(np.count_nonzero(t > chi2_dist.isf(alpha / n, 3)))
     if n_fail <= MAX_OUTLIER_SHARE * n:
         return True
-    ratio = res.cost / res.dof if res.dof > 0 else float("nan")
+    ratio = res.chi2_per_dof
     message = (
         f"{data.path}: {n_fail} of {n} poses fail the outlier test at sigma {res.sigma:g} mm: not single "
         f"bad points. The residuals are sqrt(chi2/dof) = {np.sqrt(ratio):.3g} times the noise: the noise "
@@ -167,11 +167,11 @@ def calibrate(
         res = estimate(nominal, data.q, data.eta, sigma=sigma_mm, mask=mask, max_iter=max_iter)
     except InputError as exc:
         raise InputError(f"{data.path}: {str(exc).removeprefix('estimate: ')}") from None
-    if alpha is not None and not _few_outliers(res, data, alpha, force, warnings):
+    t = normalized_residuals(res)
+    if alpha is not None and not _few_outliers(t, res, data, alpha, force, warnings):
         alpha = None  # forced: keep every pose
     threshold = None
     while True:
-        t = normalized_residuals(res)
         n_used = int(np.count_nonzero(mask))
         if alpha is None or n_used - 1 < MIN_POSES_FOR_OUTLIER_TEST:
             break
@@ -193,7 +193,8 @@ def calibrate(
         res = estimate(
             res.model, data.q, data.eta, sigma=sigma_mm, mask=mask, register=False, max_iter=max_iter
         )
-    normalized = normalized_residuals(res)
+        t = normalized_residuals(res)
+    normalized = t
     if not res.converged:
         warnings.append(f"the least-squares iteration did not converge ({res.message})")
 

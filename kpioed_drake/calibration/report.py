@@ -108,7 +108,7 @@ class CalibrationReport:
     @property
     def aposteriori_factor(self) -> float | None:
         """sqrt(chi2/dof): a-posteriori standard deviations are the a-priori ones times this."""
-        return None if self.dof <= 0 else float(np.sqrt(self.chi2 / self.dof))
+        return None if self.chi2_per_dof is None else float(np.sqrt(self.chi2_per_dof))
 
     @property
     def rejects(self) -> bool:
@@ -121,7 +121,7 @@ class CalibrationReport:
         rotation = range(lay.size)[lay.tracker_rotation]
         free = list(lay.free)
         std = self.result.std
-        factor = self.aposteriori_factor
+        std_post = np.sqrt(np.diag(self.result.Cp_scaled))  # NaN without degrees of freedom
         out = []
         for i, name in enumerate(lay.names):
             ang = bool(lay.is_angle[i])
@@ -137,9 +137,7 @@ class CalibrationReport:
                 "nominal": nominal,
                 "deviation": None if nominal is None else value - nominal,
                 "std": float(conv(std[free.index(i)])) if est else 0.0,
-                "std_aposteriori": (
-                    float(conv(std[free.index(i)]) * factor) if est and factor is not None else None
-                ),
+                "std_aposteriori": (float(conv(std_post[free.index(i)])) if est and self.dof > 0 else None),
                 "unit": "deg" if ang else "mm",
                 "estimated": est,
             }

@@ -10,7 +10,7 @@ from kpioed_drake.cli.common import (
     add_q_work,
     add_robot,
     data_outputs,
-    emit_json,
+    print_json,
 )
 
 
@@ -54,7 +54,7 @@ def run(args) -> int:
     )
     data = report if args.extend else report.to_dict()
     if args.json == "-":
-        emit_json(data, "-")
+        print_json(data)
         return 0
     print(extended_summary(report, args.extend) if args.extend else report.summary())
     for path, what in ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page")):

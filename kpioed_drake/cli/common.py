@@ -1,14 +1,13 @@
-"""Argument helpers shared by the subcommands, and JSON output.
+"""Argument helpers shared by the subcommands, and JSON on stdout.
 
-The values are checked by :mod:`kpioed_drake.api` (one place for the CLI and Python users).
+The values are checked by the command functions of :mod:`kpioed_drake.api` (with
+:mod:`kpioed_drake.arguments`: one place for the CLI and Python users).
 """
 
 from __future__ import annotations
 
 import json
 import sys
-
-from kpioed_drake.designio import atomic_write_json
 
 
 def add_robot(p, *, required: bool = True) -> None:
@@ -40,7 +39,7 @@ def add_extend(p) -> None:
 
 
 def add_json_out(p) -> None:
-    """``--json [FILE]``: the report as JSON to FILE, or to stdout without a FILE."""
+    """``--json [FILE]``: the report as JSON to FILE, or to stdout without a FILE (``"-"``)."""
     p.add_argument(
         "--json",
         nargs="?",
@@ -58,11 +57,8 @@ def add_html(p) -> None:
     )
 
 
-def add_force_and_format(p) -> None:
-    """``--force`` (go on with implausible data) and ``--format F.yaml`` (a file of another layout)."""
-    p.add_argument(
-        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
-    )
+def add_format(p) -> None:
+    """``--format F.yaml``: the format file of a measurement file of another layout."""
     p.add_argument(
         "--format",
         default=None,
@@ -77,7 +73,10 @@ def add_data_outputs(p, *, plots_help: str) -> None:
     add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help=plots_help)
     add_html(p)
-    add_force_and_format(p)
+    p.add_argument(
+        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
+    )
+    add_format(p)
 
 
 def data_outputs(args) -> dict:
@@ -93,13 +92,10 @@ def data_outputs(args) -> dict:
 
 def json_file(target) -> str | None:
     """The ``--json`` file to write (None for none or for stdout)."""
-    return None if target in (None, True, "-") else target
+    return None if target in (None, "-") else target
 
 
-def emit_json(data, target) -> None:
-    """Write ``data`` as JSON to a file (atomically) or to stdout when ``target`` is True/'-'."""
-    if target in (True, "-"):
-        json.dump(data, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-    elif target:
-        atomic_write_json(target, data)
+def print_json(data) -> None:
+    """Write ``data`` as indented JSON to stdout (``--json`` without a file; files are the API's)."""
+    json.dump(data, sys.stdout, indent=2)
+    sys.stdout.write("\n")

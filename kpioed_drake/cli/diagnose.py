@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_data_outputs, add_robot, add_sigma, data_outputs, emit_json
+from kpioed_drake.cli.common import add_data_outputs, add_robot, add_sigma, data_outputs, print_json
 
 
 def register(sub) -> None:
@@ -33,7 +33,7 @@ def run(args) -> int:
         **data_outputs(args),
     )
     if args.json == "-":
-        emit_json(report.to_json(), "-")
+        print_json(report.to_json())
         return 0
     print(report.summary())
     for path, what in ((args.plots, "plots"), (args.html, "3-D page")):

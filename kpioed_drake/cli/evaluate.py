@@ -11,8 +11,8 @@ from kpioed_drake.cli.common import (
     add_q_work,
     add_robot,
     add_sigma,
-    emit_json,
     json_file,
+    print_json,
 )
 from kpioed_drake.design import certificate_line
 
@@ -39,7 +39,7 @@ def run(args) -> int:
     options = dict(sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend, html=args.html)
     d = api.evaluate(args.robot, args.design, json_path=json_file(args.json), certify=args.certify, **options)
     if args.json == "-":
-        emit_json(d, "-")
+        print_json(d)
         return 0
     s = d["feasibility"]
     print(f"{d['robot']}: {d['n_poses']} poses, {d['n_params']} parameters, sigma {d['sigma_mm']} mm")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_robot, emit_json
+from kpioed_drake.cli.common import add_robot, print_json
 
 
 def register(sub) -> None:
@@ -16,7 +16,7 @@ def register(sub) -> None:
 def run(args) -> int:
     d = api.info(args.robot)
     if args.json:
-        emit_json(d, True)
+        print_json(d)
         return 0
     print(f"robot        {d['robot']}")
     print(f"reach        {d['reach_mm']:.1f} mm")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_json_out, add_robot, emit_json, json_file
+from kpioed_drake.cli.common import add_format, add_json_out, add_robot, json_file, print_json
 
 
 def register(sub) -> None:
@@ -13,12 +13,7 @@ def register(sub) -> None:
     )
     add_robot(p)
     p.add_argument("data", metavar="DATA.csv", help="measurement file (SPEC format, or see --format)")
-    p.add_argument(
-        "--format",
-        default=None,
-        metavar="F.yaml",
-        help="format file for a measurement file of another layout (docs/data-formats.md)",
-    )
+    add_format(p)
     p.add_argument(
         "--keep-tracker",
         action="store_true",
@@ -39,7 +34,7 @@ def run(args) -> int:
         plots_dir=args.plots,
     )
     if args.json == "-":
-        emit_json(result.to_dict(), "-")
+        print_json(result.to_dict())
         return 0
     print(result.summary())
     return 0
