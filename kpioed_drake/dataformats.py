@@ -20,15 +20,13 @@ A format file (documented in ``docs/data-formats.md``) maps such a file onto the
 :func:`read_data` reads either layout: the SPEC file without a format, a foreign one with it.
 """
 
-import csv
 import dataclasses
-import io
 import re
 from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.designio import check_joint_angles
+from kpioed_drake.designio import check_joint_angles, read_csv_table
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurements import FRAMES, Measurements, check_pose_count, read_measurements
 from kpioed_drake.models import N_JOINTS, Robot, load_yaml_typed
@@ -114,33 +112,6 @@ def load_format(path: str | Path) -> DataFormat:
     return check_format(load_yaml_typed(path, DataFormat), where=str(path))
 
 
-def _read_table(path: Path, sep: str) -> tuple[list[str], list[list[str]], list[int]]:
-    """Header, data rows and their file line numbers (blank lines skipped, numbers kept)."""
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder; expected a measurement file")
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text ({exc.reason}); save it as UTF-8") from None
-    reader = csv.reader(io.StringIO(text), delimiter=sep)
-    rows = [(reader.line_num, r) for r in reader if any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
-    header = [h.strip() for h in rows[0][1]]
-    dup = sorted({h for h in header if h and header.count(h) > 1})
-    if dup:
-        raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
-    for line, r in rows[1:]:
-        if len(r) != len(header):
-            raise InputError(
-                f"{path}: row {line}: {len(r)} fields, the header has {len(header)} "
-                f"(separator {sep!r}; check the format file's 'separator' and 'decimal')"
-            )
-    return header, [r for _, r in rows[1:]], [line for line, _ in rows[1:]]
-
-
 class _Columns:
     """Numeric columns of a table, parsed on demand with the format's decimal mark."""
 
@@ -196,7 +167,10 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
     """
     path = Path(path)
     fmt = check_format(fmt) if isinstance(fmt, DataFormat) else load_format(fmt)
-    cols = _Columns(path, *_read_table(path, fmt.separator), fmt.decimal)
+    header, data = read_csv_table(path, (), delimiter=fmt.separator)
+    if not data:
+        raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
+    cols = _Columns(path, header, data, data.lines, fmt.decimal)
     J = np.stack([cols.column(c, f"joints[{i}]") for i, c in enumerate(fmt.joints)], axis=1)
     q = J * ANGLE_UNITS[fmt.angle_unit]
     if fmt.angles == "controller" and robot.joint_map is not None:

@@ -86,27 +86,34 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
+def read_csv_table(
+    path: str | Path, required: tuple[str, ...], *, delimiter: str = ","
+) -> tuple[list[str], list[list[str]]]:
     """Read a CSV file with a header; check that ``required`` columns are present exactly once.
 
+    Args:
+        path: the file (UTF-8). required: column names that must be there.
+        delimiter: the field separator (``","``; a format file may name another).
+
     Returns:
-        header and the data rows (strings).
+        header and the data rows (strings; ``.lines`` holds their file line numbers).
     """
     text = _read_text(Path(path))
     rows, lines = [], []
-    reader = csv.reader(io.StringIO(text))
+    reader = csv.reader(io.StringIO(text), delimiter=delimiter)
     for r in reader:
         if any(c.strip() for c in r):  # blank lines are skipped but keep their line numbers
             rows.append(r)
             lines.append(reader.line_num)
     if not rows:
-        raise InputError(f"{path}: the file is empty (expected a header with {', '.join(required)})")
+        expected = f" with {', '.join(required)}" if required else ""
+        raise InputError(f"{path}: the file is empty (expected a header{expected})")
     header = [h.strip() for h in rows[0]]
     dup = sorted({h for h in header if header.count(h) > 1 and h})
     if dup:
         raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
     missing = [c for c in required if c not in header]
-    if missing and len(header) == 1 and ";" in header[0]:
+    if missing and delimiter == "," and len(header) == 1 and ";" in header[0]:
         comma = " with decimal commas" if re.search(r"\d,\d", text) else ""
         raise InputError(
             f"{path}: row 1 (header): the columns are separated by ';'{comma}; expected a "
@@ -122,7 +129,12 @@ def read_csv_table(path: str | Path, required: tuple[str, ...]) -> tuple[list[st
     data.lines = lines[1:]
     for k, r in zip(data.lines, data, strict=True):
         if len(r) != len(header):
-            raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}")
+            hint = (
+                ""
+                if delimiter == ","
+                else f" (separator {delimiter!r}; check the format file's 'separator' and 'decimal')"
+            )
+            raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}{hint}")
     return header, data
 
 
