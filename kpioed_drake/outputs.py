@@ -123,6 +123,20 @@ def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | No
             raise InputError(f"{f}: is a file; expected a folder for the plots")
 
 
+def pyplot():
+    """matplotlib's ``pyplot`` with the Agg backend (pictures to files, no display).
+
+    The backend is selected on first use, before ``pyplot`` is imported, so that importing a
+    module that can draw stays cheap; every picture of the package goes through this function.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 class Outputs:
     """Files staged by a command and written together at the end.
 

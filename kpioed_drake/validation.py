@@ -27,7 +27,7 @@ from kpioed_drake.estimation import register_tracker
 from kpioed_drake.measurement import nominal_model, reflector_world
 from kpioed_drake.measurements import ROW_CONVENTION, Measurements
 from kpioed_drake.models import Robot, load_cell, load_robot
-from kpioed_drake.outputs import Outputs
+from kpioed_drake.outputs import Outputs, pyplot
 from kpioed_drake.plausibility import check_data
 
 
@@ -147,10 +147,7 @@ def validate(
 
 def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:
     """``validation_errors.png``: the 3-D error per pose (file row) and their histogram."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     e = result.errors_mm
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6))

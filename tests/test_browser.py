@@ -34,13 +34,13 @@ pytestmark = pytest.mark.skipif(
     reason="needs Chromium at /usr/bin/chromium (apt-get install chromium; .ci/run does)",
 )
 WIDTH, HEIGHT = 1024, 700
+ATTEMPTS = 3  # fresh Chromium starts (own profile) when one hangs
 OVERLAY_PX = 420  # the overlay box (title, key) is at most this wide, on the left
 
 
-def open_in_chromium(page: Path, tmp: Path) -> tuple[np.ndarray, list[str]]:
-    """Screenshot (HEIGHT, WIDTH, 3) in [0, 1] and the http(s)/ws(s) URLs the page requested."""
-    png, netlog = tmp / f"{page.stem}.png", tmp / f"{page.stem}-netlog.json"
-    cmd = [
+def _command(page: Path, png: Path, netlog: Path, profile: Path) -> list[str]:
+    """The headless Chromium command that screenshots ``page`` and logs its network requests."""
+    return [
         str(CHROMIUM),
         "--headless",
         "--no-sandbox",
@@ -54,14 +54,25 @@ def open_in_chromium(page: Path, tmp: Path) -> tuple[np.ndarray, list[str]]:
         "--disable-sync",
         "--proxy-server=http://127.0.0.1:9",
         "--proxy-bypass-list=<-loopback>",
-        f"--user-data-dir={tmp / 'profile'}",
+        f"--user-data-dir={profile}",
         f"--log-net-log={netlog}",
         f"--screenshot={png}",
         f"--window-size={WIDTH},{HEIGHT}",
         "--virtual-time-budget=8000",
         page.resolve().as_uri(),
     ]
-    subprocess.run(cmd, capture_output=True, timeout=180, check=False)
+
+
+def open_in_chromium(page: Path, tmp: Path) -> tuple[np.ndarray, list[str]]:
+    """Screenshot (HEIGHT, WIDTH, 3) in [0, 1] and the http(s)/ws(s) URLs the page requested."""
+    for attempt in range(ATTEMPTS):  # headless Chromium can hang on a loaded machine: start it afresh
+        png, netlog = tmp / f"{page.stem}-{attempt}.png", tmp / f"{page.stem}-{attempt}-netlog.json"
+        try:
+            subprocess.run(_command(page, png, netlog, tmp / f"profile-{page.stem}-{attempt}"),
+                           capture_output=True, timeout=45, check=False)  # fmt: skip
+            break
+        except subprocess.TimeoutExpired:
+            continue
     assert png.is_file(), "Chromium wrote no screenshot"
     log = json.loads(netlog.read_text())
     start = log["constants"]["logEventTypes"]["URL_REQUEST_START_JOB"]

@@ -16,15 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.outputs import pyplot
 
 
 def _figure(*args, **kwargs):
-    """``pyplot`` (Agg backend, selected on first use only) and a new figure with axes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """``pyplot`` (:func:`~kpioed_drake.outputs.pyplot`) and a new figure with axes."""
+    plt = pyplot()
     return plt, plt.subplots(*args, **kwargs)
 
 

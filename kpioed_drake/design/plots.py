@@ -15,6 +15,7 @@ import numpy as np
 
 from kpioed_drake.kinematics import flange_point, forward_kinematics
 from kpioed_drake.models import Cell, Robot
+from kpioed_drake.outputs import pyplot
 
 
 def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 20, n_cap: int = 6):
@@ -67,10 +68,7 @@ def plot_design_poses(
     Returns:
         the path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]

@@ -21,18 +21,9 @@ import scipy.stats
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.measurement import reflector_world
 from kpioed_drake.models import N_JOINTS
+from kpioed_drake.outputs import pyplot
 
 _BEFORE, _AFTER, _FIT = "tab:orange", "tab:blue", "black"
-
-
-def _pyplot():
-    """``pyplot`` with the Agg backend (selected on first use, so importing this module is cheap)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _save(plt, fig, path) -> Path:
@@ -67,7 +58,7 @@ def _score_title(report, name: str) -> str:
 
 def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     """Baseline residuals against every candidate variable (3 x 6 panels)."""
-    plt = _pyplot()
+    plt = pyplot()
     prob, base = report.details["prob"], report.details["base"]
     d = prob.data
     r = base.residuals
@@ -193,7 +184,7 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
 
 def plot_before_after(report: DiagnosisReport, path) -> Path:
     """Residuals before and after the extension against the variable that revealed each cause."""
-    plt = _pyplot()
+    plt = pyplot()
     prob, base, ext = report.details["prob"], report.details["base"], report.details["ext"]
     causes = ext.effects
     rows = max(len(causes), 1)

@@ -11,21 +11,12 @@ import numpy as np
 import pandas as pd
 
 from kpioed_drake.designio import read_design
+from kpioed_drake.outputs import pyplot
 from kpioed_drake.paper import TABLE8
 from kpioed_drake.problem import make_problem
 from kpioed_drake.study.tasks import Task
 
 CHI2_2D_95 = 5.991  # chi-square quantile, 2 degrees of freedom, 95 %
-
-
-def _plt():
-    # matplotlib's backend is chosen before pyplot is imported, only when a figure is drawn
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def ellipse_points(C2: np.ndarray, k2: float = CHI2_2D_95, m: int = 200) -> np.ndarray:
@@ -53,7 +44,7 @@ def figure7(out_path: Path, Cs_by_label: dict[str, np.ndarray], robot: str = "kr
         Cs_by_label: legend label -> Cs: (3, 3) [mm^2], the TCP covariance at q_work.
         robot: name in the title.
     """
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
     planes = (("x", "y", 0, 1), ("x", "z", 0, 2), ("y", "z", 1, 2))
     styles = ("-", "--", ":", "-.")
@@ -90,7 +81,7 @@ def figure8(out_path: Path, pr: pd.DataFrame) -> Path | None:
     nt = nt[np.isfinite(nt["kpi_ca"]) & np.isfinite(nt["param_ca"]) & np.isfinite(nt["heuristic"])]
     if nt.empty:
         return None
-    plt = _plt()
+    plt = pyplot()
     imp_h = 100.0 * (1.0 - nt["kpi_ca"] / nt["heuristic"])
     imp_p = 100.0 * (1.0 - nt["kpi_ca"] / nt["param_ca"])
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), gridspec_kw={"height_ratios": [3, 2]})
