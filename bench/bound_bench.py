@@ -33,7 +33,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from kpioed_drake.design import DEFAULT_START, certified_design, certify, optimize_design  # noqa: E402
-from kpioed_drake.designio import atomic_write_text  # noqa: E402
+from kpioed_drake.outputs import atomic_write_text  # noqa: E402
 from kpioed_drake.problem import make_problem  # noqa: E402
 from kpioed_drake.study.tasks import KUKA, QUICK_NOTIONAL  # noqa: E402
 

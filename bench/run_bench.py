@@ -42,9 +42,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
-from kpioed_drake.designio import atomic_write_text  # noqa: E402
 from kpioed_drake.measurement import N_FULL  # noqa: E402
 from kpioed_drake.models import N_JOINTS  # noqa: E402
+from kpioed_drake.outputs import atomic_write_text  # noqa: E402
 from kpioed_drake.problem import Problem, make_problem  # noqa: E402
 
 

@@ -17,12 +17,10 @@ import numpy as np
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.models import N_JOINTS, Robot
-from kpioed_drake.outputs import atomic_write_json, atomic_write_text
+from kpioed_drake.outputs import atomic_write_text
 
-__all__ = [  # the writers live in outputs; re-exported here for the readers' callers
+__all__ = [
     "Q_COLUMNS",
-    "atomic_write_json",
-    "atomic_write_text",
     "check_joint_angles",
     "design_csv_text",
     "jsonable",

@@ -32,7 +32,7 @@ import numpy as np
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
-from kpioed_drake.designio import atomic_write_json
+from kpioed_drake.outputs import atomic_write_json
 
 DETECTABLE = 25.0
 

@@ -14,7 +14,7 @@ import argparse
 import time
 from pathlib import Path
 
-from kpioed_drake import designio
+from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.study import run_tasks
 from kpioed_drake.study.sensitivity import sensitivity_markdown, sensitivity_table, sensitivity_tasks
 from kpioed_drake.study.variants import SENSITIVITY_VARIANTS
@@ -37,8 +37,8 @@ def main() -> None:
         done, n_run, n_skip = run_tasks(tasks, out / "run", jobs=args.jobs, progress=False)
         rows += done
         table = sensitivity_table(rows)
-        designio.atomic_write_text(out / "sensitivity.csv", table.to_csv(index=False, float_format="%.6g"))
-        designio.atomic_write_text(out / "sensitivity.md", sensitivity_markdown(table))
+        atomic_write_text(out / "sensitivity.csv", table.to_csv(index=False, float_format="%.6g"))
+        atomic_write_text(out / "sensitivity.md", sensitivity_markdown(table))
         print(f"{name}: {n_run} run, {n_skip} resumed, {time.perf_counter() - t0:.0f} s", flush=True)
 
 

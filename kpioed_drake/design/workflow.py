@@ -26,7 +26,7 @@ from kpioed_drake.design.result import DesignError, DesignResult, json_record
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError
 from kpioed_drake.models import Robot, load_robot
-from kpioed_drake.outputs import Outputs
+from kpioed_drake.outputs import Outputs, atomic_write_json
 from kpioed_drake.problem import make_problem
 from kpioed_drake.scene3d import design_page
 
@@ -171,7 +171,7 @@ def run_design(
             res = design_for_target(problem, target_var_mm2, given=q_given, **common)
     except DesignError as exc:
         if json_path is not None and exc.result is not None:
-            designio.atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
+            atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
         raise
     if certify:
         res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed)

@@ -21,10 +21,10 @@ import numpy as np
 import scipy.stats
 from pydrake.geometry import Rgba
 
-from kpioed_drake.designio import atomic_write_text
 from kpioed_drake.feasibility import FeasibilityChecker, PoseReport
 from kpioed_drake.measurement import TrackerModel, reflector_world
 from kpioed_drake.models import Cell, Robot
+from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.plant import build_scene
 from kpioed_drake.scene3d.canvas import (
     BEAM,
@@ -63,7 +63,7 @@ STEP_NOTE = "Step through the poses: Open Controls > Animations > play, or drag 
 
 
 def write_page(path: str | Path, page: str) -> Path:
-    """Write a page atomically (:func:`kpioed_drake.designio.atomic_write_text`); returns the path."""
+    """Write a page atomically (:func:`kpioed_drake.outputs.atomic_write_text`); returns the path."""
     atomic_write_text(path, page)
     return Path(path)
 

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from kpioed_drake import designio
 from kpioed_drake.arguments import check_count, check_seed, require
 from kpioed_drake.errors import InputError, SolverError
 from kpioed_drake.models import list_robots, load_robot
+from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.paper import PAPER
 from kpioed_drake.parameters import parameter_layout
 from kpioed_drake.study.plots import make_figures
@@ -116,16 +116,16 @@ def write_outputs(
     out_dir = Path(out_dir)
     df = results_frame(rows)
     t6, t7, t8, pr = make_tables(df)
-    designio.atomic_write_text(out_dir / "results.csv", df.to_csv(index=False, float_format="%.6g"))
-    designio.atomic_write_text(out_dir / "per_robot.csv", pr.to_csv(float_format="%.6g"))
-    designio.atomic_write_text(out_dir / "table6.csv", t6.to_csv(float_format="%.6g"))
-    designio.atomic_write_text(out_dir / "table7.csv", t7.to_csv(float_format="%.6g"))
-    designio.atomic_write_text(out_dir / "table8.csv", t8.to_csv(float_format="%.6g"))
+    atomic_write_text(out_dir / "results.csv", df.to_csv(index=False, float_format="%.6g"))
+    atomic_write_text(out_dir / "per_robot.csv", pr.to_csv(float_format="%.6g"))
+    atomic_write_text(out_dir / "table6.csv", t6.to_csv(float_format="%.6g"))
+    atomic_write_text(out_dir / "table7.csv", t7.to_csv(float_format="%.6g"))
+    atomic_write_text(out_dir / "table8.csv", t8.to_csv(float_format="%.6g"))
     report = make_report(df, t6, t7, t8, pr, wall_s=wall_s, title=title)
     figs = make_figures(out_dir, df, pr) if figures else []
     if figs:
         report += "\n## Figures\n\n" + "\n".join(f"![{p.stem}]({p.name})" for p in figs) + "\n"
-    designio.atomic_write_text(out_dir / "report.md", report)
+    atomic_write_text(out_dir / "report.md", report)
     return df, t6, t7, t8, report, figs
 
 

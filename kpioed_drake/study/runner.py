@@ -21,6 +21,7 @@ from tqdm.auto import tqdm
 
 from kpioed_drake import designio
 from kpioed_drake.errors import InputError
+from kpioed_drake.outputs import atomic_write_json
 from kpioed_drake.study.tasks import Task, run_task
 
 OnDone = Callable[[Task, dict], None]
@@ -52,7 +53,7 @@ def _save(out_dir: Path, task: Task, row: dict) -> None:
     """Write the design (if any) and then the row, each atomically."""
     if not row.get("error"):
         designio.write_design(out_dir / "designs" / task.design_name, np.deg2rad(np.asarray(row["q_deg"])))
-    designio.atomic_write_json(_task_path(out_dir, task), row)
+    atomic_write_json(_task_path(out_dir, task), row)
 
 
 def _execute_dask(todo: list[Task], scheduler, design_api, on_done: OnDone) -> None:
