@@ -51,7 +51,7 @@ def check_positive(name: str, value, *, allow_none: bool = False, zero_ok: bool 
 
 def robot_file(robot: str) -> str | None:
     """The robot's file when the user named one (an input that no output may overwrite)."""
-    return str(robot_path(robot)) if Path(str(robot)).suffix in (".yaml", ".yml") else None
+    return str(robot_path(robot)) if Path(str(robot)).suffix in (".yaml", ".yml", ".urdf") else None
 
 
 def check_paths(*, robot: str, inputs=(), outputs=(), folders=(), plot=None, html=None) -> None:

@@ -26,6 +26,9 @@ __all__ = [
     "jsonable",
     "parse_float_column",
     "parse_q_work",
+    "q_columns",
+    "q_from_file",
+    "q_to_file",
     "read_csv_table",
     "read_design",
     "row_numbers",
@@ -33,6 +36,31 @@ __all__ = [
 ]
 
 Q_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
+"""Joint columns of the six-joint (revolute) robots."""
+
+
+def q_columns(robot: Robot | None) -> tuple[str, ...]:
+    """Joint columns of a robot's files: ``q{i}_deg`` (revolute, degrees) or ``q{i}_mm`` (prismatic,
+    millimetres), one per joint; :data:`Q_COLUMNS` for None."""
+    if robot is None:
+        return Q_COLUMNS
+    return tuple(f"q{i}_{'mm' if p else 'deg'}" for i, p in enumerate(robot.prismatic, start=1))
+
+
+def q_from_file(robot: Robot | None, values) -> np.ndarray:
+    """Joint values in file units (deg; prismatic mm) -> internal units (rad; mm)."""
+    values = np.asarray(values, dtype=float)
+    if robot is None:
+        return np.deg2rad(values)
+    return np.where(robot.prismatic, values, np.deg2rad(values))
+
+
+def q_to_file(robot: Robot | None, q) -> np.ndarray:
+    """Joint values in internal units (rad; prismatic mm) -> file units (deg; mm)."""
+    q = np.asarray(q, dtype=float)
+    if robot is None:
+        return np.rad2deg(q)
+    return np.where(robot.prismatic, q, np.rad2deg(q))
 
 
 def jsonable(obj):
@@ -159,21 +187,23 @@ def check_joint_angles(path, q_deg: np.ndarray, robot: Robot, *, rows=None) -> N
         rows: file line numbers of the rows (default 2, 3, ...).
     """
     rows = list(range(2, len(q_deg) + 2)) if rows is None else list(rows)
-    lo, up = np.rad2deg(robot.lower), np.rad2deg(robot.upper)
+    lo, up = q_to_file(robot, robot.lower), q_to_file(robot, robot.upper)
+    cols = q_columns(robot)
+    rev = np.asarray(q_deg)[:, ~robot.prismatic]
     # Joints 4 and 6 range over +-350 deg, i.e. up to 6.1 rad: a table entirely within +-2 pi
     # (with some spread, more than three poses) is taken for radians.
-    if len(q_deg) > 3 and np.ptp(q_deg) > 0 and np.all(np.abs(q_deg) <= 2.0 * np.pi + 1e-9):
+    if len(q_deg) > 3 and np.ptp(rev) > 0 and np.all(np.abs(rev) <= 2.0 * np.pi + 1e-9):
         raise InputError(
             f"{path}: every joint value is within +-2 pi: the angles look like radians; "
             "columns q*_deg must hold degrees"
         )
     tol = 1e-6
     for k, row in zip(rows, q_deg, strict=True):
-        for j in range(N_JOINTS):
+        for j in range(robot.n_joints):
             if not lo[j] - tol <= row[j] <= up[j] + tol:
                 raise InputError(
-                    f"{path}: row {k}, column {Q_COLUMNS[j]!r}: {row[j]:g} deg is outside "
-                    f"the joint range [{lo[j]:g}, {up[j]:g}] of {robot.name}"
+                    f"{path}: row {k}, column {cols[j]!r}: {row[j]:g} {cols[j][-3:].strip('_')} is "
+                    f"outside the joint range [{lo[j]:g}, {up[j]:g}] of {robot.name}"
                 )
 
 
@@ -181,24 +211,28 @@ def read_design(path: str | Path, robot: Robot, *, check_limits: bool = True) ->
     """Read a design CSV.
 
     Returns:
-        q: (n, 6) joint angles [rad].
+        q: (n, n_joints) joint values [rad; mm for prismatic joints].
 
     Raises:
         InputError: missing file or column, text or NaN in a cell, angles outside the limits.
     """
-    header, data = read_csv_table(path, Q_COLUMNS)
+    qcols = q_columns(robot)
+    header, data = read_csv_table(path, qcols)
     if not data:
         raise InputError(f"{path}: no poses (the file has only a header)")
-    q_deg = np.stack([parse_float_column(path, header, data, c) for c in Q_COLUMNS], axis=1)
+    q_deg = np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1)
     if check_limits:
         check_joint_angles(path, q_deg, robot, rows=row_numbers(data))
-    return np.deg2rad(q_deg)
+    return q_from_file(robot, q_deg)
 
 
-def design_csv_text(q: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> str:
-    """CSV text of (n, 6) poses [rad] in degrees, with optional extra columns."""
-    q_deg = np.rad2deg(np.atleast_2d(q))
-    cols = list(Q_COLUMNS) + list(extra or {})
+def design_csv_text(
+    q: np.ndarray, extra: dict[str, np.ndarray] | None = None, *, robot: Robot | None = None
+) -> str:
+    """CSV text of (n, n_joints) poses [rad] in degrees (prismatic joints in mm; ``robot`` None:
+    six revolute joints), with optional extra columns."""
+    q_deg = q_to_file(robot, np.atleast_2d(q))
+    cols = list(q_columns(robot)) + list(extra or {})
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
@@ -211,23 +245,26 @@ def design_csv_text(q: np.ndarray, extra: dict[str, np.ndarray] | None = None) -
     return buf.getvalue()
 
 
-def write_design(path: str | Path, q: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> None:
-    """Write (n, 6) poses [rad] as a design CSV in degrees, atomically."""
-    atomic_write_text(path, design_csv_text(q, extra))
+def write_design(
+    path: str | Path, q: np.ndarray, extra: dict[str, np.ndarray] | None = None, *, robot: Robot | None = None
+) -> None:
+    """Write (n, n_joints) poses [rad] as a design CSV in degrees (prismatic mm), atomically."""
+    atomic_write_text(path, design_csv_text(q, extra, robot=robot))
 
 
 def parse_q_work(text: str, robot: Robot) -> np.ndarray:
-    """``--q-work q1,...,q6`` in degrees -> (6,) [rad], checked against the joint limits."""
+    """``--q-work q1,...,qn`` in degrees (prismatic mm) -> (n,) [rad, mm], checked against the limits."""
+    nj = robot.n_joints
     try:
         vals = np.array([float(x) for x in text.split(",")])
     except ValueError:
-        raise InputError(f"--q-work: expected 6 comma-separated numbers in degrees, got {text!r}") from None
-    if vals.shape != (N_JOINTS,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"--q-work: expected 6 finite comma-separated numbers in degrees, got {text!r}")
-    lo, up = np.rad2deg(robot.lower), np.rad2deg(robot.upper)
-    for j in range(N_JOINTS):
+        raise InputError(f"--q-work: expected {nj} comma-separated numbers (degrees), got {text!r}") from None
+    if vals.shape != (nj,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"--q-work: expected {nj} finite comma-separated numbers in degrees, got {text!r}")
+    lo, up = q_to_file(robot, robot.lower), q_to_file(robot, robot.upper)
+    for j in range(nj):
         if not lo[j] <= vals[j] <= up[j]:
             raise InputError(
                 f"--q-work: joint {j + 1} = {vals[j]:g} deg is outside [{lo[j]:g}, {up[j]:g}] of {robot.name}"
             )
-    return np.deg2rad(vals)
+    return q_from_file(robot, vals)

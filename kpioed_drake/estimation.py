@@ -33,7 +33,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, reflector_world
 from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.models import Robot
 from kpioed_drake.parameters import ParameterLayout
 
 
@@ -287,12 +287,12 @@ def _step(model: TrackerModel, effects, dx: np.ndarray):
     return model.with_params(p), out
 
 
-def _check_inputs(q, eta, sigma, mask, weights, n_params):
+def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
     q = np.atleast_2d(np.asarray(q, dtype=float))
     eta = np.atleast_2d(np.asarray(eta, dtype=float))
     n = q.shape[0]
-    if q.shape != (n, N_JOINTS) or eta.shape != (n, 3):
-        raise InputError(f"estimate: expected q (n, 6) and eta (n, 3), got {q.shape} and {eta.shape}")
+    if q.shape != (n, nj) or eta.shape != (n, 3):
+        raise InputError(f"estimate: expected q (n, {nj}) and eta (n, 3), got {q.shape} and {eta.shape}")
     if not (np.isfinite(sigma) and sigma > 0):
         raise InputError(f"estimate: sigma must be a positive number of millimetres, got {sigma!r}")
     mask = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
@@ -354,7 +354,7 @@ def estimate(
     conditions = Conditions() if conditions is None else conditions
     free = model.layout.free
     n_params = free.size + sum(e.n_params for e in effects)
-    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params)
+    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params, model.robot.n_joints)
     m = int(np.count_nonzero(mask))
     prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
     if register:

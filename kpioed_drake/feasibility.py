@@ -21,7 +21,7 @@ import numpy as np
 from kpioed_drake.geometry import segment_distance
 from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics
 from kpioed_drake.measurement import incidence_cosine, nominal_model
-from kpioed_drake.models import N_JOINTS, Cell, Robot
+from kpioed_drake.models import Cell, Robot
 from kpioed_drake.plant import MM, Scene, build_scene
 
 TOL_MM = 1e-3
@@ -106,7 +106,7 @@ class FeasibilityChecker:
         q = np.asarray(q, dtype=float)
         fails = []
         qd, lo, up = np.rad2deg(q), np.rad2deg(self.robot.lower), np.rad2deg(self.robot.upper)
-        for j in range(N_JOINTS):
+        for j in range(self.robot.n_joints):
             if qd[j] < lo[j] - self.tol_deg or qd[j] > up[j] + self.tol_deg:
                 lim = lo[j] if qd[j] < lo[j] else up[j]
                 fails.append(

@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.kinematics import Frames, cross, forward_kinematics
-from kpioed_drake.models import N_JOINTS, Cell, Robot
+from kpioed_drake.models import Cell, Robot
 
 _EPS = 1e-12
 
@@ -123,7 +123,7 @@ class ClearanceModel:
                         names.append(f"{ci.name} vs {cj.name}")
                         kinds.append("self")
         if beam:
-            beam_side = (6, np.asarray(cell.p_FQ, float), 0, np.asarray(cell.p_WT, float))
+            beam_side = (robot.n_joints, np.asarray(cell.p_FQ, float), 0, np.asarray(cell.p_WT, float))
             for c in caps:
                 if c.frame in robot.beam_links:
                     segs.append(beam_side + self._cap(c) + (c.radius + cell.beam_radius,))
@@ -184,15 +184,15 @@ class ClearanceModel:
         """Clearances and their joint-angle Jacobian.
 
         Args:
-            q: (n, 6) joint angles [rad] (ignored when ``frames`` is given).
-            geometry: (6, 4) kinematic parameters (default: the robot's nominal ones).
+            q: (n, nj) joint angles [rad] (ignored when ``frames`` is given).
+            geometry: (nj, P) kinematic parameters (default: the robot's nominal ones).
             frames: forward kinematics of ``q``, if already computed.
             rows: (n, k) row indices: the Jacobian is computed for these rows of each pose only
                 (default: every row).
 
         Returns:
             values: (n, m) clearances [mm] (>= 0 is free), every row;
-            jac: (n, m, 6), or (n, k, 6) for ``rows``: derivative of the (selected) rows w.r.t.
+            jac: (n, m, nj), or (n, k, nj) for ``rows``: derivative of the (selected) rows w.r.t.
             the pose's own joint angles [mm/rad].
         """
         ev = self.compute(q, geometry=geometry, frames=frames)
@@ -205,10 +205,10 @@ class ClearanceModel:
         return ClearanceEval(*self._rows(q, geometry, frames))
 
     def jacobian(self, ev: ClearanceEval, rows: np.ndarray | None = None) -> np.ndarray:
-        """Jacobian (n, m, 6) of every row, or (n, k, 6) of the rows ``rows`` (n, k) [mm/rad]."""
+        """Jacobian (n, m, nj) of every row, or (n, k, nj) of the rows ``rows`` (n, k) [mm/rad]."""
         n = ev.values.shape[0]
         if ev.values.shape[1] == 0:
-            return np.zeros((n, 0, 6))
+            return np.zeros((n, 0, self.robot.n_joints))
         E, W, N, F = ev.E, ev.W, ev.N, self._frames
         if rows is not None:
             rows = np.asarray(rows, dtype=int)
@@ -256,14 +256,19 @@ class ClearanceModel:
 
     @staticmethod
     def _jacobian(frames: Frames, E, W, N, F) -> np.ndarray:
-        """``sum_k W_k [j < F_k] N . (w_j x (E_k - o_j))`` = ``sum_k W_k [j < F_k] (E_k - o_j) . (N x w_j)``.
+        """``sum_k W_k [j < F_k] N . (w_j x (E_k - o_j))`` = ``sum_k W_k [j < F_k] (E_k - o_j) . (N x w_j)``;
+        a prismatic joint j moves every point by ``w_j``: ``sum_k W_k [j < F_k] N . w_j``.
 
-        Shapes: E (n, k, 4, 3), W (n, k, 4), N (n, k, 3), F (k, 4) or (n, k, 4); returns (n, k, 6).
+        Shapes: E (n, k, 4, 3), W (n, k, 4), N (n, k, 3), F (k, 4) or (n, k, 4); returns (n, k, nj).
         """
-        w, o = frames.joint_axes, frames.joint_points  # (n, 6, 3)
-        T = cross(N[:, :, None, :], w[:, None, :, :])  # (n, k, 6, 3)
-        moves = np.arange(1, N_JOINTS + 1) <= np.asarray(F)[..., None]  # (.., k, 4, 6)
-        WM = W[..., None] * moves  # (n, k, 4, 6)
-        ET = np.einsum("nkpi,nkji->nkpj", E, T)  # (n, k, 4, 6)
-        oT = np.einsum("nji,nkji->nkj", o, T)  # (n, k, 6)
-        return np.einsum("nkpj,nkpj->nkj", WM, ET) - WM.sum(axis=2) * oT
+        w, o = frames.joint_axes, frames.joint_points  # (n, nj, 3)
+        T = cross(N[:, :, None, :], w[:, None, :, :])  # (n, k, nj, 3)
+        moves = np.arange(1, frames.n_joints + 1) <= np.asarray(F)[..., None]  # (.., k, 4, nj)
+        WM = W[..., None] * moves  # (n, k, 4, nj)
+        ET = np.einsum("nkpi,nkji->nkpj", E, T)  # (n, k, 4, nj)
+        oT = np.einsum("nji,nkji->nkj", o, T)  # (n, k, nj)
+        rev = np.einsum("nkpj,nkpj->nkj", WM, ET) - WM.sum(axis=2) * oT
+        if not frames.prismatic.any():
+            return rev
+        Nw = np.einsum("nki,nji->nkj", N, w)  # (n, k, nj)
+        return np.where(frames.prismatic, WM.sum(axis=2) * Nw, rev)

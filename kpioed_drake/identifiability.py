@@ -73,7 +73,7 @@ def check_identifiability(
     """
     model = nominal_model(robot, cell)
     rng = np.random.default_rng(seed)
-    q = rng.uniform(robot.lower, robot.upper, size=(n_poses, 6))
+    q = rng.uniform(robot.lower, robot.upper, size=(n_poses, robot.n_joints))
     _, H = measurement_jacobian(model, q)
     cols = np.arange(H.shape[2]) if all_params else model.layout.free
     F = H[:, :, cols].reshape(3 * n_poses, -1)

@@ -11,10 +11,17 @@ every kinematic parameter, in closed form: a rotation element with unit axis ``u
 derivative of those columns with respect to the joint angles (needed for design gradients) is
 closed form too: with ``w_j = z_{j-1}`` the axis of joint j through ``o_{j-1}``,
 
-- for an element of transform i and j <= i: ``d(col)/dq_j = w_j x col`` (the whole element turns);
-- for j > i: rotation element ``u x (w_j x (p_WP - o_{j-1}))``, translation element 0.
+- for an element moved by joint j (of transform i and j <= i): ``d(col)/dq_j = w_j x col`` (the
+  whole element turns);
+- otherwise: rotation element ``u x (w_j x (p_WP - o_{j-1}))``, translation element 0.
 
-Units: millimetres and radians. Shapes: ``q`` is ``(n, 6)``; outputs carry the pose axis first.
+A prismatic joint j (chain robots, :mod:`kpioed_drake.chain`) moves downstream points by ``w_j``:
+columns of elements it moves do not change, rotation columns of upstream elements change by
+``u x w_j``, translation columns by 0. The same closed forms serve the chain robots, whose frames
+and elements :func:`forward_kinematics` takes from :func:`kpioed_drake.chain.chain_frames`.
+
+Units: millimetres and radians (prismatic joints: millimetres). Shapes: ``q`` is
+``(n, n_joints)``; outputs carry the pose axis first.
 """
 
 from __future__ import annotations
@@ -23,8 +30,8 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.models import N_JOINTS, Robot
-from kpioed_drake.parameters import PER_JOINT
+from kpioed_drake.chain import chain_frames
+from kpioed_drake.models import Robot
 
 
 def cross(a, b) -> np.ndarray:
@@ -62,15 +69,19 @@ def _rot_y(c, s):
 
 @dataclasses.dataclass
 class Frames:
-    """Link frames and identification elements for n poses.
+    """Link frames and identification elements for n poses of a robot of nj joints, P parameters each.
 
     Attributes:
-        R: (n, 7, 3, 3) orientation of frames 0..6 in W (frame 0 = W).
-        o: (n, 7, 3) origins of frames 0..6 in W [mm].
-        elem_u: (n, 6, 4, 3) unit direction of each parameter element (joint-major, the joint's
+        R: (n, nj + 1, 3, 3) orientation of frames 0..nj in W (frame 0 = W, frame nj = flange).
+        o: (n, nj + 1, 3) origins of frames 0..nj in W [mm].
+        elem_u: (n, nj, P, 3) unit direction of each parameter element (joint-major, the joint's
             own parameter order).
-        elem_o: (n, 6, 4, 3) point on the axis of rotation elements [mm] (unused for translations).
-        elem_rot: (6, 4) True for rotation elements, False for translation elements.
+        elem_o: (n, nj, P, 3) point on the axis of rotation elements [mm] (unused for translations).
+        elem_rot: (nj, P) True for rotation elements, False for translation elements.
+        joint_axes: (n, nj, 3) axis w_j of joint j in W (DH: z of frame j-1).
+        joint_points: (n, nj, 3) a point on the axis of joint j [mm] (DH: origin of frame j-1).
+        prismatic: (nj,) True for prismatic joints.
+        moved_by: (nj, P) joints 1..moved_by move the element (DH: every element of row i, i).
     """
 
     R: np.ndarray
@@ -78,24 +89,31 @@ class Frames:
     elem_u: np.ndarray
     elem_o: np.ndarray
     elem_rot: np.ndarray
+    joint_axes: np.ndarray
+    joint_points: np.ndarray
+    prismatic: np.ndarray
+    moved_by: np.ndarray
 
     @property
-    def joint_axes(self) -> np.ndarray:
-        """(n, 6, 3) axis of joint j (= z of frame j-1)."""
-        return self.R[:, :N_JOINTS, :, 2]
+    def n_joints(self) -> int:
+        return int(self.prismatic.size)
 
-    @property
-    def joint_points(self) -> np.ndarray:
-        """(n, 6, 3) a point on the axis of joint j (= origin of frame j-1) [mm]."""
-        return self.o[:, :N_JOINTS]
+    def joint_motion(self, p_W: np.ndarray) -> np.ndarray:
+        """(n, ..., nj, 3) ``dp/dq_j`` of world points ``p_W`` (n, ..., 3) moved by every joint:
+        ``w_j x (p - o_j)`` (revolute) or ``w_j`` (prismatic) [mm/rad, mm/mm]."""
+        extra = p_W.ndim - 2
+        w = self.joint_axes.reshape(self.joint_axes.shape[:1] + (1,) * extra + self.joint_axes.shape[1:])
+        ow = self.joint_points.reshape(w.shape)
+        rev = cross(w, p_W[..., None, :] - ow)
+        return np.where(self.prismatic[:, None], np.broadcast_to(w, rev.shape), rev)
 
 
-def _as_poses(q) -> np.ndarray:
+def _as_poses(q, n_joints: int) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.ndim == 1:
         q = q[None, :]
-    if q.shape[-1] != N_JOINTS:
-        raise ValueError(f"q must have shape (n, 6), got {q.shape}")
+    if q.shape[-1] != n_joints:
+        raise ValueError(f"q must have shape (n, {n_joints}), got {q.shape}")
     return q
 
 
@@ -104,20 +122,27 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
 
     Args:
         robot: the robot (its conventions; its nominal geometry unless ``geometry`` is given).
-        q: (n, 6) or (6,) joint angles [rad].
-        geometry: (6, 4) kinematic parameters in the robot's storage order [rad, mm]; defaults to
+        q: (n, nj) or (nj,) joint angles [rad] (prismatic joints [mm]).
+        geometry: (nj, P) kinematic parameters in the robot's storage order [rad, mm]; defaults to
             ``robot.geometry``.
     """
-    q = _as_poses(q)
+    nj = robot.n_joints
+    q = _as_poses(q, nj)
     g = robot.geometry if geometry is None else np.asarray(geometry, dtype=float)
+    if robot.chain is not None:
+        c = chain_frames(robot.chain, q, g)
+        return Frames(
+            c.R, c.o, c.elem_u, c.elem_o, c.elem_rot, c.axes, c.points, robot.chain.prismatic, c.moved_by
+        )
     n = q.shape[0]
-    R = np.empty((n, N_JOINTS + 1, 3, 3))
-    o = np.empty((n, N_JOINTS + 1, 3))
+    R = np.empty((n, nj + 1, 3, 3))
+    o = np.empty((n, nj + 1, 3))
     R[:, 0] = np.eye(3)
     o[:, 0] = 0.0
-    eu = np.empty((n, N_JOINTS, PER_JOINT, 3))
-    eo = np.empty((n, N_JOINTS, PER_JOINT, 3))
-    erot = np.zeros((N_JOINTS, PER_JOINT), dtype=bool)
+    P = robot.per_joint
+    eu = np.empty((n, nj, P, 3))
+    eo = np.empty((n, nj, P, 3))
+    erot = np.zeros((nj, P), dtype=bool)
     for i, conv in enumerate(robot.conventions):
         Rp, op = R[:, i], o[:, i]
         ang = g[i, 0] + q[:, i]
@@ -148,7 +173,8 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
             erot[i] = (True, False, True, True)
         R[:, i + 1] = Ri
         o[:, i + 1] = oi
-    return Frames(R=R, o=o, elem_u=eu, elem_o=eo, elem_rot=erot)
+    moved = np.tile(np.arange(1, nj + 1)[:, None], (1, P))
+    return Frames(R, o, eu, eo, erot, R[:, :nj, :, 2], o[:, :nj], np.zeros(nj, dtype=bool), moved)
 
 
 def flange_point(frames: Frames, p_FP) -> np.ndarray:
@@ -157,57 +183,58 @@ def flange_point(frames: Frames, p_FP) -> np.ndarray:
     ``p_FP`` is (3,) or (n, 3).
     """
     p_FP = np.asarray(p_FP, dtype=float)
-    return frames.o[:, N_JOINTS] + np.einsum("nij,...j->ni", frames.R[:, N_JOINTS], p_FP)
+    nj = frames.n_joints
+    return frames.o[:, nj] + np.einsum("nij,...j->ni", frames.R[:, nj], p_FP)
 
 
 def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     """Jacobian of a flange-fixed point w.r.t. the joint parameters and its flange coordinates.
 
     Args:
-        frames: result of :func:`forward_kinematics` for n poses.
+        frames: result of :func:`forward_kinematics` for n poses (nj joints, P parameters each).
         p_FP: (3,) point in the flange frame [mm] (e.g. the reflector).
-        with_dq: also return the derivative of the Jacobian w.r.t. the joint angles.
+        with_dq: also return the derivative of the Jacobian w.r.t. the joint variables.
 
     Returns:
         p_WP: (n, 3) [mm].
-        J: (n, 3, g + 3) with ``g = 6 * PER_JOINT`` (24): columns ``0..g-1`` the joint parameters in
-            storage order (the joint rows of :mod:`kpioed_drake.parameters`) [mm/rad or mm/mm],
-            columns ``g..g+2`` the flange coordinates of the point [mm/mm].
-        dJ (only with ``with_dq``): (n, 6, 3, g + 3), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
+        J: (n, 3, g + 3) with ``g = nj * P`` (24 for the six-joint tables): columns ``0..g-1`` the
+            joint parameters in storage order (the joint rows of :mod:`kpioed_drake.parameters`)
+            [mm/rad or mm/mm], columns ``g..g+2`` the flange coordinates of the point [mm/mm].
+        dJ (only with ``with_dq``): (n, nj, 3, g + 3), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
     """
     p = flange_point(frames, p_FP)  # (n,3)
-    u, o = frames.elem_u, frames.elem_o  # (n,6,4,3)
-    rot = frames.elem_rot  # (6,4)
+    u, o = frames.elem_u, frames.elem_o  # (n,nj,P,3)
+    rot = frames.elem_rot  # (nj,P)
+    nj, P = rot.shape
     col_rot = cross(u, p[:, None, None, :] - o)
-    cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,6,4,3)
+    cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,nj,P,3)
     n = p.shape[0]
-    g = N_JOINTS * PER_JOINT
+    g = nj * P
     J = np.empty((n, 3, g + 3))
     J[:, :, :g] = cols.reshape(n, g, 3).transpose(0, 2, 1)
-    RF = frames.R[:, N_JOINTS]
+    RF = frames.R[:, nj]
     J[:, :, g:] = RF
     if not with_dq:
         return p, J
-    w = frames.joint_axes  # (n,6,3)
-    ow = frames.joint_points
-    dP = cross(w, p[:, None, :] - ow)  # (n,6,3): dp/dq_j
-    dJ = np.zeros((n, N_JOINTS, 3, g + 3))
-    # element of transform i, joint j <= i: w_j x col
-    full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,4,3)
-    # element of transform i, joint j > i: rotation: u x dP_j; translation: 0
-    part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,4,3)
+    w = frames.joint_axes  # (n,nj,3)
+    pris = frames.prismatic[None, :, None, None, None]
+    dP = frames.joint_motion(p)  # (n,nj,3): dp/dq_j
+    dJ = np.zeros((n, nj, 3, g + 3))
+    # element moved by joint j: revolute w_j x col, prismatic 0
+    full = np.where(pris, 0.0, cross(w[:, :, None, None, :], cols[:, None, :, :, :]))  # (n,j,i,P,3)
+    # element upstream of joint j: rotation: u x dP_j; translation: 0
+    part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,P,3)
     part = np.where(rot[None, None, :, :, None], part, 0.0)
-    jj = np.arange(N_JOINTS)[:, None]
-    ii = np.arange(N_JOINTS)[None, :]
-    mask = (jj <= ii)[None, :, :, None, None]
-    d = np.where(mask, full, part)  # (n,j,i,4,3)
-    dJ[:, :, :, :g] = d.reshape(n, N_JOINTS, g, 3).transpose(0, 1, 3, 2)
-    dJ[:, :, :, g:] = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
+    mask = np.arange(nj)[:, None, None] < frames.moved_by[None, :, :]  # (j,i,P)
+    d = np.where(mask[None, :, :, :, None], full, part)  # (n,j,i,P,3)
+    dJ[:, :, :, :g] = d.reshape(n, nj, g, 3).transpose(0, 1, 3, 2)
+    dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
+    dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF)
     return p, J, dJ
 
 
 def point_velocity_jacobian(frames: Frames, p_W: np.ndarray, link: np.ndarray) -> np.ndarray:
-    """Derivative of world points attached to links w.r.t. the joint angles.
+    """Derivative of world points attached to links w.r.t. the joint variables.
 
     Args:
         frames: frames for n poses.
@@ -215,10 +242,8 @@ def point_velocity_jacobian(frames: Frames, p_W: np.ndarray, link: np.ndarray) -
         link: (m,) index of the frame each point is attached to (-1 or 0 = fixed).
 
     Returns:
-        (n, m, 6, 3): ``dp_W[k, i] / dq_j`` [mm/rad].
+        (n, m, nj, 3): ``dp_W[k, i] / dq_j`` [mm/rad, mm/mm for prismatic joints].
     """
-    w = frames.joint_axes  # (n,6,3)
-    ow = frames.joint_points
-    d = cross(w[:, None, :, :], p_W[:, :, None, :] - ow[:, None, :, :])  # (n,m,6,3)
-    active = np.arange(1, N_JOINTS + 1)[None, :] <= np.asarray(link)[:, None]  # (m,6)
+    d = frames.joint_motion(p_W)  # (n,m,nj,3)
+    active = np.arange(1, frames.n_joints + 1)[None, :] <= np.asarray(link)[:, None]  # (m,nj)
     return d * active[None, :, :, None]

@@ -21,7 +21,7 @@ from kpioed_drake.kinematics import (
     point_jacobian,
     point_velocity_jacobian,
 )
-from kpioed_drake.models import N_JOINTS, Cell, Robot
+from kpioed_drake.models import Cell, Robot
 from kpioed_drake.parameters import (  # noqa: F401  (re-exported: the layout's historical home)
     FIXED_NAMES,
     N_FULL,
@@ -202,7 +202,7 @@ def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None) ->
     p = flange_point(frames, model.p_FQ)
     g = model.p_WT - p
     g /= np.linalg.norm(g, axis=1, keepdims=True)
-    return np.einsum("ni,ni->n", frames.R[:, N_JOINTS, :, 2], g)
+    return np.einsum("ni,ni->n", frames.R[:, frames.n_joints, :, 2], g)
 
 
 def kpi_jacobian(model: TrackerModel, q_work, tool_offset=(0.0, 0.0, 0.0)):

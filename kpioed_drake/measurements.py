@@ -25,11 +25,14 @@ from kpioed_drake.designio import (
     Q_COLUMNS,
     check_joint_angles,
     parse_float_column,
+    q_columns,
+    q_from_file,
+    q_to_file,
     read_csv_table,
     row_numbers,
 )
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.models import Robot
 from kpioed_drake.parameters import parameter_layout
 
 XYZ_COLUMNS = ("x_mm", "y_mm", "z_mm")
@@ -126,17 +129,18 @@ class Measurements:
         Raises:
             InputError: a missing column, a non-finite value, angles outside the robot's limits.
         """
-        for c in REQUIRED_COLUMNS:
+        qcols = q_columns(robot)
+        for c in qcols + XYZ_COLUMNS:
             if c not in table:
                 raise InputError(f"{source}: missing column {c!r} (SPEC measurement format)")
-        q_deg = np.column_stack([np.asarray(table[c], dtype=float) for c in Q_COLUMNS])
+        q_deg = np.column_stack([np.asarray(table[c], dtype=float) for c in qcols])
         eta = np.column_stack([np.asarray(table[c], dtype=float) for c in XYZ_COLUMNS])
         if not (np.all(np.isfinite(q_deg)) and np.all(np.isfinite(eta))):
             raise InputError(f"{source}: non-finite joint angle or position")
         if robot is not None:
             check_joint_angles(source, q_deg, robot)
         opt = {c: np.asarray(table[c], dtype=float) if c in table else None for c in OPTIONAL_COLUMNS}
-        return cls.from_arrays(np.deg2rad(q_deg), eta, source=source, **opt)
+        return cls.from_arrays(q_from_file(robot, q_deg), eta, source=source, **opt)
 
     def check(self) -> None:
         """Shapes and finiteness.
@@ -147,8 +151,8 @@ class Measurements:
         n = self.n
         if self.frame not in FRAMES:
             raise InputError(f"{self.source}: frame must be one of {', '.join(FRAMES)}, got {self.frame!r}")
-        if self.q.shape != (n, N_JOINTS) or self.eta.shape != (n, 3):
-            raise InputError(f"{self.source}: expected q (n, 6) and positions (n, 3)")
+        if self.q.ndim != 2 or self.q.shape[0] != n or not self.q.shape[1] or self.eta.shape != (n, 3):
+            raise InputError(f"{self.source}: expected q (n, n_joints) and positions (n, 3)")
         for name in ("q", "eta") + OPTIONAL_COLUMNS:
             v = getattr(self, name)
             if v is not None and v.shape != (n,) and name in OPTIONAL_COLUMNS:
@@ -172,9 +176,10 @@ class Measurements:
             rows=self.rows[idx],
         )
 
-    def to_frame(self) -> pd.DataFrame:
-        """A DataFrame in the file format (degrees, mm)."""
-        cols = {c: np.rad2deg(self.q[:, i]) for i, c in enumerate(Q_COLUMNS)}
+    def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
+        """A DataFrame in the file format (degrees, mm; ``robot``'s joint columns, default six revolute)."""
+        q = q_to_file(robot, self.q)
+        cols = {c: q[:, i] for i, c in enumerate(q_columns(robot))}
         cols.update({c: self.eta[:, i] for i, c in enumerate(XYZ_COLUMNS)})
         for c in OPTIONAL_COLUMNS:
             if getattr(self, c) is not None:
@@ -247,12 +252,13 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
             fewer poses than the estimated parameters need (27 parameters: 9 poses).
     """
     path = Path(path)
-    header, data = read_csv_table(path, REQUIRED_COLUMNS)
+    qcols = q_columns(robot)
+    header, data = read_csv_table(path, qcols + XYZ_COLUMNS)
     _check_header(path, header)
     if not data:
         raise InputError(f"{path}: no data rows (the file has only a header)")
     rows = np.asarray(row_numbers(data))
-    q_deg = np.stack([parse_float_column(path, header, data, c) for c in Q_COLUMNS], axis=1)
+    q_deg = np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1)
     eta = np.stack([parse_float_column(path, header, data, c) for c in XYZ_COLUMNS], axis=1)
     opt = {c: parse_float_column(path, header, data, c) if c in header else None for c in OPTIONAL_COLUMNS}
     if opt["payload_kg"] is not None and np.any(opt["payload_kg"] < 0):
@@ -260,7 +266,7 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
         raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")
     check_joint_angles(path, q_deg, robot, rows=rows)
     check_pose_count(path, len(data), robot)
-    return Measurements.from_arrays(np.deg2rad(q_deg), eta, source=str(path), rows=rows, **opt)
+    return Measurements.from_arrays(q_from_file(robot, q_deg), eta, source=str(path), rows=rows, **opt)
 
 
 def as_measurements(data, robot: Robot) -> Measurements:

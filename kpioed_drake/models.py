@@ -23,6 +23,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RollPitchYaw
 
+from kpioed_drake import chain as chainmod
 from kpioed_drake.errors import InputError
 from kpioed_drake.jointmap import JointMap, joint_map_from_spec
 from kpioed_drake.modelspec import (  # noqa: F401 (the file schemas, re-exported)
@@ -33,11 +34,13 @@ from kpioed_drake.modelspec import (  # noqa: F401 (the file schemas, re-exporte
     ObstacleSpec,
     RobotSpec,
 )
+from kpioed_drake.urdf import read_urdf_robot
 
 MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[1] / "models"))
 """Folder holding ``cell.yaml`` and ``robots/*.yaml`` (override with ``KPIOED_MODELS``)."""
 
 N_JOINTS = 6
+"""Joints of the DH/Hayati YAML robots (a URDF robot has its own count: ``robot.n_joints``)."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -65,20 +68,22 @@ def joint_param_names(conventions) -> list[str]:
 
 @dataclasses.dataclass(frozen=True)
 class Robot:
-    """A six-axis serial robot (internal units: mm, rad).
+    """A serial robot (internal units: mm, rad): a six-joint DH/Hayati table or a URDF chain.
 
     Attributes:
         name: model name, e.g. ``kr16`` or ``notional-850-800``.
-        conventions: (6,) ``"dh"`` or ``"hayati"`` per joint.
-        geometry: (6, 4) nominal kinematic parameters per joint, in the joint's own order:
-            DH ``(theta, d, a, alpha)``, Hayati ``(theta, a, alpha, beta)`` [rad, mm].
-        lower, upper: (6,) joint limits [rad].
-        capsules: link collision capsules (frames 0..6).
-        masses: (7,) link masses [kg] (index 0 = base).
-        coms: (7, 3) centres of mass in the link frames [mm].
+        conventions: (n_joints,) ``"dh"`` or ``"hayati"`` per joint of a table robot;
+            ``"revolute"`` or ``"prismatic"`` per joint of a chain (URDF) robot.
+        geometry: (n_joints, per_joint) nominal kinematic parameters per joint, in the joint's own
+            order: DH ``(theta, d, a, alpha)``, Hayati ``(theta, a, alpha, beta)`` [rad, mm]; a
+            chain's seven error parameters (:mod:`kpioed_drake.chain`), nominally 0.
+        lower, upper: (n_joints,) joint limits [rad] (prismatic joints: [mm]).
+        capsules: link collision capsules (frames 0..n_joints).
+        masses: (n_joints + 1,) link masses [kg] (index 0 = base).
+        coms: (n_joints + 1, 3) centres of mass in the link frames [mm].
         self_pairs: link index pairs checked against each other.
         beam_links: links the laser beam must not touch.
-        q_work: (6,) working configuration [rad], or None.
+        q_work: (n_joints,) working configuration [rad, mm], or None.
         car_shift_x: moves the car obstacles along x [mm].
         joint_names: the joints' names.
         source: the model file.
@@ -86,6 +91,10 @@ class Robot:
         X_WT: tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))`` overriding the cell's, or None.
         joint_map: controller angles to model angles, or None (identity).
         extra_gauge: parameter names held at nominal besides SPEC's gauge.
+        chain: the nominal joint frames of a chain (URDF) robot, None for a table robot.
+        gauge: the parameters held at nominal (None: SPEC's gauge of the six-joint tables; a
+            chain robot's is chosen by :func:`kpioed_drake.chain.auto_gauge`).
+        urdf: for a URDF robot, what :mod:`kpioed_drake.plant` needs to parse it (None otherwise).
     """
 
     name: str
@@ -106,14 +115,43 @@ class Robot:
     X_WT: tuple[np.ndarray, np.ndarray] | None = None
     joint_map: JointMap | None = None
     extra_gauge: tuple[str, ...] = ()
+    chain: chainmod.Chain | None = None
+    gauge: tuple[str, ...] | None = None
+    urdf: object | None = None
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return len(self.conventions)
+
+    @property
+    def per_joint(self) -> int:
+        """Kinematic parameters per joint: 4 (DH/Hayati) or 7 (chain)."""
+        return chainmod.PER_JOINT if self.chain is not None else 4
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n_joints,) True for prismatic joints (their q in mm)."""
+        return np.array([c == "prismatic" for c in self.conventions], dtype=bool)
 
     def param_names(self) -> list[str]:
-        """Names of the 24 joint parameters in storage order, e.g. ``theta1, d1, a1, alpha1``."""
+        """Names of the joint parameters in storage order, e.g. ``theta1, d1, a1, alpha1``."""
+        if self.chain is not None:
+            return chainmod.param_names(self.n_joints)
         return joint_param_names(self.conventions)
+
+    def param_is_angle(self) -> list[bool]:
+        """Per joint parameter: True for an angle [rad], False for a length [mm]."""
+        if self.chain is not None:
+            return chainmod.param_is_angle(self.chain)
+        return [n.startswith(("theta", "alpha", "beta")) for n in self.param_names()]
 
     @property
     def reach(self) -> float:
-        """Nominal reach [mm]: a1 + a2 + sqrt(d4^2 + a3^2) (SPEC's check)."""
+        """Nominal reach [mm]: a1 + a2 + sqrt(d4^2 + a3^2) (SPEC's check); for a chain the sum of
+        the distances between successive joint frames (joint 1's placement, the base, excluded)."""
+        if self.chain is not None:
+            return float(np.sum(np.linalg.norm(self.chain.p_PJ[1:], axis=1)))
         g = self.geometry
         a = [g[i, 2] if c == "dh" else g[i, 1] for i, c in enumerate(self.conventions)]
         d4 = g[3, 1] if self.conventions[3] == "dh" else 0.0
@@ -201,20 +239,23 @@ def _vec3(values, where: str) -> np.ndarray:
 
 
 def robot_path(name: str) -> Path:
-    """Path of the model file for ``name`` (a model name or a path to a YAML file)."""
+    """Path of the model file for ``name`` (a model name or a path to a YAML or URDF file); a
+    shipped name without a YAML file but with a URDF file (e.g. ``lift7``) names the URDF."""
     p = Path(name)
-    if p.suffix in (".yaml", ".yml"):
+    if p.suffix in (".yaml", ".yml", ".urdf"):
         return p
     m = _NOTIONAL.match(name)
     if m:
         return MODELS_DIR / "robots" / "notional" / f"{name}.yaml"
-    return MODELS_DIR / "robots" / f"{name}.yaml"
+    path = MODELS_DIR / "robots" / f"{name}.yaml"
+    urdf = path.with_suffix(".urdf")
+    return urdf if not path.is_file() and urdf.is_file() else path
 
 
 def list_robots() -> list[str]:
     """Names of all robots shipped under ``models/robots``."""
     root = MODELS_DIR / "robots"
-    names = sorted(p.stem for p in root.glob("*.yaml"))
+    names = sorted({p.stem for p in root.glob("*.yaml")} | {p.stem for p in root.glob("*.urdf")})
     names += sorted(p.stem for p in (root / "notional").glob("notional-*.yaml"))
     return names
 
@@ -324,12 +365,17 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
 
 
 def load_robot(name: str) -> Robot:
-    """Load a robot by model name (``kr16``, ``notional-850-800``) or from a YAML file path.
+    """Load a robot by model name (``kr16``, ``notional-850-800``) or from a YAML or URDF file path
+    (a URDF with its optional sidecar ``<name>.kpioed.yaml``, :mod:`kpioed_drake.urdf`).
 
     Raises:
         InputError: unknown robot, or a malformed file (the message names the file and field).
     """
     path = robot_path(name)
+    if path.suffix == ".urdf":
+        fields = read_urdf_robot(path, load_yaml=_load_yaml)
+        caps = tuple(Capsule(*c) for c in fields.pop("capsules"))
+        return Robot(capsules=caps, **fields)
     if not path.is_file():
         known = ", ".join(n for n in list_robots() if not n.startswith("notional-"))
         raise InputError(

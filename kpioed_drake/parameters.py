@@ -189,24 +189,31 @@ class ParameterLayout:
         return np.where(self.is_angle[self.free], reach, 1.0)
 
 
+def default_fixed(robot: Robot) -> tuple[str, ...]:
+    """The robot's gauge: SPEC's :data:`FIXED_NAMES` for the six-joint tables, the automatic gauge
+    (:func:`kpioed_drake.chain.auto_gauge`) of a chain robot (``robot.gauge``)."""
+    return FIXED_NAMES if robot.gauge is None else tuple(robot.gauge)
+
+
 def parameter_layout(
-    robot: Robot, *, fixed: tuple[str, ...] = FIXED_NAMES, n_targets: int = 1, n_effects: int = 0
+    robot: Robot, *, fixed: tuple[str, ...] | None = None, n_targets: int = 1, n_effects: int = 0
 ) -> ParameterLayout:
     """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
 
     Args:
         robot: the robot; its model file's ``extra_gauge`` names are held at nominal too (e.g. a
             target on joint 6's axis makes theta5 and alpha5 trade against the others).
-        fixed: SPEC's gauge, the parameters held at nominal.
+        fixed: the gauge, the parameters held at nominal (default :func:`default_fixed`).
         n_targets: targets (reflectors) per pose; n_effects: effect parameters appended.
 
     Raises:
         ValueError: a fixed name that is not a parameter of the model.
     """
-    fixed = tuple(fixed) + tuple(robot.extra_gauge)
-    n_joints = len(robot.conventions)
+    fixed = (default_fixed(robot) if fixed is None else tuple(fixed)) + tuple(robot.extra_gauge)
+    n_joints = robot.n_joints
     names = tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets)
-    is_angle = np.array([n.startswith(ANGLE_PREFIXES) for n in names])
+    tail = [n.startswith(ANGLE_PREFIXES) for n in names[len(robot.param_names()) :]]
+    is_angle = np.array(list(robot.param_is_angle()) + tail, dtype=bool)
     unknown = set(fixed) - set(names)
     if unknown:
         raise ValueError(f"fixed parameters not in the model: {sorted(unknown)}")
@@ -216,7 +223,7 @@ def parameter_layout(
         is_angle=is_angle,
         free=free,
         n_joints=n_joints,
-        per_joint=PER_JOINT,
+        per_joint=robot.per_joint,
         n_targets=n_targets,
         n_effects=n_effects,
     )

@@ -11,6 +11,10 @@ Collision filtering: every robot-robot pair is filtered except the robot model's
 ``self_collision_pairs``; moving links are checked against every obstacle. Base geometry sits on the
 world body and is therefore only checked against moving links listed with link 0.
 
+A URDF robot (:mod:`kpioed_drake.urdf`) is the plant Drake's ``Parser`` makes of its file (its
+inertias; our capsules as collision geometry); body ``i`` is the child link of the i-th movable
+joint, and prismatic joint values are metres in the plant (:attr:`Scene.q_scale`).
+
 Units: Drake uses metres; our files and numpy code use millimetres (factor :data:`MM`).
 """
 
@@ -31,7 +35,8 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
 from pydrake.multibody.tree import FixedOffsetFrame, RevoluteJoint, SpatialInertia, UnitInertia
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
-from kpioed_drake.models import N_JOINTS, Cell, Robot
+from kpioed_drake.models import Cell, Robot
+from kpioed_drake.urdf import add_urdf, movable_joints
 
 MM = 1e-3
 """Metres per millimetre."""
@@ -69,9 +74,11 @@ class Scene:
     Attributes:
         diagram, plant, scene_graph: the Drake systems.
         context: root diagram context; ``plant_context`` is the plant's sub-context.
-        bodies: (7,) body of each link (index 0 = world body).
+        bodies: (nj + 1,) body of each link (index 0 = world body).
         geometry_names: collision geometry id -> our capsule / obstacle name.
-        geometry_link: geometry id -> link index (0..6) or -1 for obstacles.
+        geometry_link: geometry id -> link index (0..nj) or -1 for obstacles.
+        q_scale: (nj,) plant position per unit of q (1 for revolute joints, 1e-3 m/mm prismatic).
+        q_index: (nj,) position index of each joint in the plant's position vector.
     """
 
     diagram: Diagram
@@ -82,10 +89,18 @@ class Scene:
     bodies: list
     geometry_names: dict
     geometry_link: dict
+    q_scale: np.ndarray
+    q_index: np.ndarray
+
+    def positions(self, q) -> np.ndarray:
+        """The plant's position vector of joint values ``q`` (nj,) [rad, mm]."""
+        x = np.zeros(self.plant.num_positions())
+        x[self.q_index] = np.asarray(q, dtype=float) * self.q_scale
+        return x
 
     def set_q(self, q) -> None:
-        """Set the joint angles [rad] (plant position order equals joint order)."""
-        self.plant.SetPositions(self.plant_context, np.asarray(q, dtype=float))
+        """Set the joint values [rad; mm for prismatic joints]."""
+        self.plant.SetPositions(self.plant_context, self.positions(q))
 
     def query_object(self):
         return self.plant.get_geometry_query_input_port().Eval(self.plant_context)
@@ -98,20 +113,31 @@ class Scene:
 def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True) -> Scene:
     """MultibodyPlant + SceneGraph of ``robot`` (and the cell's obstacles, if ``cell`` is given).
 
-    Link masses and centres of mass come from the robot model (used for gravity torques).
+    Link masses and centres of mass come from the robot model (used for gravity torques); a URDF
+    robot's inertias from its file.
     """
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
     if not gravity:
         plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
+    if robot.urdf is not None:
+        inst = add_urdf(plant, robot.urdf)
+        bodies = [plant.world_body()] + [j.child_body() for j in movable_joints(plant, inst, robot.urdf)]
+    else:
+        bodies = _add_table_robot(plant, robot)
+    return _finish(builder, plant, scene_graph, robot, cell, bodies)
+
+
+def _add_table_robot(plant: MultibodyPlant, robot: Robot) -> list:
+    """Bodies and revolute joints of a DH/Hayati robot; returns the bodies (world first)."""
     inst = plant.AddModelInstance(robot.name or "robot")
     bodies = [plant.world_body()]
-    for i in range(1, N_JOINTS + 1):
+    for i in range(1, robot.n_joints + 1):
         m = max(float(robot.masses[i]), 1e-6)
         com = robot.coms[i] * MM
         M = SpatialInertia(m, com, UnitInertia.SolidSphere(0.05).ShiftFromCenterOfMass(-com))
         bodies.append(plant.AddRigidBody(f"link{i}", inst, M))
-    for i in range(N_JOINTS):
+    for i in range(robot.n_joints):
         parent = bodies[i].body_frame()
         theta = float(robot.geometry[i, 0])
         F = plant.AddFrame(
@@ -122,9 +148,14 @@ def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True)
         plant.AddJoint(
             RevoluteJoint(f"A{i + 1}", F, M, [0.0, 0.0, 1.0], float(robot.lower[i]), float(robot.upper[i]))
         )
+    return bodies
+
+
+def _finish(builder, plant, scene_graph, robot: Robot, cell: Cell | None, bodies: list) -> Scene:
+    """Collision geometry, filters and the built diagram (see :func:`build_scene`)."""
     friction = CoulombFriction(0.5, 0.5)
     names, links = {}, {}
-    robot_ids = {i: [] for i in range(N_JOINTS + 1)}
+    robot_ids = {i: [] for i in range(robot.n_joints + 1)}
     for c in robot.capsules:
         X, length = capsule_pose(c.a, c.b)
         gid = plant.RegisterCollisionGeometry(
@@ -169,4 +200,9 @@ def build_scene(robot: Robot, cell: Cell | None = None, *, gravity: bool = True)
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyContextFromRoot(context)
-    return Scene(diagram, plant, scene_graph, context, plant_context, bodies, names, links)
+    q_scale = np.where(robot.prismatic, MM, 1.0)
+    if robot.urdf is not None:
+        q_index = np.array([plant.GetJointByName(n).position_start() for n in robot.urdf.joints])
+    else:
+        q_index = np.arange(robot.n_joints)
+    return Scene(diagram, plant, scene_graph, context, plant_context, bodies, names, links, q_scale, q_index)

@@ -281,9 +281,10 @@ def make_problem(
     q_work = np.asarray(q_work, dtype=float)
     if q_work.ndim == 2 and q_work.shape[0] == 1:
         q_work = q_work[0]
-    if q_work.shape[-1:] != (6,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
+    nj = robot.n_joints
+    if q_work.shape[-1:] != (nj,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
         raise InputError(
-            f"{robot.name}: q_work must be (6,) or (K, 6) finite angles [rad], got {q_work.shape}"
+            f"{robot.name}: q_work must be ({nj},) or (K, {nj}) finite angles [rad], got {q_work.shape}"
         )
     if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
         raise InputError(f"{robot.name}: q_work is outside the joint limits")

@@ -25,7 +25,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.arguments import check_paths, check_positive, check_seed
-from kpioed_drake.designio import Q_COLUMNS, read_design
+from kpioed_drake.designio import q_columns, q_from_file, q_to_file, read_design
 from kpioed_drake.effects import parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, measure, nominal_model
@@ -132,13 +132,14 @@ def simulate(
     cell = load_cell(cell_path, robot=rob)
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]
-    if q.shape != (n, 6) or n == 0 or not np.all(np.isfinite(q)):
-        raise InputError(f"simulate: expected (n, 6) finite joint angles, got shape {q.shape}")
+    nj = rob.n_joints
+    if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
+        raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
     if not (np.isfinite(sigma_mm) and sigma_mm >= 0):
         raise InputError(f"--sigma-mm must be a non-negative number of millimetres, got {sigma_mm!r}")
     # the simulation uses exactly the joint values that the file will hold
-    q_deg = np.round(np.rad2deg(q), Q_DECIMALS)
-    q = np.deg2rad(q_deg)
+    q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)
+    q = q_from_file(rob, q_deg)
 
     rng = np.random.default_rng(seed)
     model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
@@ -167,7 +168,7 @@ def simulate(
         eta = measure(model, q)
     eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
 
-    cols = {c: q_deg[:, j] for j, c in enumerate(Q_COLUMNS)}
+    cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
     cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
     if np.any(payload != 0):
         cols["payload_kg"] = payload
@@ -189,7 +190,7 @@ def simulate(
 def table_csv_text(table: pd.DataFrame) -> str:
     """CSV text of a measurement table (joint angles to 1e-8 deg, positions to 1e-6 mm)."""
     out = table.copy()
-    for c in Q_COLUMNS:
+    for c in [c for c in out.columns if c.startswith("q") and c.endswith(("_deg", "_mm"))]:
         out[c] = out[c].map(lambda v: f"{v:.{Q_DECIMALS}f}")
     for c in ("x_mm", "y_mm", "z_mm"):
         out[c] = out[c].map(lambda v: f"{v:.{XYZ_DECIMALS}f}")

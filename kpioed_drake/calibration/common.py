@@ -14,7 +14,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import EstimationResult
 from kpioed_drake.measurement import kpi_jacobian
-from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.models import Robot
 
 
 def working_pose(robot: Robot, q_work=None) -> np.ndarray:
@@ -29,7 +29,7 @@ def working_pose(robot: Robot, q_work=None) -> np.ndarray:
         q_work = robot.q_work
     q_work = np.asarray(q_work, dtype=float)
     if (
-        q_work.shape != (N_JOINTS,)
+        q_work.shape != (robot.n_joints,)
         or np.any(q_work < robot.lower - 1e-9)
         or np.any(q_work > robot.upper + 1e-9)
     ):

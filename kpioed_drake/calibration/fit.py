@@ -34,7 +34,7 @@ from kpioed_drake.identifiability import undetermined_parameters
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
 from kpioed_drake.measurements import Measurements
 from kpioed_drake.models import Robot, load_cell, load_robot
-from kpioed_drake.parameters import FIXED_NAMES, parameter_layout
+from kpioed_drake.parameters import default_fixed, parameter_layout
 from kpioed_drake.plausibility import check_data
 
 MIN_POSES_FOR_OUTLIER_TEST = 10
@@ -100,7 +100,7 @@ def hold_undetermined(
     warnings.append(
         f"{what}: held at nominal (not estimated); the values written for them are the nominal ones"
     )
-    layout = parameter_layout(nominal.robot, fixed=FIXED_NAMES + found.names)
+    layout = parameter_layout(nominal.robot, fixed=default_fixed(nominal.robot) + found.names)
     return dataclasses.replace(nominal, layout=layout)
 
 

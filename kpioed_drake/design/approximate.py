@@ -42,7 +42,6 @@ from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.search import corner_poses, dual_values, maximize_dual, pose_rows
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 POOL_POSES = 2000
@@ -308,13 +307,15 @@ def replicate_poses(problem: Problem, q: np.ndarray, counts: np.ndarray) -> np.n
     joint 6 turned by a full turn (same geometry and information, other angles); further copies
     are identical.
     """
-    turns = [np.zeros(N_JOINTS)] + [s * 2 * math.pi * np.eye(N_JOINTS)[j] for j in (3, 5) for s in (1, -1)]
+    nj = problem.robot.n_joints
+    wrist = (3, 5) if problem.robot.chain is None else np.flatnonzero(~problem.robot.prismatic)[-3:]
+    turns = [np.zeros(nj)] + [s * 2 * math.pi * np.eye(nj)[j] for j in wrist for s in (1, -1)]
     lo, up = problem.robot.lower, problem.robot.upper
     out = []
     for qi, c in zip(q, counts, strict=True):
         variants = [qi + t for t in turns if np.all(qi + t >= lo) and np.all(qi + t <= up)]
         out += [variants[r % len(variants)] for r in range(int(c))]
-    return np.array(out, dtype=float).reshape(-1, N_JOINTS)
+    return np.array(out, dtype=float).reshape(-1, nj)
 
 
 def approximate_start(

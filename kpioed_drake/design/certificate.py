@@ -271,7 +271,7 @@ def certify(
         of the column generation; ``refinements``: continuations run; ``method``: how the bound
         was found.
     """
-    q = np.asarray(q, dtype=float).reshape(-1, 6)
+    q = np.asarray(q, dtype=float).reshape(-1, problem.robot.n_joints)
     approx = certified_design(problem, collision=collision, seed=seed) if approx is None else approx
     if approx.collision != collision:
         raise ValueError(f"the approximate design has collision={approx.collision}, not {collision}")

@@ -65,9 +65,9 @@ every pose are still computed in one vectorised call (see
 :class:`~kpioed_drake.design.program.DesignProgram`)."""
 
 
-def as_poses(q) -> np.ndarray:
-    """``q`` as an (n, 6) float array of poses [rad] (a flat (6n,) vector is pose-major)."""
-    return np.asarray(q, dtype=float).reshape(-1, N_JOINTS)
+def as_poses(q, n_joints: int = N_JOINTS) -> np.ndarray:
+    """``q`` as an (n, n_joints) float array of poses [rad] (a flat vector is pose-major)."""
+    return np.asarray(q, dtype=float).reshape(-1, n_joints)
 
 
 def method_label(method: str) -> str:

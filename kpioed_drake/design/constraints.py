@@ -28,7 +28,6 @@ from kpioed_drake.design.common import (
 )
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.kinematics import Frames, cross, flange_point, forward_kinematics
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 
@@ -37,25 +36,25 @@ def incidence_rows(problem: Problem, q, *, frames: Frames | None = None):
 
     With ``z`` the reflector axis (flange z), ``p`` the reflector, ``p_WT`` the tracker (all in W
     [mm]), ``g = p_WT - p`` and ``g^ = g/|g|``: ``c = z . g^``; ``dz/dq_j = w_j x z``;
-    ``dp/dq_j = w_j x (p - o_{j-1})``; ``dc/dq_j = (w_j x z) . g^ - (z - c g^) . dp/dq_j / |g|``.
+    ``dp/dq_j = w_j x (p - o_{j-1})``; ``dc/dq_j = (w_j x z) . g^ - (z - c g^) . dp/dq_j / |g|``
+    (a prismatic joint: ``dz/dq_j = 0``, ``dp/dq_j = w_j``).
 
     Args:
-        q: (n, 6) [rad].
+        q: (n, nj) [rad].
 
     Returns:
-        values: (n,) [-]; jac: (n, 6) [1/rad].
+        values: (n,) [-]; jac: (n, nj) [1/rad].
     """
-    q = as_poses(q)
+    q = as_poses(q, problem.robot.n_joints)
     frames = problem.model.frames(q) if frames is None else frames
-    z = frames.R[:, N_JOINTS, :, 2]  # (n,3)
+    z = frames.R[:, frames.n_joints, :, 2]  # (n,3)
     p = flange_point(frames, problem.model.p_FQ)  # (n,3)
     g = problem.model.p_WT - p
     dist = np.linalg.norm(g, axis=1)
     gh = g / dist[:, None]
     c = np.einsum("ni,ni->n", z, gh)
-    w, o = frames.joint_axes, frames.joint_points  # (n,6,3)
-    dz = cross(w, z[:, None, :])
-    dp = cross(w, p[:, None, :] - o)
+    dz = np.where(frames.prismatic[:, None], 0.0, cross(frames.joint_axes, z[:, None, :]))
+    dp = frames.joint_motion(p)
     perp = z - c[:, None] * gh  # (n,3)
     jac = np.einsum("nji,ni->nj", dz, gh) - np.einsum("nji,ni->nj", dp, perp) / dist[:, None]
     return c - math.cos(problem.cell.max_incidence), jac
@@ -86,7 +85,8 @@ class DesignConstraints:
 
     def frames(self, q) -> Frames:
         """Forward kinematics of ``q`` (n, 6) as every evaluator of the design problem uses it."""
-        return forward_kinematics(self.problem.robot, as_poses(q), self.problem.model.geometry)
+        robot = self.problem.robot
+        return forward_kinematics(robot, as_poses(q, robot.n_joints), self.problem.model.geometry)
 
     def evaluate(self, q, *, frames: Frames | None = None):
         """Constraint values and their per-pose Jacobian.
@@ -99,7 +99,7 @@ class DesignConstraints:
             values: (n, r) (row 0 cosine difference [-], rows 1.. clearances [mm]; >= 0 feasible);
             jac: (n, r, 6) derivative w.r.t. the pose's own joint angles [per rad].
         """
-        q = as_poses(q)
+        q = as_poses(q, self.problem.robot.n_joints)
         frames = self.frames(q) if frames is None else frames
         c, dc = incidence_rows(self.problem, q, frames=frames)
         if self.clearance is None:
@@ -126,7 +126,7 @@ class DesignConstraints:
         Returns:
             values: (n, 1 + m); jac: (n, 1 + m, 6); active: (n, m) the rows now in the slots.
         """
-        q = as_poses(q)
+        q = as_poses(q, self.problem.robot.n_joints)
         frames = self.frames(q) if frames is None else frames
         c, dc = incidence_rows(self.problem, q, frames=frames)
         ev = self.clearance.compute(q, frames=frames)

@@ -17,7 +17,6 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.kinematics import forward_kinematics
 from kpioed_drake.measurement import incidence_cosine
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 
@@ -63,7 +62,7 @@ def heuristic_design(
     kept, n_kept, draws = [], 0, 0
     while n_kept < n and draws < max_draws:
         b = min(batch, max_draws - draws)
-        q = rng.uniform(robot.lower, robot.upper, size=(b, N_JOINTS))
+        q = rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints))
         draws += b
         frames = forward_kinematics(robot, q)
         ok = incidence_cosine(problem.model, q, frames=frames) >= cos_max
@@ -72,7 +71,7 @@ def heuristic_design(
             ok[ok] = np.all(vals >= margin_mm, axis=1)
         kept.append(q[ok])
         n_kept += int(ok.sum())
-    q = np.concatenate(kept, axis=0)[:n] if kept else np.zeros((0, N_JOINTS))
+    q = np.concatenate(kept, axis=0)[:n] if kept else np.zeros((0, robot.n_joints))
     if q.shape[0] < n:
         what = "incidence and collision-free" if collision else "incidence"
         msg = (

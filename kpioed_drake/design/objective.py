@@ -54,7 +54,7 @@ class DesignObjective:
 
     def value(self, q, *, frames: Frames | None = None) -> float:
         """Criterion of the design ``q`` (n, 6) [rad] (``frames``: its forward kinematics, if known)."""
-        F1 = self.problem.F1(as_poses(q), frames=frames)
+        F1 = self.problem.F1(as_poses(q, self.problem.robot.n_joints), frames=frames)
         if self.worst_case:
             return float(np.max(kpi_each(F1, self.Js_each, M0=self.M0, with_grad=False)))
         return self.criterion.evaluate(F1, self.Js, self.scale, with_grad=False, M0=self.M0)
@@ -62,7 +62,7 @@ class DesignObjective:
     def values_and_grads(self, q, *, frames: Frames | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Each working pose's variance tr(Cs_k)/3 (K,) [mm^2] and its gradient (K, n, 6) [mm^2/rad]
         (worst case only: the constraints ``t >= v_k(q)`` of the epigraph form)."""
-        q = as_poses(q)
+        q = as_poses(q, self.problem.robot.n_joints)
         F1, dF1 = self.problem.F1(q, with_dq=True, frames=frames)
         values, G = kpi_each(F1, self.Js_each, M0=self.M0)
         n = q.shape[0]
@@ -78,7 +78,7 @@ class DesignObjective:
             values, grads = self.values_and_grads(q, frames=frames)
             k = int(np.argmax(values))
             return float(values[k]), grads[k]
-        q = as_poses(q)
+        q = as_poses(q, self.problem.robot.n_joints)
         F1, dF1 = self.problem.F1(q, with_dq=True, frames=frames)  # (3n, k), (n, 6, 3, k)
         value, G = self.criterion.evaluate(F1, self.Js, self.scale, M0=self.M0)
         n = q.shape[0]

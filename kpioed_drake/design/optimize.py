@@ -41,7 +41,6 @@ from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.result import DesignError, DesignResult
 from kpioed_drake.design.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 
@@ -112,8 +111,9 @@ def _start_poses(problem: Problem, start: str, *, n: int, seed: int, collision: 
 def _checked_poses(problem: Problem, q, n: int | None, name: str) -> np.ndarray:
     """``q`` as a finite (n, 6) array within the joint limits (any n >= 1 if ``n`` is None)."""
     q = np.asarray(q, dtype=float)
-    shape = f"({'m' if n is None else n}, 6)"
-    if q.ndim != 2 or q.shape[1] != N_JOINTS or q.shape[0] != (n or q.shape[0]) or not q.size:
+    nj = problem.robot.n_joints
+    shape = f"({'m' if n is None else n}, {nj})"
+    if q.ndim != 2 or q.shape[1] != nj or q.shape[0] != (n or q.shape[0]) or not q.size:
         raise InputError(f"{name} must be a finite {shape} array of joint angles [rad], got {q.shape}")
     if not np.all(np.isfinite(q)):
         raise InputError(f"{name} must be a finite {shape} array of joint angles [rad]")

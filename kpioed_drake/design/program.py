@@ -30,7 +30,6 @@ from kpioed_drake.design.constraints import DesignConstraints
 from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.errors import InputError
 from kpioed_drake.kinematics import Frames
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 SINGULAR_PENALTY = 1e12
@@ -109,11 +108,12 @@ class DesignProgram:
         self._slots = None if self.active_rows is None else np.full((n, self.active_rows), -1, np.intp)
         self._fk: Frames | None = None  # forward kinematics of all poses at _fk_q
         self._fk_q: np.ndarray | None = None
-        self._rows_q = np.full((n, N_JOINTS), np.nan)  # per pose: the q its kept rows belong to
+        self.nj = nj = problem.robot.n_joints
+        self._rows_q = np.full((n, nj), np.nan)  # per pose: the q its kept rows belong to
         self._rows_v: np.ndarray | None = None  # (n, r) kept rows (unscaled)
         self._rows_J: np.ndarray | None = None  # (n, r, 6) their Jacobian
         prog = MathematicalProgram()
-        x = prog.NewContinuousVariables(N_JOINTS * n, "q")
+        x = prog.NewContinuousVariables(self.nj * n, "q")
         robot = problem.robot
         prog.AddBoundingBoxConstraint(np.tile(robot.lower, n), np.tile(robot.upper, n), x)
         self.t = self.epigraph_binding = None
@@ -141,11 +141,11 @@ class DesignProgram:
                 self._block_constraint(k0, b),
                 lb=np.tile(lb_pose, b),
                 ub=np.full(b * r, np.inf),
-                vars=x[N_JOINTS * k0 : N_JOINTS * (k0 + b)],
+                vars=x[self.nj * k0 : self.nj * (k0 + b)],
                 description=f"incidence_and_clearance[{k0}:{k0 + b}]",
             )
             rows = np.arange(b * r)
-            pattern = [(int(i), int(N_JOINTS * (i // r) + j)) for i in rows for j in range(N_JOINTS)]
+            pattern = [(int(i), int(self.nj * (i // r) + j)) for i in rows for j in range(self.nj)]
             binding.evaluator().SetGradientSparsityPattern(pattern)
             self.constraint_bindings.append(binding)
         self.constraint_binding = self.constraint_bindings[0]
@@ -205,11 +205,11 @@ class DesignProgram:
             return self._safe_value(x) * s
         t0 = time.perf_counter()
         self.counters.cost += 1
-        q = ExtractValue(x).reshape(self.n, N_JOINTS)
+        q = ExtractValue(x).reshape(self.n, self.nj)
         try:
             v, g = self.objective.value_and_grad(q, frames=self._frames(q))
         except np.linalg.LinAlgError:
-            v, g = SINGULAR_PENALTY, np.zeros((self.n, N_JOINTS))
+            v, g = SINGULAR_PENALTY, np.zeros((self.n, self.nj))
         out = InitializeAutoDiff(np.array([v * s]), (g * s).reshape(1, -1))[0, 0]
         self.counters.cost_s += time.perf_counter() - t0
         return out
@@ -224,7 +224,7 @@ class DesignProgram:
         """Rows ``(t - v_k(q)) * cost_scale`` of the worst case; x = (q (6n,), t)."""
         s, n = self.cost_scale, self.n
         if x.dtype != object:
-            q = np.asarray(x[:-1], dtype=float).reshape(n, N_JOINTS)
+            q = np.asarray(x[:-1], dtype=float).reshape(n, self.nj)
             try:
                 v = self.objective.values_and_grads(q)[0]
             except np.linalg.LinAlgError:
@@ -233,12 +233,12 @@ class DesignProgram:
         t0 = time.perf_counter()
         self.counters.cost += 1
         xv = ExtractValue(x).reshape(-1)
-        q = xv[:-1].reshape(n, N_JOINTS)
+        q = xv[:-1].reshape(n, self.nj)
         K = self.problem.n_kpis
         try:
             v, g = self.objective.values_and_grads(q, frames=self._frames(q))
         except np.linalg.LinAlgError:
-            v, g = np.full(K, SINGULAR_PENALTY), np.zeros((K, n, N_JOINTS))
+            v, g = np.full(K, SINGULAR_PENALTY), np.zeros((K, n, self.nj))
         grad = np.concatenate([-g.reshape(K, -1), np.ones((K, 1))], axis=1) * s
         out = InitializeAutoDiff((xv[-1] - v) * s, grad)[:, 0]
         self.counters.cost_s += time.perf_counter() - t0
@@ -246,7 +246,7 @@ class DesignProgram:
 
     def _safe_value(self, x) -> float:
         try:
-            return self.objective.value(np.asarray(x, dtype=float).reshape(self.n, N_JOINTS))
+            return self.objective.value(np.asarray(x, dtype=float).reshape(self.n, self.nj))
         except np.linalg.LinAlgError:
             return SINGULAR_PENALTY
 
@@ -256,17 +256,17 @@ class DesignProgram:
         # The (b r, 6 b) gradient is block diagonal. It is handed to InitializeAutoDiff a few poses
         # at a time (about 300 rows) through a reused zero buffer: allocating the dense matrix
         # afresh on every call cost more than the whole numpy evaluation.
-        buf = np.zeros((max(1, min(b, 300 // r)), r, b, N_JOINTS))
+        buf = np.zeros((max(1, min(b, 300 // r)), r, b, self.nj))
         C = buf.shape[0]
 
         def constraint(x):
             if x.dtype != object:
-                v, _ = self._rows(k0, np.asarray(x, dtype=float).reshape(b, N_JOINTS))
+                v, _ = self._rows(k0, np.asarray(x, dtype=float).reshape(b, self.nj))
                 return (v * self._row_scale).reshape(-1)
             t0 = time.perf_counter()
             if k0 == 0:
                 self.counters.constraint += 1
-            v, J = self._rows(k0, ExtractValue(x).reshape(b, N_JOINTS))
+            v, J = self._rows(k0, ExtractValue(x).reshape(b, self.nj))
             v = v * self._row_scale
             J = J * self._row_scale[None, :, None]
             parts = []
@@ -275,7 +275,7 @@ class DesignProgram:
                 idx = np.arange(c)
                 buf[idx, :, c0 + idx, :] = J[c0 : c0 + c]
                 parts.append(
-                    InitializeAutoDiff(v[c0 : c0 + c].reshape(-1), buf[:c].reshape(c * r, b * N_JOINTS))
+                    InitializeAutoDiff(v[c0 : c0 + c].reshape(-1), buf[:c].reshape(c * r, b * self.nj))
                 )
                 buf[idx, :, c0 + idx, :] = 0.0
             out = np.concatenate(parts, axis=0)

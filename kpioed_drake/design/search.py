@@ -26,7 +26,6 @@ from pydrake.solvers import SnoptSolver, SolverOptions
 
 from kpioed_drake.design.constraints import DesignConstraints
 from kpioed_drake.design.program import DesignProgram
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.problem import Problem
 
 SEARCH_BATCH = 8
@@ -43,7 +42,7 @@ deep in incidence violation)."""
 
 def pose_rows(problem: Problem, q) -> np.ndarray:
     """Each pose's 3 rows of the weighted identification Jacobian: (m, 3, k) for ``q`` (m, 6) [rad]."""
-    q = np.asarray(q, dtype=float).reshape(-1, N_JOINTS)
+    q = np.asarray(q, dtype=float).reshape(-1, problem.robot.n_joints)
     return problem.F1(q).reshape(q.shape[0], 3, -1)
 
 
@@ -63,13 +62,13 @@ class DualObjective:
 
     def value(self, q, *, frames=None) -> float:
         """``-sum_i g(q_i)`` of ``q`` (n, 6) [rad]."""
-        q = np.asarray(q, dtype=float).reshape(-1, N_JOINTS)
+        q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
         F = self.problem.F1(q, frames=frames).reshape(q.shape[0], 3, -1)
         return -float(dual_values(F, self.Y).sum())
 
     def value_and_grad(self, q, *, frames=None) -> tuple[float, np.ndarray]:
         """The value and its gradient (n, 6) [1/rad]."""
-        q = np.asarray(q, dtype=float).reshape(-1, N_JOINTS)
+        q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
         F1, dF = self.problem.F1(q, with_dq=True, frames=frames)
         FY = np.einsum("iak,kc->iac", F1.reshape(q.shape[0], 3, -1), self.Y)
         dFY = np.einsum("ijak,kc->ijac", dF, self.Y)
@@ -100,7 +99,7 @@ def maximize_dual(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, colli
         dp = DesignProgram(problem, criterion="kpi", n=b, collision=collision)
         dp.objective = DualObjective(problem, Y)
         result = snopt.Solve(dp.prog, q_start[k0 : k0 + b].reshape(-1), opts)
-        out.append(np.asarray(result.GetSolution(dp.x)).reshape(b, N_JOINTS))
+        out.append(np.asarray(result.GetSolution(dp.x)).reshape(b, problem.robot.n_joints))
     q = np.clip(np.concatenate(out), problem.robot.lower, problem.robot.upper)
     rows, _ = DesignConstraints(problem, collision=collision).evaluate(q)
     return q, dual_values(pose_rows(problem, q), Y), np.all(rows >= 0.0, axis=1)

@@ -189,7 +189,7 @@ def solve_once(
         raise
     dt = time.perf_counter() - t0
     raise_if_interrupted()  # the solver may also turn a Ctrl-C in our callbacks into a failed solve
-    q = np.asarray(result.GetSolution(dp.x), dtype=float).reshape(n, N_JOINTS)
+    q = np.asarray(result.GetSolution(dp.x), dtype=float).reshape(n, problem.robot.n_joints)
     # Bounds are hard in the check: clip round-off outside the joint box (SNOPT/IPOPT may leave
     # 1e-9 rad outside); the change is far below every tolerance.
     q = np.clip(q, problem.robot.lower, problem.robot.upper)

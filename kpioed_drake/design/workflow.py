@@ -45,7 +45,7 @@ def read_working_poses(path: str | Path, robot: Robot) -> tuple[np.ndarray, np.n
         InputError: missing file or column, bad numbers, angles outside the limits.
     """
     q = designio.read_design(path, robot)
-    header, data = designio.read_csv_table(path, designio.Q_COLUMNS)
+    header, data = designio.read_csv_table(path, designio.q_columns(robot))
     if WEIGHT_COLUMN not in header:
         return q, None
     return q, designio.parse_float_column(path, header, data, WEIGHT_COLUMN)
@@ -181,7 +181,7 @@ def run_design(
                 "incidence_deg": np.array([r["incidence_deg"] for r in res.reports]),
                 "min_clearance_mm": np.array([r["min_clearance_mm"] for r in res.reports]),
             }
-            staged.add_text(out, designio.design_csv_text(res.q, extra))
+            staged.add_text(out, designio.design_csv_text(res.q, extra, robot=problem.robot))
         if json_path is not None:
             staged.add_json(json_path, json_record(res, problem))
         if plot is not None:
@@ -245,7 +245,7 @@ def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, 
         compare=("heuristic", hres.q, first_kpi_covariance(problem, hres.q)),
     )
     with Outputs() as staged:
-        staged.add_text(stem.with_suffix(".csv"), designio.design_csv_text(kres.q))
+        staged.add_text(stem.with_suffix(".csv"), designio.design_csv_text(kres.q, robot=problem.robot))
         plot_design_poses(
             problem.robot,
             problem.cell,

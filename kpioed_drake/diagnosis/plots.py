@@ -20,7 +20,6 @@ import scipy.stats
 
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.measurement import reflector_world
-from kpioed_drake.models import N_JOINTS
 from kpioed_drake.outputs import pyplot
 
 _BEFORE, _AFTER, _FIT = "tab:orange", "tab:blue", "black"
@@ -63,8 +62,9 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     d = prob.data
     r = base.residuals
     g, u, R_TW = _signatures(prob, base)
-    fig, axes = plt.subplots(3, 6, figsize=(20, 10), constrained_layout=True)
-    for j in range(N_JOINTS):
+    nj = d.q.shape[1]
+    fig, axes = plt.subplots(3, nj, figsize=(20 * nj / 6, 10), constrained_layout=True)
+    for j in range(nj):
         a = np.rad2deg(_apparent(r, g[:, j]))
         ax = axes[0, j]
         ax.scatter(np.rad2deg(d.q[:, j]), a, s=8, color=_BEFORE)

@@ -1,6 +1,7 @@
 """Naming the cause: candidate effects, their identifiability, score tests and stepwise selection.
 
-- :func:`candidate_effects`: joint elasticity of joints 2..6, gear errors of joints 1..6 with
+- :func:`candidate_effects`: joint elasticity of the joints gravity loads (2..6 of a floor-mounted
+  six-joint robot), gear errors of every joint with
   n in {1, 2}, thermal expansion if the temperature varies, tracker drift if the time does.
 - :func:`identifiability`: the fraction of a candidate's columns outside the span of the current
   model's columns (``remaining``; 1 = orthogonal, 0 = absorbed) and the largest canonical
@@ -25,7 +26,6 @@ from kpioed_drake.diagnosis.common import MIN_REMAINING
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.estimation import rms
 from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import N_JOINTS
 
 _VARIABLE = {
     "joint_elasticity": "gravity torque tau_{joint}",
@@ -35,15 +35,30 @@ _VARIABLE = {
 }
 
 
-def candidate_effects(data: Measurements) -> tuple[list, list[str]]:
-    """The candidate extensions for this data and notes on the ones left out."""
+def candidate_effects(data: Measurements, *, tau: np.ndarray | None = None) -> tuple[list, list[str]]:
+    """The candidate extensions for this data and notes on the ones left out.
+
+    Args:
+        data: the measurements (n poses of nj joints).
+        tau: (n, nj) gravity torques at the data's poses [N m]: joint j's elasticity is a candidate
+            when gravity exerts a torque on it (a joint with a vertical axis has none, e.g. joint 1
+            of a floor-mounted robot; a robot mounted sideways has one). None: joint 1 is taken
+            for vertical (the floor-mounted six-joint robots).
+    """
     notes = []
-    cands = [fx.Effect("joint_elasticity", j) for j in range(2, N_JOINTS + 1)]
-    notes.append(
-        "joint_elasticity:1 is not a candidate: joint 1 turns about the vertical axis, gravity exerts no "
-        "torque on it"
-    )
-    cands += [fx.Effect("gear_cyclic", j, n) for j in range(1, N_JOINTS + 1) for n in (1, 2)]
+    nj = data.q.shape[1]
+    if tau is None:
+        loaded = np.arange(nj) > 0
+    else:
+        size = np.max(np.abs(tau), axis=0)
+        loaded = size > 1e-9 * max(1.0, float(np.max(size)))
+    cands = [fx.Effect("joint_elasticity", j + 1) for j in range(nj) if loaded[j]]
+    for j in np.flatnonzero(~loaded):
+        notes.append(
+            f"joint_elasticity:{j + 1} is not a candidate: joint {j + 1} turns about a vertical axis, "
+            "gravity exerts no torque on it"
+        )
+    cands += [fx.Effect("gear_cyclic", j, n) for j in range(1, nj + 1) for n in (1, 2)]
     if data.temperature_C is not None and np.ptp(data.temperature_C) > 0.5:
         cands.append(fx.Effect("thermal_expansion"))
     else:

@@ -20,7 +20,7 @@ from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, nominal_model
 from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import N_JOINTS, Robot, load_cell, load_robot
+from kpioed_drake.models import Robot, load_cell, load_robot
 from kpioed_drake.simulation import true_model
 
 
@@ -52,7 +52,7 @@ def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell=None) -
     cm = ClearanceModel(robot, cell, collision=True, beam=False)
     out = []
     while sum(len(x) for x in out) < n:
-        q = rng.uniform(robot.lower, robot.upper, size=(4 * n, N_JOINTS))
+        q = rng.uniform(robot.lower, robot.upper, size=(4 * n, robot.n_joints))
         vals = cm.values(q)
         kinds = np.array(cm.rows.kinds)
         keep = np.all(vals[:, kinds != "self"] >= 0.0, axis=1)

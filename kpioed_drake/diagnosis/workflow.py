@@ -103,7 +103,7 @@ def diagnose(
     # as calibrate: parameters these poses do not determine are held at nominal, with a note
     prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
     if candidates is None:
-        cands, notes = candidate_effects(data)
+        cands, notes = candidate_effects(data, tau=prob.tau)
     else:
         cands = [
             fx.parse_effect(c) if isinstance(c, str) else dataclasses.replace(c, values=None)

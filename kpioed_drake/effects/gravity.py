@@ -10,7 +10,7 @@ from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 
 from kpioed_drake.kinematics import cross, forward_kinematics, point_jacobian
 from kpioed_drake.measurement import TrackerModel
-from kpioed_drake.models import N_JOINTS, Robot
+from kpioed_drake.models import Robot
 from kpioed_drake.plant import build_scene
 
 _N_REFERENCE = 2000
@@ -33,16 +33,17 @@ class GravityModel:
         self._ad = None
 
     def link_torques(self, q, *, with_dq: bool = False):
-        """(n, 6) generalized gravity forces [N m] at joint angles q (n, 6) [rad].
+        """(n, nj) generalized gravity forces [N m; N for prismatic joints] at q (n, nj) [rad, mm].
 
-        With ``with_dq`` also (n, 6, 6) ``d tau_i / d q_j`` (Drake AutoDiffXd).
+        With ``with_dq`` also (n, nj, nj) ``d tau_i / d q_j`` (Drake AutoDiffXd) [per rad, per mm].
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         plant, ctx = self.scene.plant, self.scene.plant_context
-        tau = np.empty((q.shape[0], N_JOINTS))
+        nj, scale, idx = self.robot.n_joints, self.scene.q_scale, self.scene.q_index
+        tau = np.empty((q.shape[0], nj))
         for k, qk in enumerate(q):
-            plant.SetPositions(ctx, qk)
-            tau[k] = plant.CalcGravityGeneralizedForces(ctx)
+            plant.SetPositions(ctx, self.scene.positions(qk))
+            tau[k] = plant.CalcGravityGeneralizedForces(ctx)[idx]
         if not with_dq:
             return tau
         if self._ad is None:
@@ -51,49 +52,57 @@ class GravityModel:
             context = diagram.CreateDefaultContext()
             self._ad = (plant_ad, plant_ad.GetMyContextFromRoot(context), context)
         plant_ad, ctx_ad, _ = self._ad
-        dtau = np.empty((q.shape[0], N_JOINTS, N_JOINTS))
+        dtau = np.empty((q.shape[0], nj, nj))
         for k, qk in enumerate(q):
-            plant_ad.SetPositions(ctx_ad, InitializeAutoDiff(qk).ravel())
-            dtau[k] = ExtractGradient(plant_ad.CalcGravityGeneralizedForces(ctx_ad))
+            plant_ad.SetPositions(ctx_ad, InitializeAutoDiff(self.scene.positions(qk)).ravel())
+            dtau[k] = ExtractGradient(plant_ad.CalcGravityGeneralizedForces(ctx_ad))[np.ix_(idx, idx)] * scale
         return tau, dtau
 
     def payload_torques(self, q, payload_kg, p_FP, *, with_dq: bool = False):
-        """(n, 6) torques [N m] of point masses ``payload_kg`` (scalar or (n,)) at ``p_FP`` [mm].
+        """(n, nj) torques [N m] of point masses ``payload_kg`` (scalar or (n,)) at ``p_FP`` [mm].
 
-        ``tau_i = F . (w_i x r_i)`` with ``F = m g`` [N], ``w_i`` the axis of joint i and ``r_i`` the
-        point relative to that axis [m]. Derivative: for ``j <= i`` the whole term turns about
-        ``w_j``: ``F . (w_j x (w_i x r_i))``; for ``j > i`` only the point moves:
-        ``F . (w_i x (w_j x r_j))``.
+        ``tau_i = F . m_i`` with ``F = m g`` [N] and ``m_i = w_i x r_i`` (``w_i`` the axis of joint
+        i and ``r_i`` the point relative to that axis [m]), or ``m_i = w_i`` for a prismatic joint
+        (a force [N]). Derivative: for ``j <= i`` the whole term turns about ``w_j``:
+        ``F . (w_j x m_i)`` (0 for a prismatic j); for ``j > i`` only the point moves:
+        ``F . (w_i x dr_j)`` with ``dr_j = w_j x r_j`` (prismatic j: ``w_j`` 1e-3 m/mm; 0 for a
+        prismatic i).
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
         fr = forward_kinematics(self.robot, q)
-        p = fr.o[:, N_JOINTS] + np.einsum("nij,j->ni", fr.R[:, N_JOINTS], np.asarray(p_FP, float))
-        w = fr.joint_axes  # (n,6,3)
-        r = (p[:, None, :] - fr.joint_points) * 1e-3  # (n,6,3) [m]
+        nj = fr.n_joints
+        pris = fr.prismatic[:, None]  # (nj, 1)
+        p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], np.asarray(p_FP, float))
+        w = fr.joint_axes  # (n,nj,3)
+        r = (p[:, None, :] - fr.joint_points) * 1e-3  # (n,nj,3) [m]
         F = m[:, None] * self.g[None, :]  # (n,3) [N]
         wxr = cross(w, r)
-        tau = np.einsum("nc,nic->ni", F, wxr)
+        mi = np.where(pris, w, wxr)
+        tau = np.einsum("nc,nic->ni", F, mi)
         if not with_dq:
             return tau
-        full = cross(w[:, :, None, :], wxr[:, None, :, :])  # [n, j, i]: w_j x (w_i x r_i)
-        part = cross(w[:, None, :, :], wxr[:, :, None, :])  # [n, j, i]: w_i x (w_j x r_j)
-        jj, ii = np.arange(N_JOINTS)[:, None], np.arange(N_JOINTS)[None, :]
+        full = cross(w[:, :, None, :], mi[:, None, :, :])  # [n, j, i]: w_j x m_i
+        full = np.where(pris[None, :, :, None], 0.0, full)
+        dr = np.where(pris, 1e-3 * w, wxr)
+        part = cross(w[:, None, :, :], dr[:, :, None, :])  # [n, j, i]: w_i x dr_j
+        part = np.where(pris.T[None, :, :, None], 0.0, part)
+        jj, ii = np.arange(nj)[:, None], np.arange(nj)[None, :]
         d = np.where((jj <= ii)[None, :, :, None], full, part)
         dtau = np.einsum("nc,njic->nij", F, d)
         return tau, dtau
 
     def payload_torques_dp(self, q, payload_kg) -> np.ndarray:
-        """(n, 6, 3) derivative of :meth:`payload_torques` w.r.t. ``p_FP`` [N m / mm].
+        """(n, nj, 3) derivative of :meth:`payload_torques` w.r.t. ``p_FP`` [N m / mm].
 
-        ``F . (w_i x R_WF dp) = (F x w_i) . R_WF dp``, times 1e-3 (mm -> m).
+        ``F . (w_i x R_WF dp) = (F x w_i) . R_WF dp``, times 1e-3 (mm -> m); 0 for a prismatic joint.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
         fr = forward_kinematics(self.robot, q)
         F = m[:, None] * self.g[None, :]
-        Fxw = cross(F[:, None, :], fr.joint_axes)  # (n,6,3)
-        return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.R[:, N_JOINTS])
+        Fxw = np.where(fr.prismatic[:, None], 0.0, cross(F[:, None, :], fr.joint_axes))  # (n,nj,3)
+        return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.R[:, fr.n_joints])
 
     def torques(self, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):
         """Link torques plus the payload's (if ``payload_kg`` is given) [N m]."""
@@ -113,6 +122,7 @@ def _robot_key(robot: Robot) -> tuple:
     return (
         robot.name,
         robot.conventions,
+        robot.source,
         robot.geometry.tobytes(),
         robot.masses.tobytes(),
         robot.coms.tobytes(),
@@ -130,7 +140,7 @@ def gravity_model(robot: Robot) -> GravityModel:
 
 
 def gravity_torques(robot: Robot, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):
-    """(n, 6) gravity generalized forces [N m] (Drake sign: the torque gravity exerts on the joint)."""
+    """(n, nj) gravity generalized forces [N m] (Drake sign: the torque gravity exerts on the joint)."""
     return gravity_model(robot).torques(q, payload_kg=payload_kg, p_FP=p_FP, with_dq=with_dq)
 
 
@@ -138,9 +148,9 @@ def gravity_torques(robot: Robot, q, *, payload_kg=None, p_FP=None, with_dq: boo
 # Resolving sizes
 # ----------------------------------------------------------------------------------------------
 def reference_poses(robot: Robot, n: int = _N_REFERENCE) -> np.ndarray:
-    """(n, 6) seeded poses uniform within the joint limits [rad] (the 'joint box' of SPEC's sizes)."""
+    """(n, nj) seeded poses uniform within the joint limits [rad] (the 'joint box' of SPEC's sizes)."""
     rng = np.random.default_rng(_REFERENCE_SEED)
-    return rng.uniform(robot.lower, robot.upper, size=(n, N_JOINTS))
+    return rng.uniform(robot.lower, robot.upper, size=(n, robot.n_joints))
 
 
 def elastic_lever(model: TrackerModel, joint: int) -> float:

@@ -13,7 +13,6 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.kinematics import flange_point, point_jacobian
 from kpioed_drake.measurement import TrackerModel, tracker_jacobian
 from kpioed_drake.measurements import per_pose
-from kpioed_drake.models import N_JOINTS
 
 
 # ----------------------------------------------------------------------------------------------
@@ -46,8 +45,9 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
         out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=need_dtau)
         tau_g, dtau = out if need_dtau else (out, None)
         tau = tau_g if tau is None else tau
-    delta = np.zeros((n, N_JOINTS))
-    ddelta = np.zeros((n, N_JOINTS, N_JOINTS))
+    nj = model.robot.n_joints
+    delta = np.zeros((n, nj))
+    ddelta = np.zeros((n, nj, nj))
     factors, dfactors = [], []
     for e in effects:
         if e.family == "joint_elasticity":
@@ -59,7 +59,7 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
             nq = e.harmonic * q[:, i]
             f = np.stack([np.sin(nq), np.cos(nq)], axis=1)
             if with_dq:
-                df = np.zeros((n, N_JOINTS, 2))
+                df = np.zeros((n, nj, 2))
                 df[:, i, 0] = e.harmonic * np.cos(nq)
                 df[:, i, 1] = -e.harmonic * np.sin(nq)
             else:
@@ -68,7 +68,7 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
             i = e.joint - 1
             j = e.coupled - 1 if e.family == "joint_coupling" else i
             f = np.sign(tau[:, i : i + 1]) if e.family == "backlash" else q[:, j : j + 1]
-            df = np.zeros((n, N_JOINTS, 1)) if with_dq else None
+            df = np.zeros((n, nj, 1)) if with_dq else None
             if with_dq and e.family != "backlash":  # d sign(tau)/dq = 0 almost everywhere
                 df[:, j, 0] = 1.0
         else:
@@ -166,7 +166,7 @@ def augmented_jacobian(
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
     if payload_kg is not None and np.any(np.asarray(payload_kg) != 0):
         # the payload sits at p_FQ: its torque, hence an elastic deflection, depends on p_FQ
-        c_el = np.zeros(N_JOINTS)
+        c_el = np.zeros(model.robot.n_joints)
         for e in effects:
             if e.family == "joint_elasticity":
                 c_el[e.joint - 1] += e.value_array()[0]
@@ -179,8 +179,8 @@ def augmented_jacobian(
     E = np.zeros((n, 3, k))
     if with_dq:
         dJW = out[2]
-        A = np.eye(N_JOINTS)[None] + jd[2]  # d q_act / d q_cmd
-        dE = np.zeros((n, N_JOINTS, 3, k))
+        A = np.eye(model.robot.n_joints)[None] + jd[2]  # d q_act / d q_cmd
+        dE = np.zeros((n, model.robot.n_joints, 3, k))
         dp_dq = np.einsum("nal,nlj->nja", theta, A)  # (n,6,3)
     col = 0
     for e, f, *rest in zip(effects, factors, *(jd[3:4] if with_dq else ()), strict=True):
