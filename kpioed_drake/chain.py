@@ -40,6 +40,9 @@ GAUGE_POSES = 80
 GAUGE_SEED = 20170710
 GAUGE_RTOL = 1e-8
 """Relative threshold of :func:`auto_gauge` on the residual norm of a unit column."""
+ZERO_COLUMN = 1e-9
+"""Columns shorter than this times the longest are zero (e.g. a joint that cannot move the reflector);
+normalising their round-off to unit length would count it as rank."""
 _GENERIC_TRACKER = np.array([2730.88, 4554.68, 1397.67])
 """A tracker position for the rank test (any point in general position gives the same rank)."""
 
@@ -177,7 +180,9 @@ def auto_gauge(
     eye = np.broadcast_to(np.eye(3), (n_poses, 3, 3))
     tracker_rot = np.cross((p - _GENERIC_TRACKER)[:, None, :], np.eye(3)[None]).transpose(0, 2, 1)
     A = np.concatenate([-eye, tracker_rot, fr.R[:, nj], joint_cols], axis=2).reshape(3 * n_poses, -1)
-    A = A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+    norms = np.linalg.norm(A, axis=0)
+    live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
+    A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
     basis: list[np.ndarray] = []
     held = []
     names = param_names(nj)

@@ -20,8 +20,6 @@ The sidecar ``<name>.kpioed.yaml`` next to ``<name>.urdf`` (optional) holds what
 sidecar, as every model file, millimetres and degrees (prismatic joint values in millimetres).
 """
 
-from __future__ import annotations
-
 import dataclasses
 import xml.etree.ElementTree as ET
 from pathlib import Path
