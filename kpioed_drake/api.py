@@ -32,6 +32,7 @@ import numpy as np
 from kpioed_drake.calibration import calibrate_file as calibrate
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.design import run_design as design
+from kpioed_drake.designio import q_to_file
 from kpioed_drake.diagnosis import diagnose_file as diagnose
 from kpioed_drake.identifiability import check_identifiability
 from kpioed_drake.models import load_cell, load_robot
@@ -50,7 +51,8 @@ def info(robot: str, *, cell_path=None) -> dict:
         dict with ``robot``, ``reach_mm``, ``q_work_deg``, ``joint_limits_deg``, ``parameters``
         (all 33 names), ``estimated`` (the 27), ``fixed`` (the 6 held at nominal), ``n_params``
         (identifiable count from a rank test at random poses), ``identifiable`` (bool),
-        ``unidentifiable`` (names, if any) and ``car_shift_x_mm``.
+        ``unidentifiable`` (names, if any) and ``car_shift_x_mm``. A prismatic joint's values in
+        ``q_work_deg`` and ``joint_limits_deg`` are millimetres.
     """
     rob = load_robot(robot)
     rep = check_identifiability(rob, load_cell(cell_path, robot=rob))
@@ -58,8 +60,8 @@ def info(robot: str, *, cell_path=None) -> dict:
     return {
         "robot": rob.name,
         "reach_mm": rob.reach,
-        "q_work_deg": None if rob.q_work is None else np.rad2deg(rob.q_work).round(6).tolist(),
-        "joint_limits_deg": np.rad2deg(np.stack([rob.lower, rob.upper], 1)).round(6).tolist(),
+        "q_work_deg": None if rob.q_work is None else q_to_file(rob, rob.q_work).round(6).tolist(),
+        "joint_limits_deg": q_to_file(rob, np.stack([rob.lower, rob.upper], 1).T).T.round(6).tolist(),
         "parameters": list(lay.names),
         "estimated": lay.free_names,
         "fixed": [n for n in lay.names if n not in lay.free_names],

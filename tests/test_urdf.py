@@ -1,0 +1,176 @@
+"""URDF robots end to end: the UR5 twin calibrates like the YAML, lift7 (7 joints, a prismatic column)
+designs, simulates and calibrates, gravity follows the base orientation, and bad URDF or sidecar
+files exit 2 naming the file and element without writing anything."""
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from kpioed_drake import calibration, simulation
+from kpioed_drake.cli import main
+from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.diagnosis import candidate_effects
+from kpioed_drake.effects.gravity import gravity_torques
+from kpioed_drake.measurements import Measurements, read_measurements
+from kpioed_drake.models import MODELS_DIR, load_robot
+from kpioed_drake.problem import make_problem
+
+ROBOTS = MODELS_DIR / "robots"
+UR5_URDF = (ROBOTS / "ur5.urdf").read_text()
+LIMIT = '<limit lower="-6.2831853071795862" upper="6.2831853071795862" effort="150" velocity="3.15"/>'
+
+
+def _z_scores(rep, truth_model):
+    res = rep.result
+    z = (res.model.p[res.free] - truth_model.p[res.free]) / res.std
+    r = res.model.layout.free_tracker_rotation
+    z[r] = Rotation.from_matrix(res.model.R_WT.T @ truth_model.R_WT).as_rotvec() / res.std[r]
+    return z
+
+
+def test_twin_calibrates_the_same_data_as_the_yaml():
+    """Noise-only data (the true robot is the nominal one, which both models contain): the same fit."""
+    ur5, twin = load_robot("ur5"), load_robot(str(ROBOTS / "ur5.urdf"))
+    q = np.random.default_rng(0).uniform(ur5.lower, ur5.upper, size=(40, 6))
+    table, _ = simulation.simulate(ur5, q, sigma_mm=0.02, seed=1, geometric_errors=False)
+    a = calibration.calibrate(ur5, Measurements.from_table(table, ur5), sigma_mm=0.02)
+    b = calibration.calibrate(twin, Measurements.from_table(table, twin), sigma_mm=0.02)
+    assert a.result.converged and b.result.converged and a.dof == b.dof
+    assert b.chi2 == pytest.approx(a.chi2, rel=1e-6)
+    assert np.abs(b.kpi - a.kpi).max() < 1e-6
+    assert np.trace(b.kpi_cov) == pytest.approx(np.trace(a.kpi_cov), rel=1e-6)
+
+
+def test_lift7_recovers_the_true_parameters():
+    robot = load_robot("lift7")
+    q = heuristic_design(make_problem(robot, sigma_mm=0.02), n=40, seed=1)
+    table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=0)
+    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=0.02)
+    assert rep.result.converged and rep.warnings == []
+    assert rep.result.free.size == 29
+    z = _z_scores(rep, truth["model"])
+    assert np.max(np.abs(z)) < 3.0, z  # measured 2.08 (seeds 1-4: 2.26, 2.27, 1.93, 1.57)
+
+
+def test_lift7_cli_design_simulate_calibrate(tmp_path, capsys):
+    d, m, c, t = (str(tmp_path / n) for n in ("d.csv", "m.csv", "c.json", "t.json"))
+    assert main(["design", "--robot", "lift7", "--criterion", "kpi", "--n", "12", "--out", d]) == 0
+    header = open(d).readline().strip().split(",")
+    assert header[:7] == ["q1_mm"] + [f"q{i}_deg" for i in range(2, 8)]
+    out = capsys.readouterr().out
+    assert re.search(r"independent check: 12/12 poses feasible; 0 pose\(s\) collide", out), out
+    assert main(["simulate", "--robot", "lift7", "--design", d, "--out", m, "--truth", t, "--seed", "2"]) == 0
+    data = read_measurements(m, load_robot("lift7"))
+    assert data.q.shape == (12, 7) and 0.0 <= data.q[:, 0].min() and data.q[:, 0].max() <= 500.0
+    assert main(["calibrate", "--robot", "lift7", m, "--json", c, "--force"]) == 0
+    rep = json.loads(open(c).read())
+    assert rep["converged"] and rep["n_poses"] == 12
+
+
+def _sideways(tmp_path):
+    (tmp_path / "ur5s.urdf").write_text(UR5_URDF)
+    side = (ROBOTS / "ur5.kpioed.yaml").read_text() + "base_rpy_deg: [90.0, 0.0, 0.0]\n"
+    (tmp_path / "ur5s.kpioed.yaml").write_text(side.replace("name: ur5-urdf", "name: ur5-sideways"))
+    return load_robot(str(tmp_path / "ur5s.urdf"))
+
+
+def test_gravity_follows_the_base_orientation(tmp_path):
+    upright, side = load_robot(str(ROBOTS / "ur5.urdf")), _sideways(tmp_path)
+    q = np.random.default_rng(4).uniform(upright.lower, upright.upper, size=(30, 6))
+    assert np.abs(gravity_torques(upright, q)[:, 0]).max() < 1e-9
+    tau = gravity_torques(side, q)
+    assert np.abs(tau[:, 0]).max() > 10.0  # [N m]: joint 1 horizontal, the arm's weight turns it
+    data = Measurements.from_arrays(q, np.zeros((30, 3)), source="x")
+    names = [e.name for e in candidate_effects(data, tau=tau)[0]]
+    assert "joint_elasticity:1" in names
+    names, notes = candidate_effects(data, tau=gravity_torques(upright, q))
+    assert "joint_elasticity:1" not in [e.name for e in names] and any("joint 1" in n for n in notes)
+
+
+BAD = {
+    "malformed": ("<robot name='x'><link name='a'></robot>", r"malformed URDF \(XML error at line 1"),
+    "not_urdf": ("<sdf/>", r"not a URDF"),
+    "floating": (
+        UR5_URDF.replace('name="elbow_joint" type="revolute"', 'name="elbow_joint" type="floating"'),
+        r"joint 'elbow_joint': type 'floating' is not supported",
+    ),
+    "planar": (
+        UR5_URDF.replace('name="wrist_1_joint" type="revolute"', 'name="wrist_1_joint" type="planar"'),
+        r"joint 'wrist_1_joint': type 'planar'",
+    ),
+    "branch": (
+        UR5_URDF.replace(
+            "</robot>",
+            '<link name="extra"/><joint name="side" type="revolute"><parent link="upper_arm_link"/>'
+            '<child link="extra"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/>'
+            "</joint></robot>",
+        ),
+        r"link 'upper_arm_link': the tree branches",
+    ),
+    "no_parent": (
+        UR5_URDF.replace('<parent link="forearm_link"/>', ""),
+        r"joint 'wrist_1_joint': needs <parent",
+    ),
+    "bad_origin": (
+        UR5_URDF.replace('xyz="-0.42499999999999999 0 0"', 'xyz="a b c"'),
+        r"could not parse the URDF: .*xyz",
+    ),
+    "prismatic_no_limits": (
+        UR5_URDF.replace('name="elbow_joint" type="revolute"', 'name="elbow_joint" type="prismatic"').replace(
+            LIMIT + '</joint>\n  <joint name="wrist_1_joint"',
+            '</joint>\n  <joint name="wrist_1_joint"',
+        ),
+        r"prismatic joint 'elbow_joint' has no limits; give them in .*bad\.kpioed\.yaml",
+    ),
+}
+BAD_SIDECAR = {
+    "sidecar_unknown_field": ("reflector_offset_mm: [0, 0, 1]\n", r"bad\.kpioed\.yaml"),
+    "sidecar_q_work": ("q_work: [0, 0, 0]\n", r"bad\.kpioed\.yaml: q_work: expected 6"),
+    "sidecar_limit_joint": (
+        "limits: [{joint: A9, lower: 0, upper: 1}]\n",
+        r"limits: unknown joints \['A9'\]",
+    ),
+    "sidecar_capsule_link": (
+        "capsules: [{link: 9, radius_mm: 10, a_mm: [0,0,0], b_mm: [0,0,1]}]\n",
+        r"link must",
+    ),
+    "sidecar_pairs": ("self_collision_pairs: [[2, 3]]\n", r"self_collision_pairs"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD) + sorted(BAD_SIDECAR))
+def test_bad_urdf_or_sidecar_exits_2_and_writes_nothing(case, tmp_path, capsys):
+    urdf, side = (BAD[case], None) if case in BAD else ((UR5_URDF, None), BAD_SIDECAR[case][0])
+    text, pattern = (urdf[0], urdf[1]) if case in BAD else (UR5_URDF, BAD_SIDECAR[case][1])
+    path = tmp_path / "bad.urdf"
+    path.write_text(text)
+    if side is not None:
+        (tmp_path / "bad.kpioed.yaml").write_text(side)
+    shutil.copy(ROBOTS / "ur5.urdf", tmp_path / "good.urdf")
+    design = tmp_path / "design.csv"
+    design.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,-90,90,0,0,0\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for argv in (
+        ["info", "--robot", str(path)],
+        ["simulate", "--robot", str(path), "--design", str(design), "--out", str(tmp_path / "m.csv")],
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err
+        line = [ln for ln in err.splitlines() if ln.startswith("kpioed:")][-1]
+        assert str(tmp_path / "bad") in line and re.search(pattern, line), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_continuous_joints_take_the_sidecar_limits_or_one_turn(tmp_path):
+    text = UR5_URDF.replace('name="wrist_3_joint" type="revolute"', 'name="wrist_3_joint" type="continuous"')
+    (tmp_path / "c.urdf").write_text(text)
+    robot = load_robot(str(tmp_path / "c.urdf"))
+    assert robot.upper[5] == pytest.approx(2 * np.pi)  # URDF limits of a continuous joint are ignored
+    (tmp_path / "c.kpioed.yaml").write_text("limits: [{joint: wrist_3_joint, lower: -90, upper: 270}]\n")
+    robot = load_robot(str(tmp_path / "c.urdf"))
+    assert np.rad2deg([robot.lower[5], robot.upper[5]]) == pytest.approx([-90.0, 270.0])
