@@ -30,7 +30,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import PrismaticJoint
 
-from kpioed_drake.chain import Chain, auto_gauge
+from kpioed_drake.chain import Chain, auto_gauge, param_names
 from kpioed_drake.errors import InputError
 
 MM = 1e-3
@@ -77,6 +77,9 @@ class SidecarSpec:
     q_work: list[float] = dataclasses.field(default_factory=list)
     car_shift_x_mm: float = 0.0
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
+    gauge: list[str] = dataclasses.field(default_factory=list)
+    """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
+    nominal robot's: its small errors make the exact dependencies only nearly exact)."""
     notes: str = ""
 
 
@@ -282,7 +285,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         pairs.append((int(min(pr)), int(max(pr))))
     if any(not 0 <= x <= n for x in side.beam_links):
         raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
-    gauge = auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ)
+    gauge = _gauge(side, chain, lo, up, p_FQ, sw, path)
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -305,6 +308,19 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         gauge=gauge,
         urdf=source,
     )
+
+
+def _gauge(side, chain, lo, up, p_FQ, sw, path) -> tuple[str, ...]:
+    if side.gauge:
+        unknown = sorted(set(side.gauge) - set(param_names(chain.n_joints)))
+        if unknown:
+            raise InputError(f"{sw}: gauge names {unknown}, not joint parameters of {path}")
+        return tuple(side.gauge)
+    try:
+        return auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ)
+    except ValueError as exc:
+        msg = f"{path}: automatic gauge: {exc}; name the parameters to hold in {sw} (gauge:)"
+        raise InputError(msg) from None
 
 
 def _vec(values, where: str, size: int = 3) -> np.ndarray:

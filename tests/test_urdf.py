@@ -15,8 +15,9 @@ from kpioed_drake.cli import main
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis import candidate_effects
 from kpioed_drake.effects.gravity import gravity_torques
+from kpioed_drake.measurement import measure, nominal_model
 from kpioed_drake.measurements import Measurements, read_measurements
-from kpioed_drake.models import MODELS_DIR, load_robot
+from kpioed_drake.models import MODELS_DIR, load_cell, load_robot
 from kpioed_drake.problem import make_problem
 
 ROBOTS = MODELS_DIR / "robots"
@@ -66,9 +67,21 @@ def test_lift7_cli_design_simulate_calibrate(tmp_path, capsys):
     assert main(["simulate", "--robot", "lift7", "--design", d, "--out", m, "--truth", t, "--seed", "2"]) == 0
     data = read_measurements(m, load_robot("lift7"))
     assert data.q.shape == (12, 7) and 0.0 <= data.q[:, 0].min() and data.q[:, 0].max() <= 500.0
-    assert main(["calibrate", "--robot", "lift7", m, "--json", c, "--force"]) == 0
+    cal = str(tmp_path / "cal.urdf")
+    assert main(["calibrate", "--robot", "lift7", m, "--json", c, "--out", cal, "--force"]) == 0
     rep = json.loads(open(c).read())
     assert rep["converged"] and rep["n_poses"] == 12
+    # the calibrated model file (URDF + sidecar) predicts what the calibration's model predicts
+    report = calibration.calibrate(load_robot("lift7"), data, force=True)
+    again = load_robot(cal)
+    assert again.gauge == load_robot("lift7").gauge and again.p_FQ is not None
+    model = nominal_model(again, load_cell(robot=again))
+    assert np.abs(measure(model, data.q) - measure(report.model, data.q)).max() < 1e-8
+    # a YAML file is refused for a URDF robot, before any work and without writing
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["calibrate", "--robot", "lift7", m, "--out", str(tmp_path / "x.yaml")]) == 2
+    assert "is a URDF robot" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
 def _sideways(tmp_path):

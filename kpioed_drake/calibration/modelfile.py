@@ -20,6 +20,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.jointmap import joint_map_spec
 from kpioed_drake.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
+from kpioed_drake.urdfwrite import calibrated_sidecar, calibrated_urdf
 
 
 def _spec_from_robot(robot: Robot) -> RobotSpec:
@@ -96,19 +97,35 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
             j.theta_deg, j.a_mm, j.alpha_deg = float(np.rad2deg(th)), float(a), float(np.rad2deg(al))
             j.beta_deg, j.d_mm = float(np.rad2deg(be)), 0.0
     spec.name = f"{rob.name}-calibrated"
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     spec.reflector_position_mm = report.model.p_FQ.tolist()
     spec.tracker_position_mm = report.model.p_WT.tolist()
     spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
-    cal_note = (
-        f"Calibrated by kpioed calibrate from {report.data.path} ({stamp}): "
-        f"{int(np.count_nonzero(report.used))} of {report.data.n} poses, sigma {report.result.sigma:g} mm, "
-        f"RMS residual {report.rms_residual_mm:.4g} mm"
-        + (f", chi2/dof {report.chi2_per_dof:.3g}" if report.chi2_per_dof is not None else "")
-        + ". Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm and "
+    cal_note = _note(report) + (
+        " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm and "
         "tracker_position_mm/tracker_rpy_deg hold the estimated reflector offset and tracker pose "
         "(they override the cell file's)."
     )
     spec.notes = (spec.notes + " " if spec.notes else "") + cal_note
     header = "# Calibrated robot model file (kpioed-drake). Units: mm, deg, kg. Format: models/README.md.\n"
     return header + yaml_dump_typed(spec)
+
+
+def _note(report: CalibrationReport) -> str:
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return (
+        f"Calibrated by kpioed calibrate from {report.data.path} ({stamp}): "
+        f"{int(np.count_nonzero(report.used))} of {report.data.n} poses, sigma {report.result.sigma:g} mm, "
+        f"RMS residual {report.rms_residual_mm:.4g} mm"
+        + (f", chi2/dof {report.chi2_per_dof:.3g}" if report.chi2_per_dof is not None else "")
+        + "."
+    )
+
+
+def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
+    """A calibrated URDF robot: the URDF text (estimated errors folded into the joint origins) and
+    its sidecar text (estimated reflector offset and tracker pose); :mod:`kpioed_drake.urdfwrite`."""
+    rob, model = report.robot, report.model
+    note = _note(report)
+    urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))
+    side = calibrated_sidecar(rob, p_FQ=model.p_FQ, p_WT=model.p_WT, R_WT=model.R_WT, note=note)
+    return urdf, side

@@ -11,7 +11,7 @@ from pathlib import Path
 from kpioed_drake.arguments import check_paths, check_positive, require
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.calibration.fit import calibrate
-from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
+from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.dataformats import read_data
@@ -20,6 +20,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.models import load_cell, load_robot
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.scene3d import calibration_page
+from kpioed_drake.urdfwrite import check_out_path, sidecar_of
 
 
 def calibrate_file(
@@ -65,10 +66,16 @@ def calibrate_file(
     check_positive("sigma_mm", sigma_mm)
     ok = isinstance(outlier_alpha, int | float) and 0 <= outlier_alpha < 1
     require(ok, f"outlier_alpha: expected a number in [0, 1), got {outlier_alpha!r}")
+    side_out = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
     check_paths(
-        robot=robot, inputs=[data_path, data_format], outputs=[out, json_path], folders=[plots_dir], html=html
+        robot=robot,
+        inputs=[data_path, data_format],
+        outputs=[out, side_out, json_path],
+        folders=[plots_dir],
+        html=html,
     )
     rob = load_robot(robot)
+    check_out_path(rob, out)
     qw = parse_q_work(q_work_deg, rob) if q_work_deg else None
     if extend:
         if out or plots_dir or html:
@@ -86,7 +93,11 @@ def calibrate_file(
     options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict)
     report = calibrate(rob, data, sigma_mm=sigma_mm, cell_path=cell_path, **options)
     with Outputs() as staged:
-        if out:
+        if out and side_out is not None:
+            urdf_text, side_text = calibrated_urdf_files(report)
+            staged.add_text(out, urdf_text)
+            staged.add_text(side_out, side_text)
+        elif out:
             staged.add_text(out, calibrated_robot_yaml(report))
         if json_path:
             staged.add_json(json_path, report.to_dict())

@@ -62,7 +62,7 @@ def draw_cell(canvas: Canvas, scene: Scene, robot: Robot, cell: Cell) -> None:
     canvas.box(
         "/cell/wall", [cell.wall_x - _PANEL, lo_xy[1], fz], [cell.wall_x, hi_xy[1], fz + _WALL_HEIGHT], WALL
     )
-    draw_robot(canvas, "/cell/robot base", scene, np.zeros(6), ROBOT, links=(0,))
+    draw_robot(canvas, "/cell/robot base", scene, np.zeros(robot.n_joints), ROBOT, links=(0,))
     car = {ob.name for ob in cell.obstacles if ob.moves_with_car}
     qo = scene.query_object()
     inspector = qo.inspector()
@@ -78,8 +78,10 @@ def draw_cell(canvas: Canvas, scene: Scene, robot: Robot, cell: Cell) -> None:
         canvas.rod(f"/cell/tracker/axis {'xyz'[i]}", p, p + 350.0 * cell.R_WT[:, i], 10.0, colour)
 
 
-def draw_robot(canvas: Canvas, path: str, scene: Scene, q, rgba: Rgba, *, links=(1, 2, 3, 4, 5, 6)) -> None:
-    """The geometry of the robot links ``links`` at joint angles ``q`` (6,) [rad], under ``path``."""
+def draw_robot(canvas: Canvas, path: str, scene: Scene, q, rgba: Rgba, *, links=None) -> None:
+    """The geometry of the robot links ``links`` (default: every moving link) at joint angles
+    ``q`` (nj,) [rad], under ``path``."""
+    links = range(1, len(scene.bodies)) if links is None else links
     scene.set_q(np.asarray(q, dtype=float))
     qo = scene.query_object()
     inspector = qo.inspector()
