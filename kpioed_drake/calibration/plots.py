@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.designio import q_to_file
 from kpioed_drake.outputs import pyplot
 
 
@@ -38,7 +39,8 @@ def plot_calibration(report: CalibrationReport, outdir) -> list[Path]:
     rows = np.asarray(report.data.rows)
     used = res.mask
     sigma = res.sigma
-    q_deg = np.rad2deg(report.data.q)
+    q_deg = q_to_file(report.robot, report.data.q)  # deg (prismatic joints: mm)
+    nj = q_deg.shape[1]
     labels = ("x", "y", "z")
     colors = ("tab:red", "tab:green", "tab:blue")
     files = []
@@ -64,14 +66,17 @@ def plot_calibration(report: CalibrationReport, outdir) -> list[Path]:
     plt.close(fig)
     files.append(path)
 
-    plt, (fig, axes) = _figure(2, 3, figsize=(13, 7), sharey=True)
-    for j, ax in enumerate(axes.ravel()):
+    ncol = -(-nj // 2)
+    plt, (fig, axes) = _figure(2, ncol, figsize=(13 * ncol / 3, 7), sharey=True)
+    for ax in axes.ravel()[nj:]:
+        ax.set_visible(False)
+    for j, ax in enumerate(axes.ravel()[:nj]):
         for k in range(3):
             ax.plot(q_deg[used, j], r_W[used, k], "o", ms=3, color=colors[k], alpha=0.8, label=labels[k])
         ax.axhline(0.0, color="0.5", lw=0.8)
-        ax.set_xlabel(f"q{j + 1} [deg]")
+        ax.set_xlabel(f"q{j + 1} [{'mm' if report.robot.prismatic[j] else 'deg'}]")
         ax.grid(alpha=0.3)
-        if j % 3 == 0:
+        if j % ncol == 0:
             ax.set_ylabel("residual [mm]")
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(f"{report.robot.name}: residuals (used poses, in W) against the joint angles")

@@ -14,6 +14,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from scipy.stats import chi2 as chi2_dist
 
+from kpioed_drake.designio import q_to_file
 from kpioed_drake.estimation import EstimationResult
 from kpioed_drake.measurement import TrackerModel
 from kpioed_drake.measurements import ROW_CONVENTION, Measurements
@@ -204,7 +205,7 @@ class CalibrationReport:
             "n_poses": self.data.n,
             "n_used": int(np.count_nonzero(self.used)),
             "sigma_mm": res.sigma,
-            "q_work_deg": np.rad2deg(self.q_work).tolist(),
+            "q_work_deg": q_to_file(self.robot, self.q_work).tolist(),
             "converged": bool(res.converged),
             "iterations": int(res.iterations),
             "stop_reason": res.message,

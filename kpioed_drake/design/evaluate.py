@@ -15,7 +15,7 @@ import numpy as np
 from kpioed_drake.arguments import check_paths, check_positive
 from kpioed_drake.design.certificate import certificate_fields
 from kpioed_drake.design.certificate import certify as certify_design
-from kpioed_drake.designio import parse_q_work, read_design
+from kpioed_drake.designio import parse_q_work, q_to_file, read_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import FeasibilityChecker, summarize
 from kpioed_drake.models import load_robot
@@ -74,7 +74,7 @@ def evaluate_file(
         "n_params": prob.n_params,
         "extensions": [e.name for e in prob.extensions],
         "sigma_mm": prob.sigma,
-        "q_work_deg": np.rad2deg(prob.q_work).round(6).tolist(),
+        "q_work_deg": q_to_file(rob, prob.q_work).round(6).tolist(),
         "kpi_avg_var_mm2": float(np.trace(Cs) / 3.0),
         "kpi_cov_mm2": Cs.tolist(),
         "param_crit": float(np.sum(np.diag(Cp) * prob.scale**2)),

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.design.certificate import certificate_fields, certificate_line
-from kpioed_drake.designio import jsonable
+from kpioed_drake.designio import jsonable, q_to_file
 from kpioed_drake.errors import SolverError
 from kpioed_drake.problem import Problem
 
@@ -164,7 +164,9 @@ def json_record(res: DesignResult, problem: Problem, *, error: str | None = None
     working pose [deg] ((K, 6) and ``kpi_weights``, ``kpi_aggregate`` for several), the noise [mm]
     and, for a rejected design, the error message; NaN as null."""
     rec = res.summary()
-    rec["q_work_deg"] = np.rad2deg(problem.q_work).tolist()
+    for pose, qi in zip(rec["poses"], res.q, strict=True):  # a prismatic joint's value in mm
+        pose["q_deg"] = q_to_file(problem.robot, qi).tolist()
+    rec["q_work_deg"] = q_to_file(problem.robot, problem.q_work).tolist()
     if problem.n_kpis > 1:
         rec["kpi_weights"] = problem.weights.tolist()
         rec["kpi_aggregate"] = problem.kpi_aggregate

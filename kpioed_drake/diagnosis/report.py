@@ -16,7 +16,7 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import kpi_and_covariance
-from kpioed_drake.designio import jsonable
+from kpioed_drake.designio import jsonable, q_to_file
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.selection import Selection
 from kpioed_drake.estimation import rms
@@ -142,7 +142,7 @@ def kpi_summary(prob: FitProblem, base: Fit, ext: Fit) -> dict:
     s_b, Cb = kpi_and_covariance(base, qw)
     s_e, Ce = kpi_and_covariance(ext, qw)
     return {
-        "q_work_deg": np.rad2deg(qw),
+        "q_work_deg": q_to_file(prob.robot, qw),
         "tcp_baseline_mm": s_b,
         "tcp_extended_mm": s_e,
         "tcp_shift_mm": float(np.linalg.norm(s_e - s_b)),
