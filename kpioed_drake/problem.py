@@ -292,8 +292,8 @@ def make_problem(
     sigma = cell.sigma if sigma_mm is None else float(sigma_mm)
     if not np.isfinite(sigma) or sigma <= 0:
         raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
-    exts = _parse_extensions(extend)
     model = nominal_model(robot, cell)
+    exts = _parse_extensions(extend, model)
     if fixed is not None:
         try:
             model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
@@ -330,12 +330,12 @@ def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
     return w / w.sum()
 
 
-def _parse_extensions(extend) -> tuple:
+def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
     if not extend:
         return ()
     out = []
     for e in extend:
-        eff = parse_effect(e) if isinstance(e, str) else e
+        eff = parse_effect(e, model=model) if isinstance(e, str) else e
         if eff.family not in JOINT_FAMILIES:
             raise InputError(
                 f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) can extend a "

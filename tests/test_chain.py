@@ -187,3 +187,14 @@ def test_gauge_choice_holds_only_redundant_parameters(lift7):
     free = F[:, nominal_model(bigger, load_cell(robot=bigger)).layout.free]
     s = np.linalg.svd(free, compute_uv=False)
     assert s[-1] / s[0] < 1e-10  # py3 trades against the others: not determined
+
+
+def test_design_gradient_of_F1_with_an_extension(lift7):
+    """dF1/dq (the design's gradient) with a prismatic joint and an elasticity column."""
+    prob = make_problem(lift7, sigma_mm=0.02, extend=["joint_elasticity:3", "joint_scale:1"])
+    q = _poses(lift7, 2, 11)
+    F1, dF = prob.F1(q, with_dq=True)  # (3n, k), (n, nj, 3, k)
+    fd = central_fd(lambda qq: prob.F1(qq).reshape(len(qq), 3, -1), q, 1e-6)  # (n, 3, k, n, nj)
+    for k in range(len(q)):
+        ref = np.moveaxis(fd[k, :, :, k, :], -1, 0)
+        assert_allclose(dF[k], ref, atol=1e-6 * np.abs(ref).max())

@@ -106,7 +106,9 @@ def diagnose(
         cands, notes = candidate_effects(data, tau=prob.tau)
     else:
         cands = [
-            fx.parse_effect(c) if isinstance(c, str) else dataclasses.replace(c, values=None)
+            fx.parse_effect(c, model=prob.nominal)
+            if isinstance(c, str)
+            else dataclasses.replace(c, values=None)
             for c in candidates
         ]
         notes = []

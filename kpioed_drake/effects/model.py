@@ -186,9 +186,9 @@ def _numbers(text: str, count: int, spec: str) -> tuple[float, ...]:
     return vals
 
 
-def _joint(token: str, spec: str) -> int:
-    if not re.fullmatch(r"[1-6]", token.strip()):
-        raise InputError(f"effect {spec!r}: joint must be 1..6 (1-based), got {token!r}")
+def _joint(token: str, spec: str, n_joints: int = 6) -> int:
+    if not (re.fullmatch(r"[1-9][0-9]*", token.strip()) and int(token) <= n_joints):
+        raise InputError(f"effect {spec!r}: joint must be 1..{n_joints} (1-based), got {token!r}")
     return int(token)
 
 
@@ -213,6 +213,7 @@ def parse_effect(
     Raises:
         InputError: unknown family, bad joint or harmonic, wrong number of values.
     """
+    nj = 6 if model is None else model.robot.n_joints  # joints of the robot (six by default)
     spec = str(text).strip()
     lhs, eq, rhs = spec.partition("=")
     parts = [p.strip() for p in lhs.split(":")]
@@ -225,7 +226,7 @@ def parse_effect(
     if family == "joint_elasticity":
         if len(parts) != 2:
             raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
-        joint = _joint(parts[1], spec)
+        joint = _joint(parts[1], spec, nj)
         if joint == 1:
             raise InputError(
                 f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
@@ -241,7 +242,7 @@ def parse_effect(
     if family == "gear_cyclic":
         if len(parts) != 3:
             raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
-        joint = _joint(parts[1], spec)
+        joint = _joint(parts[1], spec, nj)
         if not re.fullmatch(r"[1-9]\d*", parts[2]):
             raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
         n = int(parts[2])
@@ -253,7 +254,7 @@ def parse_effect(
         ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
         return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
     if family in EXTRA_FAMILIES:
-        return _parse_extra(family, parts, given, rng, spec)
+        return _parse_extra(family, parts, given, rng, spec, nj)
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
     if family == "thermal_expansion":
@@ -273,7 +274,7 @@ def parse_effect(
     return Effect(family, values=tuple(float(x) for x in v))
 
 
-def _parse_extra(family: str, parts: list[str], given, rng, spec: str) -> Effect:
+def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int = 6) -> Effect:
     """The further families (:data:`EXTRA_FAMILIES`): ``parts`` = the ':'-separated left side."""
     form = {
         "joint_scale": "joint_scale:JOINT[=eps ppm]",
@@ -284,7 +285,7 @@ def _parse_extra(family: str, parts: list[str], given, rng, spec: str) -> Effect
     n_idx = form.count(":JOINT")
     if len(parts) != 1 + n_idx:
         raise InputError(f"effect {spec!r}: expected {form}")
-    idx = [_joint(p, spec) for p in parts[1:]]
+    idx = [_joint(p, spec, nj) for p in parts[1:]]
     if family == "backlash" and idx[0] == 1:
         raise InputError(
             f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "

@@ -241,7 +241,7 @@ def true_measurements(
     """
     effs = []
     for e in effects:
-        e = parse_effect(e) if isinstance(e, str) else e
+        e = parse_effect(e, model=model_true) if isinstance(e, str) else e
         e = resolve(e, model_true)
         if e.values is None:
             raise InputError(
@@ -282,7 +282,7 @@ def extension_columns(
     Returns:
         E (n, 3, k); with ``with_dq`` also dE (n, 6, 3, k) ``dE[i, j] = dE[i] / dq_j``.
     """
-    effs = [parse_effect(e) if isinstance(e, str) else e for e in extensions]
+    effs = [parse_effect(e, model=model) if isinstance(e, str) else e for e in extensions]
     out = augmented_jacobian(
         model,
         q,
