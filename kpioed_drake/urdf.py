@@ -60,6 +60,16 @@ class LinkCapsuleSpec:
 
 
 @dataclasses.dataclass
+class LinkMassSpec:
+    """A mass override of robot link ``link`` (1..n): ``mass_kg`` and optionally ``com_mm`` (link frame);
+    the URDF's inertia tensor is scaled by the mass ratio."""
+
+    link: int = 0
+    mass_kg: float = 0.0
+    com_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
 class SidecarSpec:
     """The sidecar YAML of a URDF robot (every field optional; mm, deg)."""
 
@@ -72,6 +82,7 @@ class SidecarSpec:
     base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
     limits: list[LimitSpec] = dataclasses.field(default_factory=list)
     capsules: list[LinkCapsuleSpec] = dataclasses.field(default_factory=list)
+    masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
     self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
     beam_links: list[int] = dataclasses.field(default_factory=list)
     q_work: list[float] = dataclasses.field(default_factory=list)
@@ -179,8 +190,33 @@ def _chain_joints(root: ET.Element, path: Path) -> tuple[list[ET.Element], str, 
     return chain, roots[0], roots[0] == "world"
 
 
-def _stripped(root: ET.Element) -> str:
+def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
+    """The URDF text without visual and collision elements, with the sidecar's mass overrides."""
     root = ET.fromstring(ET.tostring(root))
+    links = {lk.get("name"): lk for lk in root.findall("link")}
+    for k, m in enumerate(masses):
+        w = f"{where}: masses[{k}]"
+        if not 1 <= m.link <= len(chain):
+            raise InputError(f"{w}: link must be in 1..{len(chain)}, got {m.link}")
+        if not (np.isfinite(m.mass_kg) and m.mass_kg > 0):
+            raise InputError(f"{w}: mass_kg must be a finite number > 0, got {m.mass_kg!r}")
+        lk = links[chain[m.link - 1].find("child").get("link")]
+        inertial = lk.find("inertial")
+        if inertial is None:
+            inertial = ET.SubElement(lk, "inertial")
+            ET.SubElement(inertial, "inertia", {k: "0" for k in ("ixy", "ixz", "iyz")})
+        mass = inertial.find("mass")
+        old = float(mass.get("value")) if mass is not None else 0.0
+        mass = ET.SubElement(inertial, "mass") if mass is None else mass
+        mass.set("value", repr(float(m.mass_kg)))
+        tensor = inertial.find("inertia")
+        for key in ("ixx", "iyy", "izz"):  # scaled, or a 50 mm solid sphere without a URDF mass
+            v = float(tensor.get(key, "0")) * m.mass_kg / old if old > 0 else 0.001 * m.mass_kg
+            tensor.set(key, repr(v))
+        if m.com_mm:
+            o = inertial.find("origin")
+            o = ET.SubElement(inertial, "origin") if o is None else o
+            o.set("xyz", " ".join(repr(float(x) * MM) for x in _vec(m.com_mm, f"{w}.com_mm")))
     for lk in root.findall("link"):
         for tag in ("visual", "collision"):
             for el in lk.findall(tag):
@@ -237,7 +273,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     elif not welded:
         X_WB = RigidTransform()
     names = tuple(j.get("name") for j in chain_xml)
-    source = UrdfSource(str(path), _stripped(xml), X_WB, root, names)
+    source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
     plant = MultibodyPlant(0.0)
     inst = add_urdf(plant, source)
     plant.Finalize()

@@ -152,6 +152,8 @@ BAD_SIDECAR = {
         r"link must",
     ),
     "sidecar_pairs": ("self_collision_pairs: [[2, 3]]\n", r"self_collision_pairs"),
+    "sidecar_mass_link": ("masses: [{link: 0, mass_kg: 1.0}]\n", r"masses\[0\]: link must be in 1..6"),
+    "sidecar_mass_nan": ("masses: [{link: 2, mass_kg: .nan}]\n", r"masses\[0\]: mass_kg"),
 }
 
 
@@ -187,3 +189,16 @@ def test_continuous_joints_take_the_sidecar_limits_or_one_turn(tmp_path):
     (tmp_path / "c.kpioed.yaml").write_text("limits: [{joint: wrist_3_joint, lower: -90, upper: 270}]\n")
     robot = load_robot(str(tmp_path / "c.urdf"))
     assert np.rad2deg([robot.lower[5], robot.upper[5]]) == pytest.approx([-90.0, 270.0])
+
+
+def test_sidecar_masses_override_the_urdf(tmp_path):
+    (tmp_path / "m.urdf").write_text(UR5_URDF)
+    (tmp_path / "m.kpioed.yaml").write_text(
+        "masses: [{link: 2, mass_kg: 16.786, com_mm: [-100.0, 0.0, 136.0]}]\n"
+    )
+    heavy, ur5 = load_robot(str(tmp_path / "m.urdf")), load_robot(str(ROBOTS / "ur5.urdf"))
+    assert heavy.masses[2] == pytest.approx(2 * ur5.masses[2]) and heavy.masses[3] == ur5.masses[3]
+    assert heavy.coms[2] == pytest.approx([-100.0, 0.0, 136.0])
+    q = np.random.default_rng(5).uniform(ur5.lower, ur5.upper, size=(5, 6))
+    d = gravity_torques(heavy, q) - gravity_torques(ur5, q)
+    assert np.abs(d[:, 1]).max() > 0.5 and np.abs(d[:, 2:]).max() < 1e-9  # joints beyond link 2 unchanged
