@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.designio import check_joint_angles, read_csv_table
+from kpioed_drake.designio import check_joint_angles, q_to_file, read_csv_table
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurements import FRAMES, Measurements, check_pose_count, read_measurements
 from kpioed_drake.models import N_JOINTS, Robot, load_yaml_typed
@@ -94,7 +94,7 @@ def check_format(fmt: DataFormat, where: str = "format") -> DataFormat:
             f"{where}: field 'separator': {fmt.separator!r} must be one character other than a quote "
             f"and other than the decimal mark {fmt.decimal!r}"
         )
-    if len(fmt.joints) != N_JOINTS or not all(c.strip() for c in fmt.joints):
+    if not fmt.joints or not all(c.strip() for c in fmt.joints):
         raise InputError(f"{where}: field 'joints': expected {N_JOINTS} column names, got {fmt.joints!r}")
     for axis in "xyz":
         if not getattr(fmt.position, axis).strip():
@@ -170,13 +170,19 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
     header, data = read_csv_table(path, (), delimiter=fmt.separator)
     if not data:
         raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
+    if len(fmt.joints) != robot.n_joints:
+        raise InputError(
+            f"{path}: the format's field 'joints' names {len(fmt.joints)} columns, {robot.name} has "
+            f"{robot.n_joints} joints"
+        )
     cols = _Columns(path, header, data, data.lines, fmt.decimal)
     J = np.stack([cols.column(c, f"joints[{i}]") for i, c in enumerate(fmt.joints)], axis=1)
-    q = J * ANGLE_UNITS[fmt.angle_unit]
+    # a prismatic joint's column is a length (the format's length unit)
+    q = J * np.where(robot.prismatic, LENGTH_UNITS[fmt.length_unit], ANGLE_UNITS[fmt.angle_unit])
     if fmt.angles == "controller" and robot.joint_map is not None:
         q = robot.joint_map.to_model(q)
     rows = np.asarray(cols.lines)
-    check_joint_angles(path, np.rad2deg(q), robot, rows=rows)
+    check_joint_angles(path, q_to_file(robot, q), robot, rows=rows)
     eta = np.stack([cols.expression(getattr(fmt.position, a), f"position.{a}") for a in "xyz"], axis=1)
     eta = eta * LENGTH_UNITS[fmt.length_unit]
     extra = {}

@@ -276,7 +276,8 @@ def make_problem(
         raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
     if q_work is None:
         if robot.q_work is None:
-            raise InputError(f"{robot.name}: the model file has no q_work_deg; pass --q-work")
+            where = "q_work in its sidecar" if robot.urdf is not None else "q_work_deg"
+            raise InputError(f"{robot.name}: the model file has no {where}; pass --q-work")
         q_work = robot.q_work
     q_work = np.asarray(q_work, dtype=float)
     if q_work.ndim == 2 and q_work.shape[0] == 1:
