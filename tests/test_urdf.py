@@ -8,6 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake import calibration, simulation
@@ -15,9 +16,11 @@ from kpioed_drake.cli import main
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis import candidate_effects
 from kpioed_drake.effects.gravity import gravity_torques
+from kpioed_drake.kinematics import forward_kinematics
 from kpioed_drake.measurement import measure, nominal_model
 from kpioed_drake.measurements import Measurements, read_measurements
 from kpioed_drake.models import MODELS_DIR, load_cell, load_robot
+from kpioed_drake.plant import MM, build_scene
 from kpioed_drake.problem import make_problem
 
 ROBOTS = MODELS_DIR / "robots"
@@ -202,3 +205,42 @@ def test_sidecar_masses_override_the_urdf(tmp_path):
     q = np.random.default_rng(5).uniform(ur5.lower, ur5.upper, size=(5, 6))
     d = gravity_torques(heavy, q) - gravity_torques(ur5, q)
     assert np.abs(d[:, 1]).max() > 0.5 and np.abs(d[:, 2:]).max() < 1e-9  # joints beyond link 2 unchanged
+
+
+def test_world_weld_fixed_joints_and_side_branches(tmp_path):
+    """A URDF welded to "world" (tilted), a fixed joint inside the chain and a fixed tool0 leaf:
+    the same chain as the sidecar's base pose, and the numpy kinematics agree with the parsed plant."""
+    text = UR5_URDF.replace(
+        '<robot name="ur5">',
+        '<robot name="ur5"><link name="world"/><joint name="weld" type="fixed"><parent link="world"/>'
+        '<child link="base_link"/><origin xyz="0.1 0.2 0.3" rpy="1.5707963267948966 0 0"/></joint>',
+    )
+    text = text.replace('<parent link="forearm_link"/>', '<parent link="forearm_mount"/>').replace(
+        "</robot>",
+        '<link name="forearm_mount"/><joint name="mount" type="fixed"><parent link="forearm_link"/>'
+        '<child link="forearm_mount"/><origin xyz="0 0 0" rpy="0 0 0.3"/></joint>'
+        '<link name="tool0"/><joint name="tool" type="fixed"><parent link="wrist_3_link"/>'
+        '<child link="tool0"/><origin xyz="0 0 0.05" rpy="0 0 0"/></joint></robot>',
+    )
+    text = text.replace(
+        '<origin xyz="-0.39224999999999999 0 0" rpy="0 0 0"/><axis',
+        # the same joint frame in the mount's frame: Rz(-0.3) (-392.25, 0, 0) mm, turned back by 0.3 rad
+        '<origin xyz="-0.37473073785951894 0.11591780106291043 0" rpy="0 0 -0.3"/><axis',
+    )
+    (tmp_path / "w.urdf").write_text(text)
+    welded = load_robot(str(tmp_path / "w.urdf"))
+    (tmp_path / "s.urdf").write_text(UR5_URDF)
+    (tmp_path / "s.kpioed.yaml").write_text("base_xyz_mm: [100, 200, 300]\nbase_rpy_deg: [90, 0, 0]\n")
+    side = load_robot(str(tmp_path / "s.urdf"))
+    assert welded.n_joints == 6 and welded.joint_names == side.joint_names
+    q = np.random.default_rng(6).uniform(side.lower, side.upper, size=(10, 6))
+    fw, fs = forward_kinematics(welded, q), forward_kinematics(side, q)
+    assert_allclose(fw.o, fs.o, atol=1e-9)
+    assert_allclose(fw.R, fs.R, atol=1e-12)
+    scene = build_scene(welded)
+    for k in range(len(q)):
+        scene.set_q(q[k])
+        for i in range(7):
+            assert_allclose(scene.X_WB(i).translation() / MM, fw.o[k, i], atol=1e-9)
+    # the sideways base: gravity now loads joint 1
+    assert np.abs(gravity_torques(welded, q)[:, 0]).max() > 10.0
