@@ -255,7 +255,8 @@ def robot_path(name: str) -> Path:
 def list_robots() -> list[str]:
     """Names of all robots shipped under ``models/robots``."""
     root = MODELS_DIR / "robots"
-    names = sorted({p.stem for p in root.glob("*.yaml")} | {p.stem for p in root.glob("*.urdf")})
+    yamls = {p.stem for p in root.glob("*.yaml") if not p.name.endswith(".kpioed.yaml")}  # not sidecars
+    names = sorted(yamls | {p.stem for p in root.glob("*.urdf")})
     names += sorted(p.stem for p in (root / "notional").glob("notional-*.yaml"))
     return names
 
