@@ -32,6 +32,7 @@ from pydrake.multibody.tree import PrismaticJoint
 
 from kpioed_drake.chain import Chain, auto_gauge, param_names
 from kpioed_drake.errors import InputError
+from kpioed_drake.modelspec import CapsuleSpec
 
 MM = 1e-3
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -49,14 +50,10 @@ class LimitSpec:
 
 
 @dataclasses.dataclass
-class LinkCapsuleSpec:
+class LinkCapsuleSpec(CapsuleSpec):
     """A capsule on robot link ``link`` (0 = base in W, i = child link of movable joint i) [mm]."""
 
     link: int = 0
-    name: str = ""
-    radius_mm: float = 0.0
-    a_mm: list[float] = dataclasses.field(default_factory=list)
-    b_mm: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass

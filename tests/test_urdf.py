@@ -244,3 +244,12 @@ def test_world_weld_fixed_joints_and_side_branches(tmp_path):
             assert_allclose(scene.X_WB(i).translation() / MM, fw.o[k, i], atol=1e-9)
     # the sideways base: gravity now loads joint 1
     assert np.abs(gravity_torques(welded, q)[:, 0]).max() > 10.0
+
+
+def test_sidecar_capsules_replace_the_urdf_geometry(tmp_path):
+    (tmp_path / "c.urdf").write_text(UR5_URDF)
+    side = "capsules: [{link: 2, name: arm, radius_mm: 50, a_mm: [0, 0, 136], b_mm: [-425, 0, 136]}]\n"
+    (tmp_path / "c.kpioed.yaml").write_text(side)
+    robot = load_robot(str(tmp_path / "c.urdf"))
+    assert [(c.name, c.frame, c.radius) for c in robot.capsules] == [("arm", 2, 50.0)]
+    assert len(load_robot(str(ROBOTS / "ur5.urdf")).capsules) == 7  # the URDF's cylinders
