@@ -105,6 +105,8 @@ class Frames:
         w = self.joint_axes.reshape(self.joint_axes.shape[:1] + (1,) * extra + self.joint_axes.shape[1:])
         ow = self.joint_points.reshape(w.shape)
         rev = cross(w, p_W[..., None, :] - ow)
+        if not self.prismatic.any():
+            return rev
         return np.where(self.prismatic[:, None], np.broadcast_to(w, rev.shape), rev)
 
 
@@ -217,11 +219,13 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     if not with_dq:
         return p, J
     w = frames.joint_axes  # (n,nj,3)
-    pris = frames.prismatic[None, :, None, None, None]
+    pris = frames.prismatic.any()
     dP = frames.joint_motion(p)  # (n,nj,3): dp/dq_j
     dJ = np.zeros((n, nj, 3, g + 3))
     # element moved by joint j: revolute w_j x col, prismatic 0
-    full = np.where(pris, 0.0, cross(w[:, :, None, None, :], cols[:, None, :, :, :]))  # (n,j,i,P,3)
+    full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,P,3)
+    if pris:
+        full = np.where(frames.prismatic[None, :, None, None, None], 0.0, full)
     # element upstream of joint j: rotation: u x dP_j; translation: 0
     part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,P,3)
     part = np.where(rot[None, None, :, :, None], part, 0.0)
@@ -229,7 +233,7 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     d = np.where(mask[None, :, :, :, None], full, part)  # (n,j,i,P,3)
     dJ[:, :, :, :g] = d.reshape(n, nj, g, 3).transpose(0, 1, 3, 2)
     dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
-    dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF)
+    dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF) if pris else dRF
     return p, J, dJ
 
 
