@@ -12,7 +12,9 @@ import sys
 
 def add_robot(p, *, required: bool = True) -> None:
     p.add_argument(
-        "--robot", required=required, help="model name (kr16, kr300, kr500, notional-850-800) or YAML path"
+        "--robot",
+        required=required,
+        help="model name (kr16, kr300, kr500, ur5, lift7, notional-850-800) or a YAML or URDF path",
     )
 
 
