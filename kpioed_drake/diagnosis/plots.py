@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import scipy.stats
 
+from kpioed_drake.designio import q_to_file
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.measurement import reflector_world
 from kpioed_drake.outputs import pyplot
@@ -63,21 +64,23 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     r = base.residuals
     g, u, R_TW = _signatures(prob, base)
     nj = d.q.shape[1]
+    size = np.max(np.abs(prob.tau), axis=0)
+    loaded = size > 1e-9 * max(1.0, float(np.max(size)))  # as the candidates: gravity loads the joint
     fig, axes = plt.subplots(3, nj, figsize=(20 * nj / 6, 10), constrained_layout=True)
     for j in range(nj):
         a = np.rad2deg(_apparent(r, g[:, j]))
         ax = axes[0, j]
-        ax.scatter(np.rad2deg(d.q[:, j]), a, s=8, color=_BEFORE)
+        ax.scatter(q_to_file(prob.robot, d.q)[:, j], a, s=8, color=_BEFORE)
         best = min((_score_title(report, f"gear_cyclic:{j + 1}:{n}"), n) for n in (1, 2))[0]
         ax.set_title(f"joint {j + 1} vs q{j + 1}\n{best}", fontsize=9)
-        ax.set_xlabel(f"q{j + 1} [deg]")
+        ax.set_xlabel(f"q{j + 1} [{'mm' if prob.robot.prismatic[j] else 'deg'}]")
         ax.axhline(0, color="0.7", lw=0.8)
         ax = axes[1, j]
-        if j == 0:
+        if not loaded[j]:
             ax.text(
                 0.5,
                 0.5,
-                "joint 1: vertical axis,\nno gravity torque",
+                f"joint {j + 1}: vertical axis,\nno gravity torque",
                 ha="center",
                 va="center",
                 transform=ax.transAxes,
@@ -164,8 +167,10 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
         j = effect.joint - 1
         y = np.rad2deg(_apparent(r, g[:, j]))
         ys = np.rad2deg(_apparent(sig, g[:, j]))
-        x = prob.tau[:, j] if effect.family == "joint_elasticity" else np.rad2deg(d.q[:, j])
-        xl = f"gravity torque tau{j + 1} [N m]" if effect.family == "joint_elasticity" else f"q{j + 1} [deg]"
+        x = prob.tau[:, j] if effect.family == "joint_elasticity" else q_to_file(prob.robot, d.q)[:, j]
+        unit = "mm" if prob.robot.prismatic[j] else "deg"
+        elastic = effect.family == "joint_elasticity"
+        xl = f"gravity torque tau{j + 1} [N m]" if elastic else f"q{j + 1} [{unit}]"
         return x, y, ys, xl, "apparent joint-angle error [deg]"
     if effect.family == "thermal_expansion":
         return (
