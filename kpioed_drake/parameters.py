@@ -190,7 +190,7 @@ class ParameterLayout:
 
 
 def parameter_layout(
-    robot: Robot, *, fixed: tuple[str, ...] = FIXED_NAMES, n_targets: int = 1, n_effects: int = 0
+    robot: Robot, *, fixed: tuple[str, ...] = FIXED_NAMES, n_targets: int | None = None, n_effects: int = 0
 ) -> ParameterLayout:
     """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
 
@@ -198,12 +198,15 @@ def parameter_layout(
         robot: the robot; its model file's ``extra_gauge`` names are held at nominal too (e.g. a
             target on joint 6's axis makes theta5 and alpha5 trade against the others).
         fixed: SPEC's gauge, the parameters held at nominal.
-        n_targets: targets (reflectors) per pose; n_effects: effect parameters appended.
+        n_targets: targets (reflectors) per pose (default: the robot's, ``robot.n_targets``; the
+            same gauge holds for any number: the joint-6 parameters trade against all target
+            offsets together); n_effects: effect parameters appended.
 
     Raises:
         ValueError: a fixed name that is not a parameter of the model.
     """
     fixed = tuple(fixed) + tuple(robot.extra_gauge)
+    n_targets = robot.n_targets if n_targets is None else int(n_targets)
     n_joints = len(robot.conventions)
     names = tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets)
     is_angle = np.array([n.startswith(ANGLE_PREFIXES) for n in names])
