@@ -21,7 +21,11 @@ sigma = 1 mm, 27 parameters), and written as Markdown to ``bench/results.md`` (a
 
 Wall times depend on the machine and on its load; CPU time of this process is reported beside them.
 
-Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``
+4. Calibration and diagnosis of 1000 poses (measured UR5 data and simulated kr16 data, sigma 0.02
+   and 0.065 mm): wall time and peak memory of each ``kpioed`` command (``bench/fits_bench.py``).
+
+Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``;
+``--only fits`` runs section 4 alone and replaces only that section of the existing ``--out`` file.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
+from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
 from kpioed_drake.measurement import N_FULL  # noqa: E402
@@ -406,11 +411,13 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="15,30,60,120,240", help="numbers of poses for the growth study")
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results.md"))
-    ap.add_argument(
-        "--skip", default="", help="comma-separated sections to skip: derivatives,solvers,breakdown,sizes"
-    )
+    ap.add_argument("--skip", default="", help="sections to skip: derivatives,solvers,breakdown,sizes,fits")
+    ap.add_argument("--only", choices=["fits"], help="run only this section and replace it in --out")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
+    if args.only == "fits":
+        print("\n".join(update_results(args.out)))
+        return 0
     from importlib.metadata import version
 
     problem = make_problem(args.robot)
@@ -449,6 +456,10 @@ def main(argv=None) -> int:
         sizes = [int(s) for s in args.sizes.split(",")]
         rows, summary["sizes"] = bench_sizes(problem, sizes)
         sections += ["## 3. Solve time vs number of poses (KPI with CA, seed 0)", "", *rows, ""]
+    if "fits" not in skip:
+        print("fits ...", file=sys.stderr, flush=True)
+        rows, summary["fits"] = bench_fits()
+        sections += section_lines(rows, summary["fits"])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:
@@ -469,6 +480,8 @@ def main(argv=None) -> int:
                 f"- growth no worse than N^1.5 ({solver}): measured N^{p:.2f} "
                 f"({'met' if p <= 1.5 else 'NOT met'})"
             )
+    if "fits" in summary:
+        targets += targets_lines(summary["fits"])
     foot = [
         "",
         f"Total benchmark time {time.perf_counter() - t0:.0f} s; load average at end: {load1[0]:.2f} "

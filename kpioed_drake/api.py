@@ -17,6 +17,8 @@ Example::
     print(api.info("kr16")["n_params"])                      # 27
     report = api.evaluate("kr16", "design.csv")               # the design's KPI variance
     print(report["kpi_avg_var_mm2"], report["feasible"])
+    res = api.design("kr16", discriminate="joint_scale:2=300|gear_cyclic:2:1", given="first.csv", n=20)
+    print(res.discrimination["after"])                        # lambda, power of both tests
 
 Every command function checks its arguments and its output paths before any work (an output may
 not overwrite an input, name a folder, or be named twice; :mod:`kpioed_drake.arguments`) and raises

@@ -15,7 +15,8 @@ A format file (documented in ``docs/data-formats.md``) maps such a file onto the
   frame W; the residual frame error is still estimated as a rigid tracker pose);
 - ``separator`` and ``decimal`` (``,`` or ``.``; a decimal comma needs another separator);
 - optional ``time`` (with ``time_unit`` ``s``, ``min``, ``h`` or ``order``: an order number, one
-  unit per pose, taken as seconds), ``temperature`` [C] and ``payload`` [kg] columns.
+  unit per pose, taken as seconds), ``temperature`` [C] and ``payload`` [kg] columns;
+- optional ``target``: the column of the target (SMR) number, 1..T (several targets per pose).
 
 :func:`read_data` reads either layout: the SPEC file without a format, a foreign one with it.
 """
@@ -28,7 +29,13 @@ import numpy as np
 
 from kpioed_drake.designio import check_joint_angles, q_to_file, read_csv_table
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurements import FRAMES, Measurements, check_pose_count, read_measurements
+from kpioed_drake.measurements import (
+    FRAMES,
+    Measurements,
+    check_pose_count,
+    parse_targets,
+    read_measurements,
+)
 from kpioed_drake.models import N_JOINTS, Robot, load_yaml_typed
 
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0, "um": 1e-3}
@@ -68,6 +75,7 @@ class DataFormat:
     time_unit: str = "s"
     temperature: str = ""
     payload: str = ""
+    target: str = ""
 
 
 def _one_of(where: str, field: str, value: str, allowed) -> None:
@@ -195,6 +203,10 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
         if np.any(extra["payload_kg"] < 0):
             row = rows[int(np.flatnonzero(extra["payload_kg"] < 0)[0])]
             raise InputError(f"{path}: row {row}, column {fmt.payload!r}: a payload cannot be negative")
+    if fmt.target:
+        extra["target"] = parse_targets(
+            path, cols.column(fmt.target, "target"), rows, column=fmt.target, robot=robot
+        )
     check_pose_count(path, len(rows), robot)
     return Measurements.from_arrays(q, eta, source=str(path), rows=rows, frame=fmt.frame, **extra)
 

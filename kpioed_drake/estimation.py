@@ -36,6 +36,14 @@ from kpioed_drake.measurements import Measurements
 from kpioed_drake.models import Robot
 from kpioed_drake.parameters import ParameterLayout
 
+LM_LAMBDA0 = 1e-6
+"""Initial Levenberg-Marquardt damping (relative to the unit diagonal of the column-scaled
+information matrix)."""
+GN_RIDGE = 1e-12
+"""Relative ridge of the convergence test: the iteration stops when the Gauss-Newton step predicts a
+cost decrease below ``tol`` times the cost (a step that small would not change the result, and
+evaluating it near the optimum only meets rounding)."""
+
 
 # ----------------------------------------------------------------------------------------------
 # Registration
@@ -77,12 +85,12 @@ def register_tracker(p_W, p_T) -> tuple[np.ndarray, np.ndarray]:
     return R_WT, p_WT
 
 
-def registered_model(model: TrackerModel, q, eta) -> TrackerModel:
+def registered_model(model: TrackerModel, q, eta, target=None) -> TrackerModel:
     """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
 
-    The small rotations are set to zero and ``R_WT_ref`` to the registered rotation.
+    Small rotations zero, ``R_WT_ref`` the registered rotation; ``target``: (n,) each row's 0-based target.
     """
-    p_W = reflector_world(model, q)
+    p_W = reflector_world(model, q, target)
     R_WT, p_WT = register_tracker(p_W, eta)
     p = model.p.copy()
     p[model.layout.tracker_position] = p_WT
@@ -102,11 +110,13 @@ class Conditions:
         time_s: (n,) [s] (tracker drift).
         tau: (n, 6) gravity torques [N m] at the commanded angles, payload included (joint
             elasticity); computed by the effects module when needed and not given.
+        target: (n,) 0-based target (reflector) of each row; None: target 0 for every row.
     """
 
     temperature_C: np.ndarray | None = None
     time_s: np.ndarray | None = None
     tau: np.ndarray | None = None
+    target: np.ndarray | None = None
 
     def subset(self, idx) -> Conditions:
         """The poses ``idx``."""
@@ -114,7 +124,7 @@ class Conditions:
         def pick(x):
             return None if x is None else x[idx]
 
-        return Conditions(pick(self.temperature_C), pick(self.time_s), pick(self.tau))
+        return Conditions(pick(self.temperature_C), pick(self.time_s), pick(self.tau), pick(self.target))
 
 
 def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
@@ -122,7 +132,7 @@ def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
     commanded angles with the payload at ``p_FP`` [mm] (held fixed during a fit, so that the
     residual function is the same for every parameter value)."""
     tau = fx.gravity_torques(robot, data.q, payload_kg=data.payload_kg, p_FP=p_FP)
-    return Conditions(data.temperature_C, data.time_s, tau)
+    return Conditions(data.temperature_C, data.time_s, tau, data.target)
 
 
 def rms(r) -> float:
@@ -142,6 +152,7 @@ def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bo
         temperature_C=conditions.temperature_C,
         time_s=conditions.time_s,
         tau=conditions.tau,
+        target=conditions.target,
     )
 
 
@@ -276,7 +287,9 @@ class _Problem:
         return r, J.reshape(r.size, -1)
 
 
-def _step(model: TrackerModel, effects, dx: np.ndarray):
+def apply_step(model: TrackerModel, effects, dx: np.ndarray):
+    """``model`` and ``effects`` moved by ``dx`` (n_free + k,): the free geometric parameters, then
+    the effects' values in order [mm, rad, effect units]. Returns (model, list of effects)."""
     free = model.layout.free
     p = model.p.copy()
     p[free] += dx[: free.size]
@@ -285,6 +298,15 @@ def _step(model: TrackerModel, effects, dx: np.ndarray):
         out.append(e.with_values(e.value_array() + dx[c : c + e.n_params]))
         c += e.n_params
     return model.with_params(p), out
+
+
+def _gauss_newton_decrease(A: np.ndarray, g: np.ndarray) -> float:
+    """Decrease of the cost the (undamped) Gauss-Newton step predicts, ``g^T A^-1 g`` (a tiny
+    relative ridge keeps a rank-deficient ``A`` solvable; inf if it still fails)."""
+    try:
+        return float(g @ np.linalg.solve(A + GN_RIDGE * np.eye(A.shape[0]), g))
+    except np.linalg.LinAlgError:
+        return float("inf")
 
 
 def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
@@ -332,8 +354,9 @@ def estimate(
         eta: (n, 3) measured reflector positions in the tracker frame [mm].
         sigma: noise standard deviation per coordinate [mm].
         max_iter: most LM iterations (accepted or rejected).
-        tol: stop when the accepted step is below ``tol`` relative to the parameters (in
-            Jacobian-scaled units) or the relative cost decrease is below ``tol``.
+        tol: stop when the Gauss-Newton step predicts a cost decrease below ``tol`` times the
+            cost, or the accepted step is below ``tol`` relative to the parameters (in
+            Jacobian-scaled units), or the relative cost decrease is below ``tol``.
         mask: (n,) bool, the poses to use (default all).
         weights: (n,) positive relative weights (pose i has noise ``sigma / sqrt(w_i)``).
         register: start from the rigid registration of the tracker (default True).
@@ -358,11 +381,11 @@ def estimate(
     m = int(np.count_nonzero(mask))
     prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
     if register:
-        model = registered_model(model, prob.q, prob.eta)
+        model = registered_model(model, prob.q, prob.eta, prob.conditions.target)
 
     r, J = prob.weighted(model, effects)
     cost = float(r @ r)
-    lam = 1e-3
+    lam = LM_LAMBDA0
     nu = 2.0
     converged, message, it = False, "maximum number of iterations reached", 0
     while it < max_iter:
@@ -375,6 +398,9 @@ def estimate(
         if np.max(np.abs(g)) <= 1e-14 * max(1.0, np.sqrt(cost)):
             converged, message = True, "gradient is zero"
             break
+        if _gauss_newton_decrease(A, g) <= tol * cost:
+            converged, message = True, "predicted cost decrease below tol"
+            break
         try:
             dxs = np.linalg.solve(A + lam * np.eye(A.shape[0]), g)
         except np.linalg.LinAlgError:
@@ -382,10 +408,10 @@ def estimate(
             nu *= 2.0
             continue
         dx = dxs / D
-        trial, trial_effects = _step(model, effects, dx)
+        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
+        trial, trial_effects = apply_step(model, effects, dx)
         r_new = prob.weighted(trial, trial_effects, jac=False)
         cost_new = float(r_new @ r_new)
-        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
         actual = cost - cost_new
         rho = actual / pred if pred > 0 else -1.0
         x_scaled = D * np.concatenate([model.p[free], *(e.value_array() for e in effects)])
@@ -435,40 +461,3 @@ def estimate(
         effects=tuple(effects),
         conditions=conditions,
     )
-
-
-def leverage_blocks(J: np.ndarray) -> np.ndarray:
-    """(m, 3, 3) diagonal blocks of the hat matrix ``J (J^T J)^-1 J^T`` of a (3 m, k) Jacobian."""
-    Q, _ = np.linalg.qr(J)
-    Qb = Q.reshape(-1, 3, Q.shape[1])
-    return np.einsum("mak,mbk->mab", Qb, Qb)
-
-
-def normalized_residuals(result: EstimationResult) -> np.ndarray:
-    """(n,) studentised squared residual norm of every pose, ~ chi^2(3) for a correct model.
-
-    For a used pose i: ``r_i^T (sigma_i^2 (I - H_ii))^-1 r_i`` with ``H_ii`` the 3x3 hat-matrix
-    block (the residual covariance of a fitted point is smaller than the noise by its leverage).
-    For an excluded pose: ``r_i^T (sigma_i^2 I + J_i Cp J_i^T)^-1 r_i`` (prediction error).
-    """
-    sw2 = result.weights / result.sigma**2
-    out = np.empty(result.residuals.shape[0])
-    used = np.flatnonzero(result.mask)
-    Hb = leverage_blocks(result.J)
-    for k, i in enumerate(used):
-        ri = result.residuals[i]
-        S = np.eye(3) - Hb[k]
-        try:
-            out[i] = float(ri @ np.linalg.solve(S, ri)) * sw2[i]
-        except np.linalg.LinAlgError:
-            out[i] = np.inf
-    other = np.flatnonzero(~result.mask)
-    if other.size:
-        _, H, E = response(result.model, result.effects, result.q[other], result.conditions.subset(other))
-        Hf = np.concatenate([H[:, :, result.free], E], axis=2)
-        V = np.einsum("mak,kl,mbl->mab", Hf, result.Cp, Hf)
-        for k, i in enumerate(other):
-            ri = result.residuals[i]
-            S = np.eye(3) / sw2[i] + V[k]
-            out[i] = float(ri @ np.linalg.solve(S, ri))
-    return out

@@ -20,7 +20,7 @@ import numpy as np
 
 from kpioed_drake.geometry import segment_distance
 from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics
-from kpioed_drake.measurement import incidence_cosine, nominal_model
+from kpioed_drake.measurement import incidence_cosines, nominal_model
 from kpioed_drake.models import Cell, Robot
 from kpioed_drake.plant import MM, Scene, build_scene
 
@@ -96,8 +96,8 @@ class FeasibilityChecker:
         return out
 
     def incidence_deg(self, q, *, frames: Frames | None = None) -> float:
-        """Incidence angle of one pose [deg] (paper eq. 4)."""
-        c = incidence_cosine(self._model, np.atleast_2d(q), frames=frames)[0]
+        """Incidence angle of one pose [deg] (paper eq. 4); several targets: the largest."""
+        c = np.min(incidence_cosines(self._model, np.atleast_2d(q), frames=frames)[0])
         return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
     def check_pose(self, q, index: int = 0, *, collision: bool = True) -> PoseReport:

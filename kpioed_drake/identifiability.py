@@ -74,9 +74,11 @@ def check_identifiability(
     model = nominal_model(robot, cell)
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.lower, robot.upper, size=(n_poses, robot.n_joints))
-    _, H = measurement_jacobian(model, q)
+    T = model.layout.n_targets  # several targets: every pose measures each of them
+    target = None if T == 1 else np.tile(np.arange(T), n_poses)
+    _, H = measurement_jacobian(model, q if T == 1 else np.repeat(q, T, axis=0), target=target)
     cols = np.arange(H.shape[2]) if all_params else model.layout.free
-    F = H[:, :, cols].reshape(3 * n_poses, -1)
+    F = H[:, :, cols].reshape(3 * T * n_poses, -1)
     F = F / np.maximum(np.linalg.norm(F, axis=0), 1e-300)
     _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))

@@ -182,10 +182,12 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
 def flange_point(frames: Frames, p_FP) -> np.ndarray:
     """(n, 3) world position of a point given in the flange frame [mm].
 
-    ``p_FP`` is (3,) or (n, 3).
+    ``p_FP`` is (3,) or (n, 3) (one point per pose, e.g. each row's target).
     """
     p_FP = np.asarray(p_FP, dtype=float)
     nj = frames.n_joints
+    if p_FP.ndim == 2:
+        return frames.o[:, nj] + np.einsum("nij,nj->ni", frames.R[:, nj], p_FP)
     return frames.o[:, nj] + np.einsum("nij,...j->ni", frames.R[:, nj], p_FP)
 
 
@@ -194,7 +196,7 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
 
     Args:
         frames: result of :func:`forward_kinematics` for n poses (nj joints, P parameters each).
-        p_FP: (3,) point in the flange frame [mm] (e.g. the reflector).
+        p_FP: (3,) point in the flange frame [mm] (e.g. the reflector), or (n, 3) one per pose.
         with_dq: also return the derivative of the Jacobian w.r.t. the joint variables.
 
     Returns:

@@ -5,6 +5,11 @@ row: the commanded joint angles ``q1_deg`` ... ``q6_deg`` [deg], the reflector p
 ``y_mm``, ``z_mm`` in the tracker frame T [mm] (the measurements eta of paper eq. 3), and optional
 ``temperature_C``, ``time_s``, ``payload_kg``. Inside, angles are radians.
 
+Several targets (SMRs) per pose: an optional integer ``target`` column numbers the targets 1..T
+in the file (no gaps; the robot model file's ``targets_mm`` defines them, target 1 being its
+reflector); a pose measuring T targets has T rows with the same joint angles. Inside, targets are
+0-based (:attr:`Measurements.target`); without the column every row measures target 1.
+
 Files of other layouts (other column names, units, separators, base-frame positions, controller
 angles through the robot's joint map) are read by :mod:`kpioed_drake.dataformats` into the same
 :class:`Measurements` type, with ``frame`` saying in which frame the positions are given.
@@ -38,6 +43,8 @@ from kpioed_drake.parameters import parameter_layout
 XYZ_COLUMNS = ("x_mm", "y_mm", "z_mm")
 REQUIRED_COLUMNS = Q_COLUMNS + XYZ_COLUMNS
 OPTIONAL_COLUMNS = ("temperature_C", "time_s", "payload_kg")
+TARGET_COLUMN = "target"
+"""Optional integer column: the target (SMR) of the row, 1..T in files, 0-based inside."""
 FRAMES = ("tracker", "base")
 """Frames measured positions can be given in: the tracker frame T, or the robot base frame W."""
 ROW_CONVENTION = "CSV record number, header = row 1 (data row k is row k + 1; blank lines not counted)"
@@ -61,6 +68,7 @@ class Measurements:
         source: the file (or a label for in-memory data), for messages and reports.
         rows: (n,) row numbers as in :data:`ROW_CONVENTION` (default 2, 3, ...).
         frame: ``"tracker"`` or ``"base"``, the frame of ``eta`` (:data:`FRAMES`).
+        target: (n,) 0-based target (reflector) of each row, or None (every row target 0).
     """
 
     q: np.ndarray
@@ -71,6 +79,7 @@ class Measurements:
     source: str = "data"
     rows: np.ndarray | None = None
     frame: str = "tracker"
+    target: np.ndarray | None = None
 
     def __post_init__(self):
         if self.rows is None:
@@ -80,6 +89,11 @@ class Measurements:
     def n(self) -> int:
         """Number of poses."""
         return int(self.q.shape[0])
+
+    @property
+    def n_targets(self) -> int:
+        """Targets the rows use: the largest target index + 1 (1 without a target column)."""
+        return 1 if self.target is None or self.target.size == 0 else int(self.target.max()) + 1
 
     @property
     def path(self) -> str:
@@ -98,12 +112,16 @@ class Measurements:
         source: str = "data",
         rows=None,
         frame: str = "tracker",
+        target=None,
     ) -> Measurements:
         """Validated measurements from arrays in internal units (q [rad], eta [mm]).
 
+        ``target``: (n,) 0-based target index of each row (None: all target 0).
+
         Raises:
-            InputError: shapes other than (n, 6), (n, 3) and (n,), a non-finite value, or a
-                frame other than ``"tracker"`` and ``"base"``.
+            InputError: shapes other than (n, 6), (n, 3) and (n,), a non-finite value, a
+                frame other than ``"tracker"`` and ``"base"``, or target indices that are not
+                integers >= 0.
         """
 
         def arr(x):
@@ -118,8 +136,11 @@ class Measurements:
             source=str(source),
             rows=None if rows is None else np.asarray(rows),
             frame=frame,
+            target=None if target is None else np.asarray(target),
         )
         data.check()
+        if data.target is not None:
+            object.__setattr__(data, "target", data.target.astype(int))
         return data
 
     @classmethod
@@ -140,7 +161,11 @@ class Measurements:
         if robot is not None:
             check_joint_angles(source, q_deg, robot)
         opt = {c: np.asarray(table[c], dtype=float) if c in table else None for c in OPTIONAL_COLUMNS}
-        return cls.from_arrays(q_from_file(robot, q_deg), eta, source=source, **opt)
+        target = None
+        if TARGET_COLUMN in table:
+            rows = np.arange(2, len(q_deg) + 2)
+            target = parse_targets(source, np.asarray(table[TARGET_COLUMN], dtype=float), rows, robot=robot)
+        return cls.from_arrays(q_from_file(robot, q_deg), eta, source=source, target=target, **opt)
 
     def check(self) -> None:
         """Shapes and finiteness.
@@ -159,6 +184,11 @@ class Measurements:
                 raise InputError(f"{self.source}: column {name} must have one value per pose")
             if v is not None and not np.all(np.isfinite(v)):
                 raise InputError(f"{self.source}: column {name} has a non-finite value")
+        t = self.target
+        if t is not None:
+            ok = t.shape == (n,) and np.all(np.isfinite(t)) and np.all(t == np.round(t)) and np.all(t >= 0)
+            if not ok:
+                raise InputError(f"{self.source}: target: expected (n,) integer indices >= 0 (0-based)")
 
     def subset(self, idx) -> Measurements:
         """The poses ``idx`` (indices or a boolean mask), rows kept."""
@@ -174,6 +204,7 @@ class Measurements:
             time_s=pick(self.time_s),
             payload_kg=pick(self.payload_kg),
             rows=self.rows[idx],
+            target=pick(self.target),
         )
 
     def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
@@ -184,6 +215,8 @@ class Measurements:
         for c in OPTIONAL_COLUMNS:
             if getattr(self, c) is not None:
                 cols[c] = getattr(self, c)
+        if self.target is not None:
+            cols[TARGET_COLUMN] = self.target + 1
         return pd.DataFrame(cols)
 
 
@@ -214,9 +247,45 @@ def _near_name(a: str, b: str) -> bool:
     return any(long_[:i] + long_[i + 1 :] == short for i in range(len(long_)))
 
 
+def parse_targets(path, values: np.ndarray, rows, *, column: str = TARGET_COLUMN, robot: Robot | None = None):
+    """(n,) 0-based target indices of a file's target column (numbered 1..T without gaps).
+
+    Args:
+        path: the file (for messages); values: (n,) the column as read; rows: (n,) row numbers.
+        column: the column's name in the file; robot: the model whose targets the rows must name.
+
+    Raises:
+        InputError: naming the file, row and column: a value that is not a whole number >= 1, a
+            gap in the numbering, or a target beyond the model's ``targets_mm``.
+    """
+    values = np.asarray(values, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values) | (values != np.round(values)) | (values < 1))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: {values[k]:g} is not a target number "
+            "(whole numbers 1, 2, ..., T)"
+        )
+    t = values.astype(int)
+    missing = sorted(set(range(1, int(t.max()) + 1)) - set(t.tolist())) if t.size else []
+    if missing:
+        k = int(np.flatnonzero(t > missing[0])[0])
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: target {t[k]} is used but target {missing[0]} "
+            f"is not: targets are numbered 1..T without gaps"
+        )
+    if robot is not None and t.size and t.max() > robot.n_targets:
+        k = int(np.argmax(t))
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: target {t[k]}, but the robot model "
+            f"{robot.source or robot.name} defines {robot.n_targets} target(s) (field targets_mm)"
+        )
+    return t - 1
+
+
 def _check_header(path: Path, header: list[str]) -> None:
     for h in header:
-        if h in REQUIRED_COLUMNS or h in OPTIONAL_COLUMNS:
+        if h in REQUIRED_COLUMNS or h in OPTIONAL_COLUMNS or h == TARGET_COLUMN:
             continue
         for known in OPTIONAL_COLUMNS:
             if _near_name(h, known):
@@ -249,7 +318,9 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
         InputError: naming the file, row (header = row 1) and column: missing file, empty file,
             duplicated or missing (misspelled) column, text/NaN/infinity in a number field, joint
             angles that look like radians or lie outside the robot's limits, negative payload,
-            fewer poses than the estimated parameters need (27 parameters: 9 poses).
+            a target column that is not numbered 1..T without gaps or names a target the robot
+            model does not define, fewer poses than the estimated parameters need (27
+            parameters: 9 poses).
     """
     path = Path(path)
     qcols = q_columns(robot)
@@ -261,6 +332,10 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
     q_deg = np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1)
     eta = np.stack([parse_float_column(path, header, data, c) for c in XYZ_COLUMNS], axis=1)
     opt = {c: parse_float_column(path, header, data, c) if c in header else None for c in OPTIONAL_COLUMNS}
+    if TARGET_COLUMN in header:
+        opt["target"] = parse_targets(
+            path, parse_float_column(path, header, data, TARGET_COLUMN), rows, robot=robot
+        )
     if opt["payload_kg"] is not None and np.any(opt["payload_kg"] < 0):
         row = rows[int(np.flatnonzero(opt["payload_kg"] < 0)[0])]
         raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")

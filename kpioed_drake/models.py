@@ -88,6 +88,8 @@ class Robot:
         joint_names: the joints' names.
         source: the model file.
         p_FQ: (3,) reflector offset in the flange frame [mm] overriding the cell's, or None.
+        targets: (T, 3) offsets of several targets in the flange frame [mm] (target 1 = ``p_FQ``),
+            or None (one target: the reflector).
         X_WT: tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))`` overriding the cell's, or None.
         joint_map: controller angles to model angles, or None (identity).
         extra_gauge: parameter names held at nominal besides SPEC's gauge.
@@ -118,6 +120,12 @@ class Robot:
     chain: chainmod.Chain | None = None
     gauge: tuple[str, ...] | None = None
     urdf: object | None = None
+    targets: np.ndarray | None = None
+
+    @property
+    def n_targets(self) -> int:
+        """Targets (reflectors) per pose: the model file's ``targets_mm``, else 1."""
+        return 1 if self.targets is None else int(self.targets.shape[0])
 
     @property
     def n_joints(self) -> int:
@@ -331,6 +339,8 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         if spec.reflector_position_mm
         else None
     )
+    targets = _targets(spec, where, p_FQ)
+    p_FQ = p_FQ if targets is None else targets[0]
     X_WT = None
     if spec.tracker_position_mm or spec.tracker_rpy_deg:
         if not spec.tracker_position_mm:
@@ -362,7 +372,26 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         X_WT=X_WT,
         joint_map=joint_map_from_spec(spec.joint_map, where),
         extra_gauge=tuple(spec.extra_gauge),
+        targets=targets,
     )
+
+
+def _targets(spec: RobotSpec, where: str, p_FQ: np.ndarray | None) -> np.ndarray | None:
+    """(T, 3) target offsets of ``targets_mm`` [mm], or None when the file has none.
+
+    Raises:
+        InputError: a target that is not three finite numbers, or a ``reflector_position_mm`` that
+            differs from target 1.
+    """
+    if not spec.targets_mm:
+        return None
+    targets = np.array([_vec3(t, f"{where}: targets_mm[{k}]") for k, t in enumerate(spec.targets_mm)])
+    if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
+        raise InputError(
+            f"{where}: reflector_position_mm {p_FQ.tolist()} differs from targets_mm[0] "
+            f"{targets[0].tolist()}: target 1 is the reflector (give one of them, or equal values)"
+        )
+    return targets
 
 
 def load_robot(name: str) -> Robot:

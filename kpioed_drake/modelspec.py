@@ -62,6 +62,9 @@ class RobotSpec:
     notes: str = ""
     reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
     """Optional: the reflector (target) offset in the flange frame; overrides the cell's."""
+    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    """Optional: several targets (SMRs), one flange-frame offset each, target 1 first; target 1
+    is the reflector (``reflector_position_mm``, if also given, must equal it)."""
     tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
     """Optional: the tracker position in W (e.g. as calibrated); overrides the cell's."""
     tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)

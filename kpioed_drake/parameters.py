@@ -196,7 +196,11 @@ def default_fixed(robot: Robot) -> tuple[str, ...]:
 
 
 def parameter_layout(
-    robot: Robot, *, fixed: tuple[str, ...] | None = None, n_targets: int = 1, n_effects: int = 0
+    robot: Robot,
+    *,
+    fixed: tuple[str, ...] | None = None,
+    n_targets: int | None = None,
+    n_effects: int = 0,
 ) -> ParameterLayout:
     """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
 
@@ -204,12 +208,15 @@ def parameter_layout(
         robot: the robot; its model file's ``extra_gauge`` names are held at nominal too (e.g. a
             target on joint 6's axis makes theta5 and alpha5 trade against the others).
         fixed: the gauge, the parameters held at nominal (default :func:`default_fixed`).
-        n_targets: targets (reflectors) per pose; n_effects: effect parameters appended.
+        n_targets: targets (reflectors) per pose (default: the robot's, ``robot.n_targets``; the
+            same gauge holds for any number: the joint-6 parameters trade against all target
+            offsets together); n_effects: effect parameters appended.
 
     Raises:
         ValueError: a fixed name that is not a parameter of the model.
     """
     fixed = (default_fixed(robot) if fixed is None else tuple(fixed)) + tuple(robot.extra_gauge)
+    n_targets = robot.n_targets if n_targets is None else int(n_targets)
     n_joints = robot.n_joints
     names = tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets)
     tail = [n.startswith(ANGLE_PREFIXES) for n in names[len(robot.param_names()) :]]

@@ -60,13 +60,18 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
     """
     where = data.source
     n = data.n
+    if data.n_targets > model.layout.n_targets:
+        raise InputError(
+            f"{where}: field 'target': the rows name {data.n_targets} targets, but the robot model "
+            f"defines {model.layout.n_targets} (add them to its targets_mm)"
+        )
     if 3 * n <= n_params:
         raise InputError(
             f"{where}: {n} poses give {3 * n} coordinates for {n_params} parameters: no degree of freedom "
             f"is left to test the fit; at least {n_params // 3 + 1} poses are needed"
         )
     warnings: list[str] = []
-    p_W = reflector_world(model, data.q)
+    p_W = reflector_world(model, data.q, data.target)
     span_model = float(np.max(np.ptp(p_W, axis=0)))
     span_data = float(np.max(np.ptp(data.eta, axis=0)))
     if span_model > 0 and span_data * UNIT_RATIO < span_model:

@@ -12,6 +12,9 @@ equals ``tr(Js Cp Js^T)/3`` of the stacked rows ``Js = [sqrt(w_1) Js_1; ...; sqr
 (3K, k), so :meth:`Problem.Js` returns that stack and every KPI criterion works on it unchanged;
 with K = 1 it is the single (3, k) Jacobian and every number is that of one working pose.
 
+Several targets (the robot file's ``targets_mm``): a pose measures all T of them, so its rows in
+F1 are the stacked rows of its targets (3T rows: target 1's x, y, z, then target 2's, ...).
+
 Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
 add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
 columns to Js, so that a design for the extended model estimates them too and its KPI variance
@@ -139,15 +142,23 @@ class Problem:
         """Rows ``sqrt(w_k) B_k`` of K blocks B_k (3, c), stacked to (3K, c)."""
         return np.concatenate([np.sqrt(w) * B for w, B in zip(self.weights, blocks, strict=True)], axis=0)
 
+    @property
+    def n_targets(self) -> int:
+        """Targets every pose measures (T; 1: the reflector)."""
+        return self.model.layout.n_targets
+
     def min_poses(self) -> int:
-        """Fewest poses whose 3 coordinates can determine the parameters."""
-        return int(np.ceil(self.n_params / 3))
+        """Fewest poses whose 3 coordinates (per target) can determine the parameters."""
+        return int(np.ceil(self.n_params / (3 * self.n_targets)))
 
     def F1(self, q, *, with_dq: bool = False, frames=None):
         """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27).
 
-        ``frames``: ``self.model.frames(q)`` if the caller has it already.
+        ``frames``: ``self.model.frames(q)`` if the caller has it already. With T targets every
+        pose has 3T rows (its targets' rows stacked): (3Tn, k) and (n, 6, 3T, k).
         """
+        if self.n_targets > 1:
+            return self._F1_targets(np.atleast_2d(q), with_dq)
         out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
@@ -161,6 +172,19 @@ class Problem:
         if not with_dq:
             return H.reshape(3 * n, -1)
         return H.reshape(3 * n, -1), dH
+
+    def _F1_targets(self, q: np.ndarray, with_dq: bool):
+        """:meth:`F1` of T > 1 targets: every pose measured at each target (geometric model)."""
+        n, T, nj = q.shape[0], self.n_targets, self.model.layout.n_joints
+        target = np.tile(np.arange(T), n)
+        out = measurement_jacobian(self.model, np.repeat(q, T, axis=0), with_dq=with_dq, target=target)
+        H = out[1][:, :, self.free] / self.sigma  # (nT, 3, k)
+        F = H.reshape(3 * T * n, -1)
+        if not with_dq:
+            return F
+        dH = out[2][..., self.free] / self.sigma  # (nT, 6, 3, k)
+        dH = dH.reshape(n, T, nj, 3, -1).transpose(0, 2, 1, 3, 4).reshape(n, nj, 3 * T, -1)
+        return F, dH
 
     def Js_each(self) -> np.ndarray:
         """(K, 3, k) KPI Jacobian ``dTCP/dp`` at each working pose [mm per parameter unit]."""
@@ -295,6 +319,8 @@ def make_problem(
         raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
+    if exts and robot.n_targets > 1:
+        raise InputError(f"{robot.name}: --extend is not available with several targets (targets_mm)")
     if fixed is not None:
         try:
             model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))

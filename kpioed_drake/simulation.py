@@ -13,6 +13,11 @@ Defaults for the environment columns (always written): ``time_s`` = 30 s per pos
 ``temperature_C`` = 20 C drifting linearly from 18 to 22 C over the run (plus 0.05 C jitter).
 ``payload_kg`` is written when a payload is given.
 
+Several targets (SMRs): every pose measures the first ``n_targets`` targets of the robot model
+file (``targets_mm``; default all of them), one row per target, pose-major, with a ``target``
+column (1..T) when there is more than one; the true robot has random errors on every target
+offset. The environment columns are per pose (a pose's rows share them).
+
 Units: files mm/deg; inside mm/rad.
 """
 
@@ -29,7 +34,7 @@ from kpioed_drake.designio import q_columns, q_from_file, q_to_file, read_design
 from kpioed_drake.effects import parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, measure, nominal_model
-from kpioed_drake.measurements import per_pose
+from kpioed_drake.measurements import TARGET_COLUMN, per_pose
 from kpioed_drake.models import Robot, load_cell, load_robot
 from kpioed_drake.outputs import Outputs
 
@@ -108,6 +113,7 @@ def simulate(
     temperature_C=None,
     time_s=None,
     cell_path=None,
+    n_targets: int | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated measurement table of the poses ``q``.
 
@@ -121,6 +127,8 @@ def simulate(
         geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
         payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
         temperature_C, time_s: per pose; defaults see the module docstring.
+        n_targets: targets measured at every pose, the first ones of the model file's
+            ``targets_mm`` (default: all; 1 for a model with one reflector).
 
     Returns:
         (table, truth): the table has columns ``q1_deg``..``q6_deg``, ``x_mm``, ``y_mm``, ``z_mm``,
@@ -137,6 +145,12 @@ def simulate(
         raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
     if not (np.isfinite(sigma_mm) and sigma_mm >= 0):
         raise InputError(f"--sigma-mm must be a non-negative number of millimetres, got {sigma_mm!r}")
+    n_t = rob.n_targets if n_targets is None else n_targets
+    if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
+        raise InputError(
+            f"--targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
+            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}"
+        )
     # the simulation uses exactly the joint values that the file will hold
     q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)
     q = q_from_file(rob, q_deg)
@@ -150,6 +164,9 @@ def simulate(
     else:
         temp = per_pose(temperature_C, n, "temperature_C")
     payload = per_pose(payload_kg, n, "payload_kg")
+    # one row per (pose, target), pose-major; one target: the rows are the poses
+    target = None if n_t == 1 else np.tile(np.arange(n_t), n)
+    q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))
 
     effect_objs = []
     if effects:
@@ -160,18 +177,24 @@ def simulate(
         for k, e in zip(keys, effect_objs, strict=True):
             if keys.count(k) > 1:
                 raise InputError(f"effect {e.name!r} given more than once")
-        eta = true_measurements(model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload)
+        eta = true_measurements(
+            model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload, target=target
+        )
         eta = np.asarray(eta, dtype=float)
-        if eta.shape != (n, 3):
-            raise RuntimeError(f"effects.true_measurements returned shape {eta.shape}, expected {(n, 3)}")
+        if eta.shape != (n * n_t, 3):
+            raise RuntimeError(
+                f"effects.true_measurements returned shape {eta.shape}, expected {(n * n_t, 3)}"
+            )
     else:
-        eta = measure(model, q)
+        eta = measure(model, q, target)
     eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
 
     cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
     cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
     if np.any(payload != 0):
         cols["payload_kg"] = payload
+    if target is not None:
+        cols[TARGET_COLUMN] = target + 1
     table = pd.DataFrame(cols)
     truth = {
         "robot": rob.name,
@@ -183,6 +206,7 @@ def simulate(
         "sigma_mm": float(sigma_mm),
         "seed": int(seed),
         "geometric_errors": bool(geometric_errors),
+        "n_targets": int(n_t),
     }
     return table, truth
 
@@ -215,6 +239,8 @@ def truth_json(truth: dict) -> dict:
         "sigma_mm": truth["sigma_mm"],
         "seed": truth["seed"],
         "geometric_errors": truth["geometric_errors"],
+        "n_targets": truth["n_targets"],
+        "targets_mm": truth["model"].target_offsets[: truth["n_targets"]].tolist(),
     }
 
 
@@ -230,6 +256,7 @@ def simulate_file(
     payload_kg: float = 0.0,
     truth_path: str | None = None,
     cell_path=None,
+    n_targets: int | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``), written atomically.
 
@@ -241,6 +268,8 @@ def simulate_file(
         payload_kg: payload at the reflector [kg] (>= 0).
         truth_path: also write the true parameters as JSON.
         cell_path: cell file (default ``models/cell.yaml``).
+        n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
+            default all): one row per pose and target, with a ``target`` column when several.
 
     Returns:
         (table, truth): the measurement table (pandas) and the truth dict. Nothing is written unless
@@ -261,6 +290,7 @@ def simulate_file(
         geometric_errors=geometric_errors,
         payload_kg=payload_kg,
         cell_path=cell_path,
+        n_targets=n_targets,
     )
     with Outputs() as staged:
         staged.add_text(out, table_csv_text(table))

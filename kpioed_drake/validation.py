@@ -9,6 +9,9 @@ file carries it). For data already in the base frame (``frame: base``) the regis
 the small residual frame error; kept, the tracker frame is the robot file's (for a model
 calibrated on base-frame data: the frame error estimated then) or else the identity.
 
+Several targets (a ``target`` column): each row is predicted with its target's offset from the
+model file (``targets_mm``); the report gives the errors per target as well.
+
 Nothing robot-side is fitted, so the errors are prediction errors: for a nominal model they are its
 absolute accuracy (the "uncalibrated" error), for a calibrated one its accuracy after calibration.
 """
@@ -58,6 +61,24 @@ class ValidationResult:
         """(n,) 3-D prediction error of each pose [mm]."""
         return np.linalg.norm(self.residuals_W, axis=1)
 
+    def per_target(self) -> list[dict]:
+        """Errors of each target's rows (target numbers 1..T as in the file) [mm]."""
+        target = np.zeros(self.data.n, dtype=int) if self.data.target is None else self.data.target
+        out = []
+        for t in range(self.data.n_targets):
+            rows = target == t
+            e, r = self.errors_mm[rows], self.residuals_W[rows]
+            out.append(
+                {
+                    "target": t + 1,
+                    "n_rows": int(np.count_nonzero(rows)),
+                    "rms_mm": float(np.sqrt(np.mean(r**2))) if e.size else None,
+                    "mean_error_mm": float(np.mean(e)) if e.size else None,
+                    "max_error_mm": float(np.max(e)) if e.size else None,
+                }
+            )
+        return out
+
     def to_dict(self) -> dict:
         """The JSON report (mm, deg)."""
         e = self.errors_mm
@@ -73,6 +94,7 @@ class ValidationResult:
             "p95_error_mm": float(np.percentile(e, 95)),
             "max_error_mm": float(np.max(e)),
             "errors_mm": e.tolist(),
+            "targets": self.per_target(),
             "rows": [int(r) for r in self.data.rows],
             "row_convention": ROW_CONVENTION,
             "residuals_W_mm": self.residuals_W.tolist(),
@@ -90,6 +112,12 @@ class ValidationResult:
         """A human-readable summary."""
         d = self.to_dict()
         how = "re-registered (rigid, 6 DoF)" if self.registered else "kept from the model"
+        per_target = [
+            f"  target {t['target']}: {t['n_rows']} rows, mean {t['mean_error_mm']:.4f} mm, "
+            f"max {t['max_error_mm']:.4f} mm"
+            for t in d["targets"]
+            if self.data.n_targets > 1 and t["n_rows"]
+        ]
         return "\n".join(
             [
                 f"{self.robot}: validated on {self.data.path}: {self.data.n} poses, tracker frame {how}",
@@ -98,6 +126,7 @@ class ValidationResult:
                 f"  RMS per coordinate {d['rms_mm']:.4f} mm (x, y, z: "
                 + ", ".join(f"{v:.4f}" for v in d["rms_xyz_mm"])
                 + ")",
+                *per_target,
             ]
         )
 
@@ -108,8 +137,8 @@ def validate(
     """Prediction errors of ``robot`` (a nominal or calibrated model) on ``data``.
 
     Args:
-        robot: the model (joint rows; reflector offset and tracker pose from the robot file when
-            it has them, else from the cell file).
+        robot: the model (joint rows; reflector offset, further targets and tracker pose from
+            the robot file when it has them, else from the cell file).
         data: the measurements (tracker or base frame).
         keep_tracker: use the model's tracker pose instead of re-registering it to the data: the
             robot file's (a calibrated model has one), else the identity for base-frame data,
@@ -126,7 +155,7 @@ def validate(
     """
     model = nominal_model(robot, load_cell(cell_path, robot=robot))
     check_data(model, data, n_params=6)
-    p_W = reflector_world(model, data.q)
+    p_W = reflector_world(model, data.q, data.target)
     if keep_tracker and robot.X_WT is None and data.frame == "base":
         R_WT, p_WT = np.eye(3), np.zeros(3)
     elif keep_tracker:

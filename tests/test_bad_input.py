@@ -257,12 +257,6 @@ CASES = [
     ("diagnose-plots-is-file", "diagnose --robot kr16 {data} --plots {design}", 2, r"design\.csv"),
     ("calibrate-degenerate", "calibrate --robot kr16 {degenerate}", 2, r"degenerate\.csv.*do not determine"),
     ("diagnose-degenerate", "diagnose --robot kr16 {degenerate}", 2, r"degenerate\.csv.*do not determine"),
-    (
-        "calibrate-sigma-too-small",
-        "calibrate --robot kr16 {data} --sigma-mm 0.0004",
-        2,
-        r"data\.csv.*outlier test",
-    ),
     ("info-robot-nan-mass", "info --robot {robot_nan_mass}", 2, r"mass_kg"),
     (
         "evaluate-html-suffix",

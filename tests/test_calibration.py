@@ -133,17 +133,16 @@ def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     assert 0.015 < rep.rms_residual_mm < 0.025
     z = z_scores(rep, truth["model"])
     assert np.max(np.abs(z)) < 4.0
-    # sigma given 4x too small: most poses fail the outlier test at once; that is refused (these are
-    # no single bad points), and with force no pose is removed and the a-posteriori standard
-    # deviations (a-priori x sqrt(chi2/dof)) recover those of the right sigma
+    # sigma given 4x too small: the outlier test runs at the residuals' robust scale (about 0.02 mm),
+    # so no pose is removed; the warnings say so, and the a-posteriori standard deviations
+    # (a-priori x sqrt(chi2/dof)) recover those of the right sigma
     data = Measurements.from_table(table, robot)
-    with pytest.raises(InputError, match=r"poses fail the outlier test at sigma 0.005 mm.*about 0.02"):
-        calibration.calibrate(robot, data, sigma_mm=0.005)
-    rep2 = calibration.calibrate(robot, data, sigma_mm=0.005, force=True)
+    rep2 = calibration.calibrate(robot, data, sigma_mm=0.005)
     assert 10.0 < rep2.chi2_per_dof < 25.0
-    assert rep2.outliers == []
-    assert any("forced" in w for w in rep2.warnings)
+    assert rep2.outliers == [] and rep2.to_dict()["robust"]["n_removed"] == 0
+    assert 0.015 < rep2.to_dict()["robust"]["scale_mm"] < 0.025
     assert any("larger than a noise" in w for w in rep2.warnings)
+    assert any("non-geometric rest, a-posteriori sigmas used" in w for w in rep2.warnings)
     post = np.array([p["std_aposteriori"] for p in rep2.parameter_table() if p["estimated"]])
     right = np.array([p["std"] for p in rep.parameter_table() if p["estimated"]])
     assert_allclose(post, right * np.sqrt(rep.chi2_per_dof), rtol=1e-6)  # both: the data's own scale

@@ -7,13 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kpioed_drake.design import certificate, check_design, heuristic_design
+from kpioed_drake.design import certcache, certificate, check_design, heuristic_design
 from kpioed_drake.design.approximate import (
     approximate_design,
     approximate_start,
     efficient_rounding,
+    exchange_counts,
     kpi_factor,
     l_criterion,
+    rank3_changes,
     replicate_poses,
 )
 from kpioed_drake.design.certificate import certified_design, certify, pool_certificate, verify_search
@@ -211,3 +213,107 @@ def test_certify_continues_the_search_with_poses_found_near_the_design(kr16, sma
     assert plain["bound_mm2"] < refined["bound_mm2"] <= refined["value_mm2"] == plain["value_mm2"]
     assert 0 < refined["efficiency"] <= 1
     assert weak.g_max == 1.0 and len(weak.q) == len(small_approx.q)  # the caller's design is unchanged
+
+
+@pytest.mark.parametrize("robot", ["kr16", "notional-850-800"])
+def test_bound_with_given_poses_is_below_the_combined_design_value(robot):
+    # tr(K^T (M0 + M)^-1 K) >= tr(K^T Y)^2 / (n max_i ||F_i Y||^2 + ||F0 Y||^2) for every Y
+    problem = make_problem(robot)
+    rng = np.random.default_rng(11)
+    K = kpi_factor(problem)
+    for seed in range(3):
+        given = rng.uniform(problem.robot.lower, problem.robot.upper, size=(10 + 10 * seed, 6))
+        for n in (3, 12, 40):
+            q = rng.uniform(problem.robot.lower, problem.robot.upper, size=(n, 6))
+            value = _kpi(problem, np.concatenate([given, q]))
+            F, GY = pose_rows(problem, q), None
+            for _ in range(8):
+                Y = rng.normal(size=K.shape)
+                GY = pose_rows(problem, given) @ Y
+                bound = np.sum(K * Y) ** 2 / (n * dual_values(F, Y).max() + np.sum(GY * GY))
+                assert bound <= value * (1 + 1e-12)
+                if n < problem.min_poses():
+                    continue
+                # without given poses the plain bound holds for the new poses alone
+                assert np.sum(K * Y) ** 2 / (n * dual_values(F, Y).max()) <= _kpi(problem, q) * (1 + 1e-12)
+
+
+def test_certify_with_given_poses_bounds_the_combined_design(kr16, small_approx):
+    given = heuristic_design(kr16, n=25, seed=4)
+    q = heuristic_design(kr16, n=10, seed=5)
+    c = certify(kr16, q, approx=small_approx, refinements=0, given=given)
+    both = _kpi(kr16, np.concatenate([given, q]))
+    assert c["value_mm2"] == pytest.approx(both, rel=1e-12) and c["n_given"] == 25
+    assert 0 < c["bound_mm2"] <= both and c["efficiency"] == pytest.approx(c["bound_mm2"] / both)
+    # the given information only adds to the denominator: below the bound of the new poses alone
+    alone = certify(kr16, q, approx=small_approx, refinements=0)
+    assert c["bound_mm2"] < alone["bound_mm2"] and alone["n_given"] == 0
+
+
+def test_exchange_never_raises_the_criterion_and_its_updates_are_exact(kr16, small_approx):
+    a = small_approx
+    F, K = a.F, kpi_factor(kr16)
+    G = F.transpose(0, 2, 1) @ F
+    for n in (20, 60):
+        c0 = efficient_rounding(a.w, n)
+        M = np.einsum("i,ikl->kl", c0, G)
+        phi0 = np.sum(K * np.linalg.solve(M, K))
+        # the rank-3 updates equal the criterion recomputed after adding / removing one copy
+        add = rank3_changes(F, M, K, 1.0)
+        rem = rank3_changes(F, M, K, -1.0)
+        for i in np.flatnonzero(c0)[:5]:
+            assert phi0 - np.sum(K * np.linalg.solve(M + G[i], K)) == pytest.approx(add[i], rel=1e-7)
+            assert np.sum(K * np.linalg.solve(M - G[i], K)) - phi0 == pytest.approx(rem[i], rel=1e-6)
+        c1 = exchange_counts(F, K, c0)
+        assert c1.sum() == n and np.all(c1 >= 0)
+        phi1 = np.sum(K * np.linalg.solve(np.einsum("i,ikl->kl", c1, G), K))
+        assert phi1 <= phi0 and n * phi1 >= a.bound * (1 - 1e-9)  # never below the dual bound
+    # the approximate start uses it: its value is the exchanged counts'
+    q0 = approximate_start(kr16, n=60, approx=a)
+    c1 = exchange_counts(F, K, efficient_rounding(a.w, 60))
+    assert _kpi(kr16, q0) == pytest.approx(np.sum(K * np.linalg.solve(np.einsum("i,ikl->kl", c1, G), K)))
+
+
+def test_disk_cache_of_the_certificate_search(kr16, small_approx, tmp_path, monkeypatch):
+    monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
+    key = certcache.problem_key(kr16, collision=True, seed=0, settings={"a": 1})
+    assert certcache.load(key) is None
+    path = certcache.store(key, small_approx)
+    assert path.parent == tmp_path and path.is_file()
+    back = certcache.load(key)
+    for f in dataclasses.fields(small_approx):
+        x, y = getattr(back, f.name), getattr(small_approx, f.name)
+        assert type(x) is type(y) or isinstance(x, np.ndarray)
+        np.testing.assert_array_equal(x, y)
+    # every input of the search changes the key
+    other = [
+        certcache.problem_key(kr16, collision=False, seed=0, settings={"a": 1}),
+        certcache.problem_key(kr16, collision=True, seed=1, settings={"a": 1}),
+        certcache.problem_key(kr16, collision=True, seed=0, settings={"a": 2}),
+        certcache.problem_key(make_problem("kr16", sigma_mm=0.5), collision=True, seed=0, settings={"a": 1}),
+        certcache.problem_key(make_problem("kr300"), collision=True, seed=0, settings={"a": 1}),
+    ]
+    assert len({key, *other}) == 6
+    assert key == certcache.problem_key(make_problem("kr16"), collision=True, seed=0, settings={"a": 1})
+    # a damaged file is not read (the search runs again); "off" disables the cache
+    path.write_bytes(b"not an npz")
+    assert certcache.load(key) is None
+    monkeypatch.setenv("KPIOED_CACHE", "off")
+    assert certcache.cache_dir() is None and certcache.store(key, small_approx) is None
+    assert certcache.load(key) is None
+
+
+def test_certified_design_is_read_back_from_the_disk_cache(kr16, tmp_path, monkeypatch):
+    monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
+    for name, value in (
+        ("VERIFY_POOL", 200),
+        ("VERIFY_STARTS", 4),
+        ("CERTIFY_ROUNDS", 1),
+        ("VERIFY_ROUNDS", 1),
+    ):
+        monkeypatch.setattr(certificate, name, value)
+    first = certified_design(kr16, seed=9)
+    assert len(list(tmp_path.glob("certificate-*.npz"))) == 1
+    fresh = make_problem("kr16")  # another problem object: not in the memory cache
+    again = certified_design(fresh, seed=9)
+    assert again is not first and again.bound == first.bound and np.array_equal(again.Y, first.Y)

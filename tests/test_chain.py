@@ -9,6 +9,7 @@ from fd import central_fd
 from numpy.testing import assert_allclose
 
 from kpioed_drake.design.constraints import incidence_rows
+from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.kinematics import forward_kinematics, point_jacobian, point_velocity_jacobian
@@ -198,3 +199,15 @@ def test_design_gradient_of_F1_with_an_extension(lift7):
     for k in range(len(q)):
         ref = np.moveaxis(fd[k, :, :, k, :], -1, 0)
         assert_allclose(dF[k], ref, atol=1e-6 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("joint", [1, 3, 7])
+def test_gravity_basis_regressor_with_a_prismatic_joint(lift7, joint):
+    """The mass-moment regressor of the diagnosis' gravity basis reproduces Drake's torques (joint 1
+    of lift7 is the lift: a force [N]) and its joint derivative matches finite differences."""
+    q = _poses(lift7, 3, 12)
+    Y, dY = gb.link_regressor(lift7, q, joint, with_dq=True)
+    tau = gravity_torques(lift7, q)[:, joint - 1]
+    assert_allclose(Y @ gb.link_moments(lift7, joint), tau, atol=1e-9 * max(1.0, np.abs(tau).max()))
+    fd = np.einsum("npnj->njp", central_fd(lambda x: gb.link_regressor(lift7, x, joint), q, 1e-6))
+    assert_allclose(dY, fd, atol=1e-6 * max(1.0, np.abs(fd).max()))

@@ -18,6 +18,7 @@ from kpioed_drake.design import (
     optimize_design,
     resolve_start,
 )
+from kpioed_drake.designio import write_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.problem import make_problem
 
@@ -81,7 +82,7 @@ def test_default_start_and_bad_start_values(kr16):
         api.design("kr16", n=20, start="approx")
 
 
-def test_bad_start_and_certify_with_given_on_the_command_line(capsys, tmp_path):
+def test_bad_start_and_approximate_start_with_given_on_the_command_line(capsys, tmp_path):
     code, _, err = _run(
         capsys,
         "design",
@@ -113,10 +114,10 @@ def test_bad_start_and_certify_with_given_on_the_command_line(capsys, tmp_path):
     given = tmp_path / "given.csv"
     given.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,-90,90,0,10,0\n")
     code, _, err = _run(
-        capsys, "design", "--robot", "kr16", "--criterion", "kpi", "--given", str(given), "--certify",
-        "--out", str(tmp_path / "d.csv"),
+        capsys, "design", "--robot", "kr16", "--criterion", "kpi", "--given", str(given), "--start",
+        "approximate", "--out", str(tmp_path / "d.csv"),
     )  # fmt: skip
-    assert code == 2 and "--certify" in err
+    assert code == 2 and "given poses" in err
     assert not (tmp_path / "d.csv").exists()
 
 
@@ -124,7 +125,7 @@ def test_design_and_evaluate_certify(capsys, tmp_path, quick_certificate):
     out, js = tmp_path / "d.csv", tmp_path / "d.json"
     code, text, _ = _run(
         capsys, "design", "--robot", "kr16", "--criterion", "kpi", "--n", "20", "--certify",
-        "--out", str(out), "--json", str(js),
+        "--start", "heuristic", "--out", str(out), "--json", str(js),
     )  # fmt: skip
     assert code == 0
     assert "lower bound for any 20-pose design:" in text and "efficiency" in text
@@ -146,6 +147,57 @@ def test_design_and_evaluate_certify(capsys, tmp_path, quick_certificate):
     assert d["certificate"]["value_mm2"] == pytest.approx(d["kpi_avg_var_mm2"], rel=1e-9)
     code, text, _ = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(out), "--certify")
     assert code == 0 and "lower bound for any 20-pose design:" in text
-    # without --certify nothing is added
-    plain = api.evaluate("kr16", out)
-    assert "bound_mm2" not in plain and "certificate" not in plain
+    # with --no-certify the fields are there, null
+    plain = api.evaluate("kr16", out, certify=False)
+    assert all(plain[k] is None for k in ("bound_mm2", "efficiency", "design_beyond_search", "certificate"))
+    code, text, _ = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(out), "--no-certify")
+    assert code == 0 and "lower bound" not in text
+
+
+@pytest.fixture
+def cache(monkeypatch, tmp_path):
+    """The certificate's disk cache in a fresh folder."""
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("KPIOED_CACHE", str(folder))
+    return folder
+
+
+def test_every_design_record_has_its_bound_and_efficiency(capsys, tmp_path, quick_certificate, cache):
+    for crit in ("heuristic", "param", "kpi"):
+        js = tmp_path / f"{crit}.json"
+        res = api.design("kr16", criterion=crit, n=20, json_path=js)
+        rec = json.loads(js.read_text())
+        value = rec["values"]["kpi_avg_var_mm2"]
+        assert 0.0 < rec["efficiency"] <= 1.0 and 0.0 < rec["bound_mm2"] <= value
+        assert rec["efficiency"] == pytest.approx(rec["bound_mm2"] / value, rel=1e-12)
+        assert res.certificate["n_given"] == 0
+    assert rec["start"] == "approximate"  # the kpi criterion's default start
+    assert len(list(cache.glob("certificate-*.npz"))) == 1  # one search per setup, for every criterion
+    # the command line: the summary line and the JSON by default; --no-certify: null fields
+    js = tmp_path / "cli.json"
+    code, text, _ = _run(capsys, "design", "--robot", "kr16", "--criterion", "param", "--n", "20",
+                         "--json", str(js), "--out", str(tmp_path / "d.csv"))  # fmt: skip
+    assert code == 0 and "lower bound for any 20-pose design:" in text and "not of the design's" in text
+    assert 0.0 < json.loads(js.read_text())["efficiency"] <= 1.0
+    code, text, _ = _run(capsys, "design", "--robot", "kr16", "--criterion", "heuristic", "--n", "20",
+                         "--no-certify", "--json", str(js), "--out", str(tmp_path / "d.csv"))  # fmt: skip
+    rec = json.loads(js.read_text())
+    assert code == 0 and "lower bound" not in text
+    assert rec["bound_mm2"] is None and rec["efficiency"] is None and rec["certificate"] is None
+
+
+def test_design_with_given_poses_has_the_bound_of_the_combined_design(
+    tmp_path, kr16, quick_certificate, cache
+):
+    given = tmp_path / "given.csv"
+    q_given = approximate_start(kr16, n=20, seed=3)
+    write_design(given, q_given)
+    js = tmp_path / "d.json"
+    res = api.design("kr16", criterion="kpi", n=5, given=given, json_path=js)
+    rec = json.loads(js.read_text())
+    assert res.start == "heuristic" and rec["certificate"]["n_given"] == 20
+    combined = rec["values"]["kpi_avg_var_mm2"]
+    assert combined == pytest.approx(
+        kr16.criteria(np.concatenate([q_given, res.q]))["kpi_avg_var_mm2"], rel=1e-6
+    )
+    assert 0.0 < rec["bound_mm2"] <= combined and 0.0 < rec["efficiency"] <= 1.0

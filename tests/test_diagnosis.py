@@ -104,6 +104,8 @@ def test_report_json_contract_cli_and_plots(kr16, tmp_path):
     assert names == {("joint_elasticity", 2, None), ("gear_cyclic", 4, 2)}
     for c in d["causes"]:
         assert {"effect", "value", "std", "unit", "evidence"} <= set(c)
+        assert {"alternatives", "plausible", "plausible_reason", "name"} <= set(c) and c["plausible"] is True
+    assert "unexplained" in d and d["unexplained"] is None
     for k in ("baseline", "extended"):
         assert {"rms_mm", "chi2_per_dof", "holdout_rms_mm"} <= set(d[k])
     assert d["gain"]["holdout_rms_ratio"] == pytest.approx(

@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kpioed_drake import estimation, measurement, models, problem
+from kpioed_drake import estimation, measurement, models, problem, residuals
 from kpioed_drake.errors import InputError
 
 
@@ -135,7 +135,7 @@ def test_mask_excludes_poses(kr16):
     b = estimation.estimate(model, q, eta_bad, mask=mask)
     assert_allclose(b.model.p, a.model.p, atol=1e-8)
     assert_allclose(b.cost, a.cost, rtol=1e-8)
-    nr = estimation.normalized_residuals(b)
+    nr = residuals.normalized_residuals(b)
     assert nr[7] > 1e4  # 5 mm against 0.02 mm noise
     assert np.all(nr[mask] < chi2.ppf(1 - 1e-4, 3))
 

@@ -170,3 +170,41 @@ def test_ur5_extra_gauge_leaves_nothing_to_hold():
     grid = read_data(UR5_DATA / "ur5_grid.csv", robot, REPO / "models" / "formats" / "ur5-laser-tracker.yaml")
     report = calibration.calibrate(robot, grid.subset(np.arange(0, 1000, 5)), sigma_mm=0.065, strict=True)
     assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
+
+
+OFF_AXIS_MM = (20.0, 0.0, 150.0)
+"""A nominal reflector 20 mm off joint 6's axis: the nominal check finds every parameter determined."""
+
+
+def test_identifiability_at_the_solution(kr16, on_axis, design):
+    """The data place the reflector on joint 6's axis, the nominal model 20 mm off it: the nominal
+    check holds nothing, the test at the estimate finds two wrist parameters (|r| = 0.999999), holds
+    them at nominal and refits; ``--strict`` refuses."""
+    truth_robot = dataclasses.replace(on_axis, extra_gauge=WRIST)
+    data, truth = measurements(truth_robot, design, seed=3)
+    nominal = dataclasses.replace(kr16, p_FQ=np.array(OFF_AXIS_MM))
+    report = calibration.calibrate(nominal, data, sigma_mm=SIGMA)
+    ident = report.to_dict()["identifiability"]
+    assert ident["at_nominal"] == [] and len(ident["at_solution"]) == 2
+    assert set(ident["at_solution"]) <= set(WRIST) and report.held_at_nominal == ident["at_solution"]
+    warning = next(w for w in report.warnings if "at the estimated parameters" in w)
+    assert named(warning, ident["at_solution"]) == 2 and "held at nominal" in warning
+    lay = report.model.layout
+    idx = [lay.names.index(n) for n in report.held_at_nominal]
+    assert_array_equal(report.model.p[idx], report.nominal.p[idx])
+    res = report.result
+    assert len(res.free_names) == 25 and 0.7 < report.chi2_per_dof < 1.3
+    robot_side = [i for i, n in enumerate(res.free_names) if not n.startswith("tracker")]
+    z = (res.model.p[res.free] - truth.p[res.free]) / res.std
+    assert np.max(np.abs(z[robot_side])) < 3.0  # the reflector found on the axis, within 3 sigma
+    with pytest.raises(InputError, match="at the estimated parameters.*do not determine"):
+        calibration.calibrate(nominal, data, sigma_mm=SIGMA, strict=True)
+
+
+def test_hold_at_solution_finds_nothing_on_well_posed_data(kr16, design):
+    data, _ = measurements(kr16, design, seed=5)
+    report = calibration.calibrate(kr16, data, sigma_mm=SIGMA)
+    assert report.to_dict()["identifiability"]["at_solution"] == []
+    warnings: list[str] = []
+    model, names = calibration.fit.hold_at_solution(report.result, report.nominal, data, False, warnings)
+    assert model is None and names == () and warnings == []

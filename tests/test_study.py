@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 
 from kpioed_drake import study
-from kpioed_drake.cli import build_parser
-from kpioed_drake.design import DESIGN_METHODS
+from kpioed_drake.cli import build_parser, main
+from kpioed_drake.design import DESIGN_METHODS, approximate_design
 from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import FeasibilityChecker
@@ -67,6 +67,12 @@ class FakeDesign:
             key=lambda q: problem.criteria(q)[key],
         )
         return _Result(q=best, feasible=True)
+
+    @staticmethod
+    def certified_design(problem, *, collision=True, seed=0):
+        """A cheap search (one round over 300 poses): a valid, looser bound."""
+        return approximate_design(problem, collision=collision, seed=seed, max_rounds=1, pool=300, starts=2,
+                                  random_starts=1, first_working=300)  # fmt: skip
 
 
 FAKE = FakeDesign()
@@ -123,16 +129,36 @@ def _check_outputs(res, robots, n, draws):
                 assert r["n_colliding_poses"] == 0 or not r["feasible"]
     report = (d / "report.md").read_text()
     assert "Table 6" in report and "Ratios" in report and "kpi/heuristic" in report
+    _check_efficiency(d, df, t6, t7, t8, robots)
+
+
+def _check_efficiency(d, df, t6, t7, t8, robots):
+    """One bound per robot; every design with collision avoidance has 0 < efficiency <= 1 and
+    bound <= value (the bound covers its poses), none without; the tables carry them."""
+    bounds = pd.read_csv(d / "bounds.csv")
+    assert list(bounds["robot"]) == list(robots) and bounds["error"].isna().all()
+    ca = df[df["collision_avoidance"]]
+    assert ((ca["efficiency"] > 0) & (ca["efficiency"] <= 1)).all()
+    assert (ca["bound_mm2"] <= ca["kpi_avg_var_mm2"]).all()
+    assert np.allclose(ca["efficiency"], ca["bound_mm2"] / ca["kpi_avg_var_mm2"], rtol=1e-4)
+    for robot, b in zip(bounds["robot"], bounds["bound_mm2"], strict=True):
+        assert (ca[ca["robot"] == robot]["bound_mm2"] <= b * (1 + 1e-5)).all()
+    assert df[~df["collision_avoidance"]]["efficiency"].isna().all()
+    assert {"bound_mm2", "kpi_ca_efficiency", "param_ca_efficiency", "heuristic_efficiency"} <= set(
+        t6.columns
+    )
+    assert "ca_efficiency_min" in t7.columns and "ca_efficiency_mean" in t8.columns
+    assert "## Efficiency" in (d / "report.md").read_text()
 
 
 def test_study_machinery_fake(tmp_path):
     res = study.run_study(
         tmp_path, robots=ROBOTS, n=30, heuristic_draws=2, jobs=1, progress=False, design_api=FAKE
     )
-    assert (res.n_tasks, res.n_run, res.n_skipped, res.n_errors) == (12, 12, 0, 0)
+    assert (res.n_tasks, res.n_run, res.n_skipped, res.n_errors) == (14, 14, 0, 0)
     _check_outputs(res, ROBOTS, 30, 2)
     assert {p.name for p in res.figures} == {"figure7_kr16.png", "figure8_notional.png"}
-    assert len(list((tmp_path / "tasks").glob("*.json"))) == 12
+    assert len(list((tmp_path / "tasks").glob("*.json"))) == 14  # 12 designs, 2 bounds
     # one design file per task, and each row names its own task
     assert len(list((tmp_path / "designs").glob("*.csv"))) == 12
     tasks = study.make_tasks(ROBOTS, n=30, heuristic_draws=2)
@@ -149,9 +175,28 @@ def test_study_machinery_fake(tmp_path):
         design_api=FAKE,
         figures=False,
     )
-    assert (res2.n_run, res2.n_skipped) == (0, 12)
+    assert (res2.n_run, res2.n_skipped) == (0, 14)
     for a, b in zip(before, _tables(tmp_path), strict=True):
         pd.testing.assert_frame_equal(a, b)
+    # the tables rebuilt from results.csv and designs/ alone (bounds computed again) are the same
+    again = tmp_path / "again"
+    again.mkdir()
+    for name in ("results.csv", "report.md"):
+        (again / name).write_text((tmp_path / name).read_text())
+    (again / "designs").mkdir()
+    for f in (tmp_path / "designs").glob("*.csv"):
+        (again / "designs" / f.name).write_text(f.read_text())
+    res3 = study.regenerate_tables(again, jobs=1, progress=False, design_api=FAKE, figures=False)
+    assert (res3.n_tasks, res3.n_run, res3.n_errors) == (2, 2, 0)
+    for a, b in zip(before, _tables(again), strict=True):
+        pd.testing.assert_frame_equal(a, b)
+    cols = ["robot", "criterion", "seed", "kpi_avg_var_mm2", "bound_mm2", "efficiency"]
+    pd.testing.assert_frame_equal(res.results[cols], res3.results[cols], rtol=1e-5)
+    with pytest.raises(InputError, match="results.csv"):
+        study.regenerate_tables(tmp_path / "none", progress=False, design_api=FAKE)
+    (again / "designs" / "kr16_kpi_ca.csv").unlink()
+    with pytest.raises(InputError, match="kr16_kpi_ca.csv"):
+        study.regenerate_tables(again, progress=False, design_api=FAKE)
 
 
 def test_study_resume_after_interrupt_gives_same_tables(tmp_path):
@@ -165,7 +210,8 @@ def test_study_resume_after_interrupt_gives_same_tables(tmp_path):
     failed = tasks[1]
     (tmp_path / "part" / "tasks" / f"{failed.task_id}.json").write_text(json.dumps({"error": "boom"}))
     resumed = study.run_study(tmp_path / "part", jobs=1, **kw)
-    assert resumed.n_skipped == len(tasks[::3]) and resumed.n_run == len(tasks) - len(tasks[::3])
+    n_bounds = len(ROBOTS)
+    assert resumed.n_skipped == len(tasks[::3]) and resumed.n_run == len(tasks) + n_bounds - len(tasks[::3])
     for a, b in zip(_tables(tmp_path / "full"), _tables(tmp_path / "part"), strict=True):
         pd.testing.assert_frame_equal(a, b)
     pd.testing.assert_frame_equal(
@@ -287,7 +333,13 @@ def test_study_reduced_paper_findings(tmp_path):
         tmp_path, robots=ROBOTS, n=30, heuristic_draws=2, jobs=os.cpu_count(), progress=False
     )
     msgs = _assert_findings(res)
-    print(f"reduced study: {time.perf_counter() - t0:.0f} s", *msgs, sep="\n")
+    # the real bounds: every design with collision avoidance below 1, the KPI designs the most efficient
+    pr = study.per_robot(res.results)
+    eff = pr[["heuristic_efficiency", "param_ca_efficiency", "kpi_ca_efficiency"]]
+    assert ((eff > 0) & (eff <= 1)).all().all()
+    assert (pr["kpi_ca_efficiency"] > pr["param_ca_efficiency"]).all()
+    assert (pr["param_ca_efficiency"] > pr["heuristic_efficiency"]).all()
+    print(f"reduced study: {time.perf_counter() - t0:.0f} s", *msgs, eff.to_string(), sep="\n")
 
 
 @pytest.mark.slow
@@ -298,3 +350,9 @@ def test_quick_study(tmp_path):
     _check_outputs(res, study.study_robots(True), 60, 3)
     msgs = _assert_findings(res)
     print(f"quick study: {wall:.0f} s", *msgs, sep="\n")
+
+
+def test_tables_only_on_a_folder_without_a_study_is_an_input_error(tmp_path, capsys):
+    code = main(["study", "--out", str(tmp_path / "none"), "--tables-only", "--no-progress"])
+    assert code == 2 and "results.csv" in capsys.readouterr().err
+    assert not (tmp_path / "none").exists()

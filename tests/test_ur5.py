@@ -72,9 +72,9 @@ def test_all_estimated_parameters_are_identifiable():
     assert {"theta5", "alpha5"} <= set(rep["fixed"])  # the reflector lies on joint 6's axis
 
 
-def _calibrate_and_validate(robot, grid, random, tmp_path):
+def _calibrate_and_validate(robot, grid, random, tmp_path, sigma_mm=SIGMA_MM):
     t0 = time.perf_counter()
-    report = calibrate(robot, grid, sigma_mm=SIGMA_MM)
+    report = calibrate(robot, grid, sigma_mm=sigma_mm)
     seconds = time.perf_counter() - t0
     (tmp_path / "ur5-cal.yaml").write_text(calibrated_robot_yaml(report))
     calibrated = load_robot(str(tmp_path / "ur5-cal.yaml"))
@@ -104,3 +104,29 @@ def test_full_end_to_end(ur5, tmp_path):
     assert report.result.converged and not report.outliers and seconds < 5
     assert 0.9 < report.chi2_per_dof < 1.1  # SIGMA_MM is the data's own noise level
     assert e["calibrated"] < 0.155 < e["nominal_registered"]
+
+
+def _robust_at_small_sigma(robot, grid, random, tmp_path):
+    """Sigma 0.02 mm, a third of the data's own noise: calibrated, not refused, >= 95 % of the poses
+    kept, and the same validation error as at the data's noise level."""
+    ref, _, e_ref = _calibrate_and_validate(robot, grid, random, tmp_path)
+    report, seconds, e = _calibrate_and_validate(robot, grid, random, tmp_path, sigma_mm=0.02)
+    robust = report.to_dict()["robust"]
+    assert report.result.converged and report.result.n_used >= 0.95 * grid.n
+    assert robust["n_removed"] == len(report.outliers) and robust["n_downweighted"] == 0
+    assert 0.05 < robust["scale_mm"] < 0.08  # the data's own spread, not the given sigma
+    assert any("non-geometric rest, a-posteriori sigmas used" in w for w in report.warnings)
+    assert abs(e["calibrated"] - e_ref["calibrated"]) < 0.01
+    return report, seconds, e
+
+
+def test_reduced_small_sigma_is_robust(ur5, tmp_path):
+    robot, grid, random = ur5
+    _robust_at_small_sigma(robot, grid.subset(np.arange(0, 1000, 5)), random, tmp_path)
+
+
+@pytest.mark.slow
+def test_full_small_sigma_is_robust(ur5, tmp_path):
+    robot, grid, random = ur5
+    report, seconds, e = _robust_at_small_sigma(robot, grid, random, tmp_path)
+    assert seconds < 5 and e["calibrated"] < 0.155

@@ -4,6 +4,7 @@ One module per concern:
 
 - :mod:`.fit`: :func:`calibrate`, registration, least squares on the free geometric parameters,
   outlier handling, goodness of fit, the KPI and its covariance;
+- :mod:`.robust`: the outlier screening against ``max(sigma, robust scale of the residuals)``;
 - :mod:`.report`: :class:`CalibrationReport` (JSON report and text summary);
 - :mod:`.modelfile`: :func:`calibrated_robot_yaml`, the calibrated robot as a model file;
 - :mod:`.extended`: :func:`calibrate_extended`, geometry plus non-geometric effects

@@ -16,6 +16,7 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
+from kpioed_drake.effects.gravity_basis import resolve_all
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import data_conditions, estimate, rms
 from kpioed_drake.measurement import nominal_model
@@ -57,6 +58,7 @@ def calibrate_extended(
     data = as_measurements(data, robot)
     effects = fx.parse_effects(extend)
     nominal = nominal_model(robot, load_cell(robot=robot) if cell is None else cell)
+    effects = resolve_all(effects, nominal, data.payload_kg)  # joint_elasticity_basis: size per robot
     n_params = nominal.layout.n_free + sum(e.n_params for e in effects)
     warnings = check_data(nominal, data, n_params=n_params, force=force)
     conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)

@@ -7,16 +7,20 @@ the KPI (TCP at ``q_work`` in W) with its covariance ``Js Cp Js^T`` (paper eq. 1
 Outlier test (normalised residuals): for every used pose i the studentised statistic
 ``t_i = r_i^T (sigma^2 (I - H_ii))^-1 r_i`` (``H_ii`` the 3x3 block of the hat matrix) is chi^2(3)
 distributed if the model is right. The largest ``t_i`` is compared with the chi^2(3) quantile at
-level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01); if
-it exceeds it, that pose is removed and the fit repeated, until no pose exceeds the threshold, at
+level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01),
+at the effective noise ``max(sigma, robust scale of the residuals)`` so that the non-geometric rest
+of a real robot is not taken for gross errors (:mod:`kpioed_drake.calibration.robust`); if it
+exceeds it, that pose is removed and the fit repeated, until no pose exceeds the threshold, at
 most ``max_outlier_fraction`` of the poses are removed, or removing one more would leave fewer than
-10 poses. Many "outliers" are a sign of model discrepancy rather than of bad points (see
-``kpioed diagnose``); the report warns when the cap is reached.
+10 poses. The report warns when the cap is reached.
 
 Identifiability: before the fit, the Jacobian of the registered nominal model over the poses is
 tested (:func:`kpioed_drake.identifiability.undetermined_parameters`: near-rank of the
 column-scaled Jacobian and correlations above 0.999); the parameters these poses do not determine
-are held at nominal, with a warning naming them (``strict``: refused).
+are held at nominal, with a warning naming them (``strict``: refused). After the fit the same test
+runs on the Jacobian at the estimated parameters (:func:`hold_at_solution`): what the nominal check
+missed (e.g. a reflector the data place on joint 6's axis, away from the nominal offset) is held at
+nominal the same way and the fit repeated.
 """
 
 from __future__ import annotations
@@ -24,50 +28,36 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
 from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.calibration.robust import (
+    MIN_POSES_FOR_OUTLIER_TEST,
+    non_geometric_warning,
+    screen_outliers,
+)
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import estimate, normalized_residuals, registered_model
+from kpioed_drake.estimation import Conditions, EstimationResult, covariance, estimate, registered_model
 from kpioed_drake.identifiability import undetermined_parameters
-from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
+from kpioed_drake.measurement import (
+    TrackerModel,
+    hold_unused_targets,
+    kpi_jacobian,
+    measurement_jacobian,
+    nominal_model,
+)
 from kpioed_drake.measurements import Measurements
 from kpioed_drake.models import Robot, load_cell, load_robot
-from kpioed_drake.parameters import default_fixed, parameter_layout
+from kpioed_drake.parameters import parameter_layout
 from kpioed_drake.plausibility import check_data
+from kpioed_drake.residuals import normalized_residuals
 
-MIN_POSES_FOR_OUTLIER_TEST = 10
-MAX_OUTLIER_SHARE = 1.0 / 3.0
-"""More poses than this share failing the outlier test at once is refused (sigma or model wrong)."""
+__all__ = ["MIN_POSES_FOR_OUTLIER_TEST", "calibrate", "hold_at_solution", "hold_undetermined"]
+
 MAX_HELD_SHARE = 1.0 / 3.0
 """Poses leaving more than this share of the free parameters undetermined are refused: holding a
 few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving only joints 1 and
 2: 17 of 27) means the poses do not exercise the robot."""
-
-
-def _few_outliers(t, res, data: Measurements, alpha: float, force: bool, warnings: list[str]) -> bool:
-    """False (forced) or an InputError when over a third of the poses fail the outlier test at once.
-
-    So many "outliers" are not single bad points: the noise is larger than the given sigma, or the
-    model misses an effect; removing them would throw good poses away. ``t``: the normalised
-    residuals of ``res`` (:func:`~kpioed_drake.estimation.normalized_residuals`).
-    """
-    n = data.n
-    n_fail = int(np.count_nonzero(t > chi2_dist.isf(alpha / n, 3)))
-    if n_fail <= MAX_OUTLIER_SHARE * n:
-        return True
-    ratio = res.chi2_per_dof
-    message = (
-        f"{data.path}: {n_fail} of {n} poses fail the outlier test at sigma {res.sigma:g} mm: not single "
-        f"bad points. The residuals are sqrt(chi2/dof) = {np.sqrt(ratio):.3g} times the noise: the noise "
-        f"is larger than --sigma-mm (about {res.sigma * np.sqrt(ratio):.3g} mm) or the model misses an "
-        "effect (run `kpioed diagnose`)"
-    )
-    if not force:
-        raise InputError(message + "; use --force to calibrate anyway without removing outliers")
-    warnings.append(f"forced: {message}; no pose was removed")
-    return False
 
 
 def hold_undetermined(
@@ -82,11 +72,19 @@ def hold_undetermined(
     lay = nominal.layout
     if 3 * data.n < lay.n_free:
         return nominal
-    _, H = measurement_jacobian(registered_model(nominal, data.q, data.eta), data.q)
+    registered = registered_model(nominal, data.q, data.eta, data.target)
+    _, H = measurement_jacobian(registered, data.q, target=data.target)
     found = undetermined_parameters(H[:, :, lay.free].reshape(3 * data.n, -1), lay.free_names)
+    return _hold(nominal, found, f"these {data.n} poses do not determine", data, strict, warnings)
+
+
+def _hold(model: TrackerModel, found, what: str, data: Measurements, strict: bool, warnings) -> TrackerModel:
+    """``model`` with the parameters ``found`` (:class:`~kpioed_drake.identifiability.Undetermined`)
+    no longer estimated, with a warning; InputError with ``strict`` or too many."""
     if not found.names:
-        return nominal
-    what = f"these {data.n} poses do not determine {found.describe()}"
+        return model
+    lay = model.layout
+    what = f"{what} {found.describe()}"
     if len(found.names) > MAX_HELD_SHARE * lay.n_free:
         raise InputError(
             f"{data.path}: {what}: {len(found.names)} of the {lay.n_free} parameters, too many to hold "
@@ -100,8 +98,39 @@ def hold_undetermined(
     warnings.append(
         f"{what}: held at nominal (not estimated); the values written for them are the nominal ones"
     )
-    layout = parameter_layout(nominal.robot, fixed=default_fixed(nominal.robot) + found.names)
-    return dataclasses.replace(nominal, layout=layout)
+    held = tuple(n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist()))
+    layout = parameter_layout(model.robot, fixed=held + found.names, n_targets=lay.n_targets)
+    return dataclasses.replace(model, layout=layout)
+
+
+def hold_at_solution(
+    res: EstimationResult, nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str]
+) -> tuple[TrackerModel | None, tuple[str, ...]]:
+    """The identifiability test on the Jacobian at the estimated parameters.
+
+    The nominal check (:func:`hold_undetermined`) sees the poses through the nominal model; the
+    estimate can lie where the poses determine less (a reflector the data place on joint 6's axis
+    while the nominal one is off it). Same test, same thresholds, on ``res.J``.
+
+    Returns:
+        (model, names): the estimated model with the undetermined parameters held and set to their
+        nominal values (tracker ones keep their estimate) to refit from, and their names; (None, ())
+        when every parameter is determined.
+
+    Raises:
+        InputError: with ``strict``, or more than ``MAX_HELD_SHARE`` of the parameters undetermined.
+    """
+    lay = res.model.layout
+    found = undetermined_parameters(res.J[:, : lay.n_free], lay.free_names)
+    if not found.names:
+        return None, ()
+    what = f"at the estimated parameters these {res.n_used} poses do not determine"
+    model = _hold(res.model, found, what, data, strict, warnings)
+    tracker = set(range(lay.size)[lay.tracker_position]) | set(range(lay.size)[lay.tracker_rotation])
+    idx = [i for i in (lay.names.index(n) for n in found.names) if i not in tracker]
+    p = model.p.copy()
+    p[idx] = nominal.p[idx]
+    return dataclasses.replace(model, p=p), found.names
 
 
 def calibrate(
@@ -158,43 +187,47 @@ def calibrate(
         p0[nominal.layout.tracker_rotation] = 0.0
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
     n = data.n
+    nominal = hold_unused_targets(nominal, data.target)
     warnings = check_data(nominal, data, n_params=nominal.layout.n_free, force=force)
+    before = nominal.layout.free_names
     nominal = hold_undetermined(nominal, data, strict, warnings)
-    mask = np.ones(n, dtype=bool)
-    outliers: list[int] = []
-    max_out = int(np.floor(max_outlier_fraction * n))
-    try:
-        res = estimate(nominal, data.q, data.eta, sigma=sigma_mm, mask=mask, max_iter=max_iter)
-    except InputError as exc:
-        raise InputError(f"{data.path}: {str(exc).removeprefix('estimate: ')}") from None
-    t = normalized_residuals(res)
-    if alpha is not None and not _few_outliers(t, res, data, alpha, force, warnings):
-        alpha = None  # forced: keep every pose
-    threshold = None
-    while True:
-        n_used = int(np.count_nonzero(mask))
-        if alpha is None or n_used - 1 < MIN_POSES_FOR_OUTLIER_TEST:
-            break
-        threshold = float(chi2_dist.isf(alpha / n_used, 3))
-        used = np.flatnonzero(mask)
-        worst = int(used[np.argmax(t[used])])
-        if t[worst] <= threshold:
-            break
-        if len(outliers) >= max_out:
-            warnings.append(
-                f"outlier removal stopped after {len(outliers)} poses "
-                f"(cap {max_outlier_fraction:.0%} of the data); "
-                f"row {int(data.rows[worst])} still fails the test: the residuals suggest model discrepancy "
-                "or a wrong --sigma-mm rather than single bad points"
+    at_nominal = [name for name in before if name not in nominal.layout.free_names]
+    cond = Conditions(target=data.target)
+
+    def fit(model, mask, *, register=False, singular_ok=False) -> EstimationResult:
+        try:
+            return estimate(
+                model,
+                data.q,
+                data.eta,
+                sigma=sigma_mm,
+                mask=mask,
+                register=register,
+                max_iter=max_iter,
+                conditions=cond,
+                singular_ok=singular_ok,
             )
-            break
-        mask[worst] = False
-        outliers.append(worst)
-        res = estimate(
-            res.model, data.q, data.eta, sigma=sigma_mm, mask=mask, register=False, max_iter=max_iter
-        )
-        t = normalized_residuals(res)
-    normalized = t
+        except InputError as exc:
+            raise InputError(f"{data.path}: {str(exc).removeprefix('estimate: ')}") from None
+
+    res = fit(nominal, np.ones(n, dtype=bool), register=True, singular_ok=True)
+    res, at_solution = _determined_at_solution(res, nominal, data, strict, warnings, fit)
+    screen = screen_outliers(
+        res,
+        data,
+        lambda mask, prev: fit(prev.model, mask),
+        alpha=alpha,
+        max_outlier_fraction=max_outlier_fraction,
+        force=force,
+        warnings=warnings,
+    )
+    res, outliers, normalized = screen.result, screen.outliers, screen.normalized
+    if outliers:  # the final solution is tested too
+        res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit)
+        if more:
+            at_solution += more
+            normalized = normalized_residuals(res)
+    threshold, alpha = screen.threshold, screen.alpha
     if not res.converged:
         warnings.append(f"the least-squares iteration did not converge ({res.message})")
 
@@ -214,6 +247,8 @@ def calibrate(
         kpi_cov=kpi_cov,
         kpi_nominal=kpi_nom,
         warnings=warnings,
+        robust=screen.to_dict(),
+        identifiability={"at_nominal": at_nominal, "at_solution": list(at_solution)},
     )
     p = report.p_value
     if p is not None and p < 1e-3:
@@ -222,6 +257,9 @@ def calibrate(
             f"{sigma_mm:g} mm explains; the noise is larger than given or the geometric model misses an "
             "effect (see `kpioed diagnose`); the a-posteriori covariance scales by chi2/dof"
         )
+        rest = non_geometric_warning(screen)
+        if rest:
+            warnings.append(rest)
     elif p is not None and p > 1 - 1e-3:
         warnings.append(
             f"chi2/dof = {report.chi2_per_dof:.3g}: the residuals are smaller than a noise of "
@@ -229,3 +267,22 @@ def calibrate(
             "predicts; --sigma-mm is probably too large (the reported uncertainties are then pessimistic)"
         )
     return report
+
+
+def _determined_at_solution(res, nominal, data, strict, warnings, fit):
+    """``res``, refitted (same poses) with what :func:`hold_at_solution` finds held, and the names.
+
+    Raises:
+        InputError: the information matrix is singular at the solution and nothing can be held.
+    """
+    model, names = hold_at_solution(res, nominal, data, strict, warnings)
+    if model is not None:
+        return fit(model, res.mask), names
+    try:
+        covariance(res.J)
+    except np.linalg.LinAlgError:
+        raise InputError(
+            f"{data.path}: the {res.n_used} poses do not determine the {res.n_params} parameters "
+            "(information matrix singular); use more or more varied poses"
+        ) from None
+    return res, ()

@@ -1,7 +1,8 @@
 """The calibrated robot as a model file (same schema as ``models/robots/*.yaml``).
 
 :func:`calibrated_robot_yaml` writes the estimated joint rows, the estimated reflector offset
-(``reflector_position_mm``) and the estimated tracker pose (``tracker_position_mm``,
+(``reflector_position_mm``; with several targets all of them, ``targets_mm``, target 1 first)
+and the estimated tracker pose (``tracker_position_mm``,
 ``tracker_rpy_deg``) into the robot's :class:`~kpioed_drake.models.RobotSpec` (read back from its
 source file when available), so that the result is a complete model usable as ``--robot path.yaml``
 by every command: the reflector and tracker fields override the cell file's
@@ -55,6 +56,7 @@ def _spec_from_robot(robot: Robot) -> RobotSpec:
         car_shift_x_mm=robot.car_shift_x,
         joint_map=joint_map_spec(robot.joint_map),
         extra_gauge=list(robot.extra_gauge),
+        targets_mm=[] if robot.targets is None else robot.targets.tolist(),
     )
 
 
@@ -98,10 +100,13 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
             j.beta_deg, j.d_mm = float(np.rad2deg(be)), 0.0
     spec.name = f"{rob.name}-calibrated"
     spec.reflector_position_mm = report.model.p_FQ.tolist()
+    if spec.targets_mm or report.model.layout.n_targets > 1:
+        spec.targets_mm = report.model.target_offsets.tolist()
     spec.tracker_position_mm = report.model.p_WT.tolist()
     spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
     cal_note = _note(report) + (
-        " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm and "
+        " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm "
+        "(targets_mm: every target) and "
         "tracker_position_mm/tracker_rpy_deg hold the estimated reflector offset and tracker pose "
         "(they override the cell file's)."
     )

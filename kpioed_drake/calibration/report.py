@@ -44,6 +44,10 @@ class CalibrationReport:
         kpi_cov: (3, 3) its covariance [mm^2].
         kpi_nominal: (3,) TCP of the nominal model [mm].
         warnings: human-readable remarks (non-convergence, poor fit, outlier cap, parameters held).
+        robust: the outlier screening against the residuals' robust scale
+            (:meth:`kpioed_drake.calibration.robust.Screening.to_dict`; empty if not run).
+        identifiability: ``at_nominal`` / ``at_solution``: the parameters held because the poses do
+            not determine them, found on the registered nominal model and at the estimate.
     """
 
     robot: Robot
@@ -59,6 +63,8 @@ class CalibrationReport:
     kpi_cov: np.ndarray
     kpi_nominal: np.ndarray
     warnings: list[str]
+    robust: dict = dataclasses.field(default_factory=dict)
+    identifiability: dict = dataclasses.field(default_factory=dict)
 
     # --- derived numbers ---------------------------------------------------------------------
     @property
@@ -244,8 +250,23 @@ class CalibrationReport:
                 "std_mm": std[self.model.layout.free_target(0)].tolist(),
                 "note": "estimated reflector offset in the flange frame; the cell file is not changed",
             },
+            "targets": [
+                {
+                    "target": t + 1,
+                    "p_FQ_mm": self.model.target_offsets[t].tolist(),
+                    "std_mm": std[self.model.layout.free_target(t)].tolist(),
+                }
+                for t in range(self.model.layout.n_targets)
+            ],
             "poses": poses,
             "held_at_nominal": list(self.held_at_nominal),
+            "identifiability": {
+                "at_nominal": list(self.identifiability.get("at_nominal", [])),
+                "at_solution": list(self.identifiability.get("at_solution", [])),
+                "note": "parameters held at nominal because these poses do not determine them: found on "
+                "the registered nominal model before the fit, and on the Jacobian at the estimate",
+            },
+            "robust": dict(self.robust),
             "warnings": list(self.warnings),
         }
 
@@ -267,6 +288,18 @@ class CalibrationReport:
             )
         else:
             lines.append("  outliers removed: none")
+        if self.robust.get("scale_mm") is not None:
+            rb = self.robust
+            lines.append(
+                f"  robust scale of the residuals {rb['scale_mm']:.4g} mm per coordinate "
+                f"(sigma {rb['sigma_mm']:g} mm): "
+                + (
+                    f"gross errors tested at {rb['sigma_effective_mm']:.4g} mm; {rb['n_removed']} rows "
+                    f"removed, {rb['n_downweighted']} down-weighted"
+                    if self.outlier_alpha is not None
+                    else "no outlier test"
+                )
+            )
         sd = np.sqrt(np.diag(d.kpi_cov))
         lines.append(
             "  KPI (TCP at q_work in W): "

@@ -29,7 +29,8 @@ def register(sub) -> None:
         "--outlier-alpha",
         type=float,
         default=0.01,
-        help="family-wise false-alarm level of the outlier test (Bonferroni); 0 disables (0.01)",
+        help="family-wise false-alarm level of the outlier test (Bonferroni; at max(sigma, the residuals' "
+        "robust scale)); 0 disables (0.01)",
     )
     p.add_argument(
         "--strict",

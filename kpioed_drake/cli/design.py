@@ -8,13 +8,14 @@ Several KPIs (paper, Outlook): ``--q-work`` repeated, or ``--q-work-file`` (a CS
 e.g. a working path sampled at K points), with ``--kpi-weights`` and ``--kpi-aggregate mean|max``.
 Sequential re-identification (paper 3.1): ``--given D.csv`` adds ``--n`` new poses to poses
 already measured. Fewest poses for a precision (paper, Conclusion): ``--target-var V``.
-``--start approximate`` starts the KPI optimisation from the rounded approximate design;
-``--certify`` adds the optimality certificate (a lower bound on tr(Cs)/3 of any design of as many
-poses, and the design's efficiency) to the summary and the JSON record.
+``--start`` picks the KPI optimisation's start (default: the rounded approximate design); the
+optimality certificate (a lower bound on tr(Cs)/3 of any design of as many poses, and the design's
+efficiency) is in the summary and the JSON record unless ``--no-certify``.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from kpioed_drake import api
@@ -26,6 +27,7 @@ from kpioed_drake.design import (
     SOLVERS,
     START_METHODS,
     DesignError,
+    discrimination_lines,
     format_summary,
 )
 from kpioed_drake.errors import EXIT_SOLVER, InputError
@@ -41,9 +43,10 @@ def register(sub) -> None:
     add_robot(p)
     p.add_argument(
         "--criterion",
-        required=True,
+        default=None,
         choices=DESIGN_METHODS,
-        help="; ".join(
+        help="required unless --discriminate; "
+        + "; ".join(
             ["heuristic = random feasible poses (paper 3.2)"]
             + [f"{c.name} = {c.description}" for c in TABLE.values()]
         ),
@@ -61,9 +64,11 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--certify",
-        action="store_true",
-        help="add the optimality certificate: a lower bound on tr(Cs)/3 of any design of --n poses and the "
-        "design's efficiency (bound/value; 5-12 s per robot)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="the optimality certificate: a lower bound on tr(Cs)/3 of any design of --n poses and the "
+        "design's efficiency (bound/value), on by default (not with --discriminate); it costs 4-13 s once "
+        "per robot and setup (then cached on disk, $KPIOED_CACHE or ~/.cache/kpioed) and 1-4 s per design",
     )
     p.add_argument("--starts", type=int, default=1, help="number of starts, the best is kept (default 1)")
     add_sigma(p)
@@ -89,6 +94,14 @@ def register(sub) -> None:
     p.add_argument("--plot", default=None, metavar="FILE.png", help="picture of the poses (.png, .pdf, .svg)")
     add_html(p)
     add_extend(p)
+    p.add_argument(
+        "--discriminate",
+        default=None,
+        metavar="A|B",
+        help="poses that tell two explanations apart (e.g. 'joint_scale:2=300|gear_cyclic:2:1'; values "
+        "optional, default: the smallest realistic size), instead of --criterion; --given: the first data "
+        "set",
+    )
     p.set_defaults(func=run)
 
 
@@ -133,11 +146,14 @@ def _weights(text: str | None) -> list[float] | None:
 
 
 def run(args) -> int:
+    if args.criterion is None and args.discriminate is None:
+        raise InputError("--criterion is required (or --discriminate A|B)")
     q_work = args.q_work[0] if args.q_work and len(args.q_work) == 1 else args.q_work
     try:
         res = api.design(
             args.robot,
-            criterion=args.criterion,
+            criterion=args.criterion or "kpi",
+            discriminate=args.discriminate,
             n=args.n,
             collision=not args.no_collision,
             solver=args.solver,
@@ -165,6 +181,8 @@ def run(args) -> int:
         print(f"kpioed: design failed: {exc}", file=sys.stderr)
         return EXIT_SOLVER
     print(format_summary(res))
+    if getattr(res, "discrimination", None) is not None:
+        print("\n".join(discrimination_lines(res.discrimination)))
     if not (res.success and res.feasible):
         print(
             "kpioed: warning: the design failed or is infeasible (written because of --allow-infeasible)",

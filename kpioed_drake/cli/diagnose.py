@@ -11,8 +11,9 @@ def register(sub) -> None:
         "diagnose",
         help="test measured data against the geometric model and name the missing effect",
         description="Geometric calibration, goodness-of-fit test against the known noise, and a stepwise "
-        "search over joint_elasticity, gear_cyclic, thermal_expansion and tracker_drift "
-        "(docs/diagnosis.md).",
+        "search over joint_elasticity, gear_cyclic, joint_scale, joint_coupling, backlash, "
+        "thermal_expansion, tracker_scale and tracker_drift; each cause with its competing explanations "
+        "and plausibility, and the structure of what stays unexplained (docs/diagnosis.md).",
     )
     add_robot(p)
     p.add_argument(

@@ -22,6 +22,14 @@ def register(sub) -> None:
     )
     p.add_argument("--payload-kg", type=float, default=0.0, help="payload at the reflector [kg] (0)")
     p.add_argument("--no-geometric-errors", action="store_true", help="the true robot is the nominal one")
+    p.add_argument(
+        "--targets",
+        type=int,
+        default=None,
+        metavar="N",
+        help="targets (SMRs) measured at every pose: the first N of the model file's targets_mm "
+        "(default: all); one row per pose and target, with a target column",
+    )
     p.add_argument("--out", required=True, metavar="DATA.csv", help="measurement CSV to write")
     p.add_argument(
         "--truth", default=None, metavar="FILE.json", help="also write the true parameters as JSON"
@@ -40,10 +48,13 @@ def run(args) -> int:
         geometric_errors=not args.no_geometric_errors,
         payload_kg=args.payload_kg,
         truth_path=args.truth,
+        n_targets=args.targets,
     )
     eff = ", ".join(e.text() if hasattr(e, "text") else str(e) for e in truth["effects"]) or "none"
     print(
-        f"{truth['robot']}: simulated {len(table)} poses, sigma {truth['sigma_mm']:g} mm, "
+        f"{truth['robot']}: simulated {len(table)} "
+        + ("poses" if truth["n_targets"] == 1 else f"rows ({truth['n_targets']} targets per pose)")
+        + f", sigma {truth['sigma_mm']:g} mm, "
         f"seed {truth['seed']}, "
         f"geometric errors {'on' if truth['geometric_errors'] else 'off'}, effects: {eff}"
     )

@@ -42,6 +42,9 @@ Modules, in dependency order:
   tr(Cs)/3 (paper, Conclusion);
 - :mod:`~kpioed_drake.design.plots` and :mod:`~kpioed_drake.design.workflow`: pictures, the
   ``kpioed design`` file workflow (:func:`run_design`) and :func:`demo`;
+- :mod:`~kpioed_drake.design.discriminate`: designs that tell two explanations (effects) apart,
+  T-optimal through the worst case of the KPI machinery (:func:`discrimination_design`,
+  ``kpioed design --discriminate "A|B"``);
 - :mod:`~kpioed_drake.design.evaluate`: ``kpioed evaluate`` (:func:`evaluate_file`), a given design's
   KPI variance, criteria and feasibility.
 
@@ -80,6 +83,11 @@ from kpioed_drake.design.common import (
     method_label,
 )
 from kpioed_drake.design.constraints import DesignConstraints, incidence_rows, update_active_rows
+from kpioed_drake.design.discriminate import (
+    DiscriminationResult,
+    discrimination_design,
+    discrimination_lines,
+)
 from kpioed_drake.design.evaluate import evaluate_file
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.objective import DesignObjective
@@ -119,6 +127,7 @@ __all__ = [
     "DesignObjective",
     "DesignProgram",
     "DesignResult",
+    "DiscriminationResult",
     "PoolCertificate",
     "approximate_design",
     "approximate_start",
@@ -128,6 +137,8 @@ __all__ = [
     "certify",
     "check_design",
     "demo",
+    "discrimination_design",
+    "discrimination_lines",
     "evaluate_file",
     "design_for_target",
     "format_summary",

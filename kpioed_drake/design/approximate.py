@@ -64,6 +64,12 @@ generation took 1.0-1.4 s against 2.4-3.2 s with :data:`POOL_POSES`, :data:`ROUN
 :data:`SEARCH_STARTS`. Fewer rounds (2-3) or fewer first working poses (300) ended up to 4 %
 higher after SNOPT on notional-850-800, and SNOPT often took longer from the poorer start."""
 START_RANDOM = 4
+EXCHANGE_ITER = 200
+"""Most exchange steps (:func:`exchange_counts`) after the rounding of the optimiser's start."""
+EXCHANGE_RTOL = 1e-9
+"""An exchange is kept if it lowers ``Phi`` by more than this fraction."""
+DET_FLOOR = 1e-9
+"""A removal whose ``det(I - F M^-1 F^T)`` is below this would make ``M`` (nearly) singular."""
 ROUND_TOL = 1e-3
 """Column generation stops when nothing searched has ``g > 1 + ROUND_TOL``."""
 FIRST_WORKING = 600
@@ -76,10 +82,16 @@ SAME_POSE_TOL = 1e-6
 CLARABEL_TOL = 1e-11
 """Clarabel's gap and feasibility tolerances (its default 1e-8 left the equivalence-theorem gap at
 the pool optimum near 1e-6)."""
+START_CONE_TOL = 1e-8
+"""Clarabel's tolerances in the optimiser's start (Clarabel's default; it needs no certificate):
+on kr16 the start took 1.5 s of CPU against 1.7-1.9 s with :data:`CLARABEL_TOL`, its value 0.03 %
+apart; on notional-950-700 the same time."""
 
 
 def kpi_factor(problem: Problem) -> np.ndarray:
-    """``K = Js^T / sqrt(3)`` (k, 3): tr(Cs)/3 = tr(K^T M^-1 K)."""
+    """``K = Js^T / sqrt(3)`` (k, 3): tr(Cs)/3 = tr(K^T M^-1 K); several working poses: (k, 3K)
+    from the weighted stack :meth:`Problem.Js` (their weighted mean; every ``Y`` below is then
+    (k, 3K))."""
     return problem.Js().T / math.sqrt(3.0)
 
 
@@ -107,34 +119,35 @@ class PoolSolution:
     dual: float
 
 
-def solve_pool(F: np.ndarray, K: np.ndarray) -> PoolSolution:
+def solve_pool(F: np.ndarray, K: np.ndarray, *, tol: float = CLARABEL_TOL) -> PoolSolution:
     """The optimum approximate design over the candidates with rows ``F`` (m, 3, k).
 
     ``phi`` and ``dual`` are evaluated in numpy from ``w`` and ``Y``: ``dual <= Phi*_pool <= phi``
-    holds whatever the solver's accuracy.
+    holds whatever the solver's accuracy (``tol``: Clarabel's gap and feasibility tolerances).
 
     Raises:
         InputError: if the solver fails or the weighted candidates do not determine the parameters.
     """
     m, _, k = F.shape
+    nc = K.shape[1]  # 3; several working poses: 3 K
     prog = MathematicalProgram()
-    y = prog.NewContinuousVariables(3 * k, "y")  # Y[j, c] = y[3 j + c]
-    A = np.zeros((m, 10, 3 * k))  # cone i: (1, vec(F_i Y)) with vec row-major
+    y = prog.NewContinuousVariables(nc * k, "y")  # Y[j, c] = y[nc j + c]
+    A = np.zeros((m, 1 + 3 * nc, nc * k))  # cone i: (1, vec(F_i Y)) with vec row-major
     for a in range(3):
-        for c in range(3):
-            A[:, 1 + 3 * a + c, c::3] = F[:, a]
-    b = np.eye(10)[0]
+        for c in range(nc):
+            A[:, 1 + nc * a + c, c::nc] = F[:, a]
+    b = np.eye(1 + 3 * nc)[0]
     cones = [prog.AddLorentzConeConstraint(A[i], b, y) for i in range(m)]
     prog.AddLinearCost(-K.reshape(-1), 0.0, y)
     solver, opts = ClarabelSolver(), SolverOptions()
     for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
-        opts.SetOption(solver.solver_id(), name, CLARABEL_TOL)
+        opts.SetOption(solver.solver_id(), name, tol)
     result = solver.Solve(prog, None, opts)
     if not result.is_success():
         raise InputError(f"the approximate design's cone program failed: {result.get_solution_result()}")
     lam = np.maximum([result.GetDualSolution(c)[0] for c in cones], 0.0)
     w = lam / lam.sum()
-    Y = np.asarray(result.GetSolution(y)).reshape(k, 3)
+    Y = np.asarray(result.GetSolution(y)).reshape(k, nc)
     Y = Y / math.sqrt(dual_values(F, Y).max())
     try:
         phi, _ = l_criterion(F, w, K)
@@ -212,6 +225,7 @@ def approximate_design(
     warm: ApproximateDesign | None = None,
     first_working: int = FIRST_WORKING,
     working: int = WORKING_POSES,
+    cone_tol: float = CLARABEL_TOL,
 ) -> ApproximateDesign:
     """The approximate KPI design over the feasible poses, by column generation (module docstring).
 
@@ -227,6 +241,7 @@ def approximate_design(
         warm: continue from this design's candidates (same problem and ``collision``).
         first_working: pool poses in the first cone program; working: candidates of largest ``g``
             in each later one (besides the support).
+        cone_tol: Clarabel's tolerances (:func:`solve_pool`).
 
     Returns:
         :class:`ApproximateDesign`.
@@ -245,7 +260,7 @@ def approximate_design(
     rounds = done
     while rounds < max(max_rounds, done + 1):
         rounds += 1
-        sol = solve_pool(F[work], K)
+        sol = solve_pool(F[work], K, tol=cone_tol)
         w = np.zeros(len(q))
         w[work] = sol.w
         g = dual_values(F, sol.Y)
@@ -300,6 +315,57 @@ def efficient_rounding(w: np.ndarray, n: int) -> np.ndarray:
     return c
 
 
+def rank3_changes(F: np.ndarray, M: np.ndarray, K: np.ndarray, sign: float) -> np.ndarray:
+    """(m,) change magnitudes of ``Phi = tr(K^T M^-1 K)`` when one copy of each candidate's rows
+    ``F`` (m, 3, k) is added (``sign`` +1: the decrease ``tr((F X)^T (I + F M^-1 F^T)^-1 F X)``,
+    ``X = M^-1 K``) or removed (``sign`` -1: the increase, with ``I - F M^-1 F^T``)."""
+    Minv = np.linalg.inv(M)
+    FM = F @ Minv  # (m, 3, k)
+    S = np.eye(3) + sign * (FM @ F.transpose(0, 2, 1))
+    FX = FM @ K  # (m, 3, 3)
+    r0, r1, r2 = S[:, 0], S[:, 1], S[:, 2]
+    adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], axis=2)  # det * S^-1
+    det = np.einsum("ia,ia->i", r0, adj[:, :, 0])
+    change = np.einsum("iac,iab,ibc->i", FX, adj, FX)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(det > DET_FLOOR, change / det, np.inf if sign < 0 else -np.inf)
+
+
+def exchange_counts(F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_iter: int = EXCHANGE_ITER):
+    """Improve an exact design over candidates by exchanges (Mitchell's DETMAX for the L-criterion).
+
+    Each step adds a copy of the candidate whose addition lowers ``Phi`` most, then removes the
+    copy whose removal raises it least; it is kept if ``Phi`` of the n poses went down, else the
+    exchange stops. Rank-3 updates of ``M`` (Sherman-Morrison-Woodbury), all candidates at once.
+
+    Args:
+        F: (m, 3, k) candidate rows; K: (k, 3) the KPI factor; counts: (m,) copies per candidate
+            (their information must be regular).
+        max_iter: most exchange steps.
+
+    Returns:
+        counts (m,) with the same sum, ``Phi`` no larger than the given counts'.
+    """
+    c = np.asarray(counts, dtype=int).copy()
+    G = F.transpose(0, 2, 1) @ F  # (m, k, k)
+    M = np.einsum("i,ikl->kl", c, G)
+    phi = float(np.sum(K * np.linalg.solve(M, K)))
+    for _ in range(max_iter):
+        j = int(np.argmax(rank3_changes(F, M, K, 1.0)))
+        c[j] += 1
+        r = int(np.argmin(np.where(c > 0, rank3_changes(F, M + G[j], K, -1.0), np.inf)))
+        c[r] -= 1
+        if r == j:
+            break
+        M_new = M + G[j] - G[r]
+        phi_new = float(np.sum(K * np.linalg.solve(M_new, K)))
+        if not phi_new < phi * (1.0 - EXCHANGE_RTOL):
+            c[j], c[r] = c[j] - 1, c[r] + 1
+            break
+        M, phi = M_new, phi_new
+    return c
+
+
 def replicate_poses(problem: Problem, q: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Poses ``q`` (m, 6) [rad] repeated ``counts`` (m,) times: (sum(counts), 6) [rad].
 
@@ -347,5 +413,11 @@ def approximate_start(
             pool=START_POOL,
             starts=START_SEARCHES,
             random_starts=START_RANDOM,
+            cone_tol=START_CONE_TOL,
         )
-    return replicate_poses(problem, approx.q, efficient_rounding(approx.w, n))
+    counts = efficient_rounding(approx.w, n)
+    try:
+        counts = exchange_counts(approx.F, kpi_factor(problem), counts)
+    except np.linalg.LinAlgError:  # the rounded design does not determine the parameters: keep it
+        pass
+    return replicate_poses(problem, approx.q, counts)

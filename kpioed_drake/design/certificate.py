@@ -37,6 +37,7 @@ import threading
 
 import numpy as np
 
+from kpioed_drake.design import certcache
 from kpioed_drake.design.approximate import (
     ROUND_TOL,
     ApproximateDesign,
@@ -187,7 +188,8 @@ def certified_design(
     problem: Problem, *, collision: bool = True, seed: int = 0, warm: ApproximateDesign | None = None
 ) -> ApproximateDesign:
     """The approximate design behind :func:`certify`, cached per problem object, ``collision`` and
-    ``seed`` (per thread).
+    ``seed`` (per thread) and, without ``warm``, on disk (:mod:`~kpioed_drake.design.certcache`:
+    keyed by the problem's content, ``collision``, ``seed`` and :func:`search_settings`).
 
     Column generation (:data:`CERTIFY_ROUNDS` rounds at most, continuing ``warm`` if given), then up
     to :data:`VERIFY_ROUNDS` times :func:`verify_search` (seeds ``seed + 1``, ``seed + 2``, ...);
@@ -198,6 +200,39 @@ def certified_design(
     hit = cache.get(key)
     if hit is not None and hit[0] is problem:
         return hit[1]
+    disk_key = (
+        None
+        if warm is not None
+        else certcache.problem_key(problem, collision=collision, seed=seed, settings=search_settings())
+    )
+    approx = None if disk_key is None else certcache.load(disk_key)
+    if approx is None:
+        approx = _search(problem, collision=collision, seed=seed, warm=warm)
+        if disk_key is not None:
+            certcache.store(disk_key, approx)
+    if len(cache) > 8:
+        cache.clear()
+    cache[key] = (problem, approx)
+    return approx
+
+
+def search_settings() -> dict:
+    """The settings of the search behind :func:`certified_design` (part of its disk-cache key)."""
+    names = (
+        "CERTIFY_ROUNDS",
+        "VERIFY_ROUNDS",
+        "VERIFY_POOL",
+        "CORNER_VARIANTS",
+        "PERTURB_RAD",
+        "VERIFY_STARTS",
+    )
+    return {name: globals()[name] for name in names}
+
+
+def _search(
+    problem: Problem, *, collision: bool, seed: int, warm: ApproximateDesign | None
+) -> ApproximateDesign:
+    """The column generation and broader searches of :func:`certified_design` (not cached)."""
     approx = approximate_design(problem, collision=collision, seed=seed, max_rounds=CERTIFY_ROUNDS, warm=warm)
     for k in range(1, VERIFY_ROUNDS + 1):
         approx, found = verify_search(problem, approx, seed=seed + k)
@@ -207,9 +242,6 @@ def certified_design(
         approx = approximate_design(
             problem, collision=collision, seed=seed + k, max_rounds=approx.rounds + CERTIFY_ROUNDS, warm=warm
         )
-    if len(cache) > 8:
-        cache.clear()
-    cache[key] = (problem, approx)
     return approx
 
 
@@ -234,8 +266,14 @@ def certify(
     seed: int = 0,
     approx: ApproximateDesign | None = None,
     refinements: int = DESIGN_REFINEMENTS,
+    given: np.ndarray | None = None,
 ) -> dict:
     """Lower bound on tr(Cs)/3 of any feasible design of ``len(q)`` poses, and ``q``'s efficiency.
+
+    With ``given`` poses (information ``M0 = F0^T F0`` held fixed) the bound is on the combined
+    design: for any ``Y``, tr(K^T (M0 + M)^-1 K) >= tr(K^T Y)^2 / (n g_max + tr(Y^T M0 Y)) (the
+    proof of the module docstring with the given rows as one more term of the Cauchy-Schwarz sum);
+    ``Y`` is the one without given poses, so this bound is valid but looser.
 
     ``g`` is also evaluated at the design's poses and maximised locally from the
     :data:`DESIGN_STARTS` of them with largest ``g`` (the optimiser may have found feasible poses
@@ -252,6 +290,7 @@ def certify(
         approx: the approximate design to bound with (default: :func:`certified_design`), made
             with the same ``collision`` (else ValueError).
         refinements: most continuations of the column generation with poses found near ``q``.
+        given: (m, 6) [rad] poses already measured (``q`` the new ones), or None.
 
     Returns:
         JSON-ready dict:
@@ -290,8 +329,12 @@ def certify(
         refined += 1
         g_near, found, more = _near_design(problem, q, approx, collision=collision)
         n_starts += more
-    bound = approx.dual / max(approx.g_max, g_near) / n
-    value = problem.criteria(q)["kpi_avg_var_mm2"]
+    fixed = 0.0
+    if given is not None:
+        GY = pose_rows(problem, given) @ approx.Y
+        fixed = float(np.sum(GY * GY))
+    bound = approx.dual / (max(approx.g_max, g_near) * n + fixed)
+    value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
     return {
         "bound_mm2": bound,
         "efficiency": bound / value,
@@ -301,6 +344,7 @@ def certify(
         "design_beyond_search": g_near / approx.g_max,
         "approximate_mm2": approx.phi / n,
         "dual_gap": 1.0 - bound * n / approx.phi,
+        "n_given": 0 if given is None else int(len(given)),
         "n_candidates": int(len(approx.q) + approx.n_checked + n + n_starts),
         "n_local_searches": int(approx.n_searched + n_starts),
         "rounds": int(approx.rounds),
@@ -315,11 +359,12 @@ def certify(
     }
 
 
-def certificate_fields(cert: dict) -> dict:
+def certificate_fields(cert: dict | None) -> dict:
     """The fields a certificate adds to a JSON record: ``bound_mm2``, ``efficiency``,
-    ``design_beyond_search`` and ``certificate`` (the whole dict of :func:`certify`)."""
+    ``design_beyond_search`` and ``certificate`` (the whole dict of :func:`certify`); all None
+    without a certificate (``--no-certify``)."""
     keys = ("bound_mm2", "efficiency", "design_beyond_search")
-    return {**{k: cert[k] for k in keys}, "certificate": cert}
+    return {**{k: None if cert is None else cert[k] for k in keys}, "certificate": cert}
 
 
 def certificate_line(cert: dict) -> str:
@@ -328,6 +373,6 @@ def certificate_line(cert: dict) -> str:
         f"lower bound for any {cert['n_poses']}-pose design: {cert['bound_mm2']:.4g} mm^2; "
         f"efficiency {cert['efficiency']:.3f}"
     )
-    if cert["design_beyond_search"] > 1.0:
+    if cert["design_beyond_search"] > 1.0 + ROUND_TOL:  # (smaller excesses lower the bound too)
         line += f" (the design reached poses {cert['design_beyond_search'] - 1.0:.1%} beyond the search)"
     return line

@@ -1,6 +1,7 @@
 """The constraints of the design problem (paper eq. 24b), pose by pose, with their Jacobians.
 
-For every pose, one incidence row ``cos(beta) - cos(beta_max) >= 0`` (paper eq. 4) and, with
+For every pose, one incidence row ``cos(beta) - cos(beta_max) >= 0`` (paper eq. 4; with several
+targets one row per target, the beam to each must meet it) and, with
 collision avoidance, the capsule clearances of :class:`~kpioed_drake.geometry.ClearanceModel`
 ``>= 0`` [mm] (paper eq. 20-22; 51 rows for the KUKA robots). Each row depends only on its own
 pose's six joint angles. The solver is given, per pose, the incidence row and only the pose's ``m``
@@ -31,7 +32,7 @@ from kpioed_drake.kinematics import Frames, cross, flange_point, forward_kinemat
 from kpioed_drake.problem import Problem
 
 
-def incidence_rows(problem: Problem, q, *, frames: Frames | None = None):
+def incidence_rows(problem: Problem, q, *, frames: Frames | None = None, target: int | None = None):
     """Incidence constraint ``cos(beta) - cos(beta_max)`` (>= 0 is feasible) and its gradient.
 
     With ``z`` the reflector axis (flange z), ``p`` the reflector, ``p_WT`` the tracker (all in W
@@ -41,6 +42,7 @@ def incidence_rows(problem: Problem, q, *, frames: Frames | None = None):
 
     Args:
         q: (n, nj) [rad].
+        target: the 0-based target whose beam is tested (None: the reflector, target 0).
 
     Returns:
         values: (n,) [-]; jac: (n, nj) [1/rad].
@@ -48,7 +50,8 @@ def incidence_rows(problem: Problem, q, *, frames: Frames | None = None):
     q = as_poses(q, problem.robot.n_joints)
     frames = problem.model.frames(q) if frames is None else frames
     z = frames.R[:, frames.n_joints, :, 2]  # (n,3)
-    p = flange_point(frames, problem.model.p_FQ)  # (n,3)
+    p_FQ = problem.model.p_FQ if target is None else problem.model.target_offsets[target]
+    p = flange_point(frames, p_FQ)  # (n,3)
     g = problem.model.p_WT - p
     dist = np.linalg.norm(g, axis=1)
     gh = g / dist[:, None]
@@ -69,14 +72,26 @@ class DesignConstraints:
 
     Attributes:
         clearance: the clearance model (None without ``collision``).
-        row_names: names of a pose's rows: ``incidence``, then the clearance rows' names.
+        row_names: names of a pose's rows: ``incidence`` (several targets: ``incidence1`` ..
+            ``incidenceT``), then the clearance rows' names.
+        n_incidence: incidence rows per pose (one per target).
     """
 
     def __init__(self, problem: Problem, *, collision: bool = True):
         self.problem, self.collision = problem, collision
         self.clearance = ClearanceModel(problem.robot, problem.cell) if collision else None
-        names = ["incidence"] + (list(self.clearance.rows.names) if self.clearance else [])
+        self.n_incidence = T = problem.n_targets
+        inc = ["incidence"] if T == 1 else [f"incidence{t + 1}" for t in range(T)]
+        names = inc + (list(self.clearance.rows.names) if self.clearance else [])
         self.row_names = tuple(names)
+
+    def incidence(self, q, frames: Frames):
+        """Incidence rows of every target: values (n, T) [-] and jac (n, T, 6) [1/rad]."""
+        if self.n_incidence == 1:
+            c, dc = incidence_rows(self.problem, q, frames=frames)
+            return c[:, None], dc[:, None, :]
+        rows = [incidence_rows(self.problem, q, frames=frames, target=t) for t in range(self.n_incidence)]
+        return np.stack([r[0] for r in rows], axis=1), np.stack([r[1] for r in rows], axis=1)
 
     @property
     def rows_per_pose(self) -> int:
@@ -101,11 +116,11 @@ class DesignConstraints:
         """
         q = as_poses(q, self.problem.robot.n_joints)
         frames = self.frames(q) if frames is None else frames
-        c, dc = incidence_rows(self.problem, q, frames=frames)
+        c, dc = self.incidence(q, frames)
         if self.clearance is None:
-            return c[:, None], dc[:, None, :]
+            return c, dc
         v, J = self.clearance.evaluate(q, frames=frames)
-        return np.concatenate([c[:, None], v], axis=1), np.concatenate([dc[:, None, :], J], axis=1)
+        return np.concatenate([c, v], axis=1), np.concatenate([dc, J], axis=1)
 
     def evaluate_active(self, q, active: np.ndarray | None, m: int, *, frames: Frames | None = None):
         """Incidence and the ``m`` smallest clearances of every pose, with their Jacobian.
@@ -124,21 +139,22 @@ class DesignConstraints:
             frames: :meth:`frames` of ``q``, if already computed.
 
         Returns:
-            values: (n, 1 + m); jac: (n, 1 + m, 6); active: (n, m) the rows now in the slots.
+            values: (n, T + m); jac: (n, T + m, 6) (T incidence rows, one per target); active:
+            (n, m) the rows now in the slots.
         """
         q = as_poses(q, self.problem.robot.n_joints)
         frames = self.frames(q) if frames is None else frames
-        c, dc = incidence_rows(self.problem, q, frames=frames)
+        c, dc = self.incidence(q, frames)
         ev = self.clearance.compute(q, frames=frames)
         active = update_active_rows(ev.values, active, m)
         J = self.clearance.jacobian(ev, active)
-        values = np.concatenate([c[:, None], np.take_along_axis(ev.values, active, axis=1)], axis=1)
-        return values, np.concatenate([dc[:, None, :], J], axis=1), active
+        values = np.concatenate([c, np.take_along_axis(ev.values, active, axis=1)], axis=1)
+        return values, np.concatenate([dc, J], axis=1), active
 
     def row_scale(self, r: int | None = None) -> np.ndarray:
         """(r,) factors applied to the first ``r`` rows (default: all) before they reach the solver."""
         s = np.full(self.rows_per_pose if r is None else r, CLEARANCE_ROW_SCALE)
-        s[0] = 1.0
+        s[: self.n_incidence] = 1.0
         return s
 
     def lower_bounds(self, r: int | None = None) -> np.ndarray:
@@ -146,7 +162,7 @@ class DesignConstraints:
         :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG` and ``CLEARANCE_MARGIN_MM``)."""
         mi = self.problem.cell.max_incidence
         lb = np.full(self.rows_per_pose if r is None else r, CLEARANCE_MARGIN_MM)
-        lb[0] = math.cos(mi - math.radians(INCIDENCE_MARGIN_DEG)) - math.cos(mi)
+        lb[: self.n_incidence] = math.cos(mi - math.radians(INCIDENCE_MARGIN_DEG)) - math.cos(mi)
         return lb
 
 

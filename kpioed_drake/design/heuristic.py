@@ -16,7 +16,7 @@ from kpioed_drake.design.common import HEURISTIC_MARGIN_MM
 from kpioed_drake.errors import InputError
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.kinematics import forward_kinematics
-from kpioed_drake.measurement import incidence_cosine
+from kpioed_drake.measurement import incidence_cosines
 from kpioed_drake.problem import Problem
 
 
@@ -65,7 +65,7 @@ def heuristic_design(
         q = rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints))
         draws += b
         frames = forward_kinematics(robot, q)
-        ok = incidence_cosine(problem.model, q, frames=frames) >= cos_max
+        ok = np.all(incidence_cosines(problem.model, q, frames=frames) >= cos_max, axis=1)
         if cm is not None and ok.any():
             vals = cm.values(q[ok])
             ok[ok] = np.all(vals >= margin_mm, axis=1)

@@ -66,7 +66,7 @@ class DesignObjective:
         F1, dF1 = self.problem.F1(q, with_dq=True, frames=frames)
         values, G = kpi_each(F1, self.Js_each, M0=self.M0)
         n = q.shape[0]
-        return values, np.einsum("Knak,njak->Knj", G.reshape(len(values), n, 3, -1), dF1)
+        return values, np.einsum("Knak,njak->Knj", G.reshape(len(values), n, -1, F1.shape[1]), dF1)
 
     def value_and_grad(self, q, *, frames: Frames | None = None) -> tuple[float, np.ndarray]:
         """Criterion and its gradient (n, 6) w.r.t. the joint angles [criterion units / rad].
@@ -82,7 +82,7 @@ class DesignObjective:
         F1, dF1 = self.problem.F1(q, with_dq=True, frames=frames)  # (3n, k), (n, 6, 3, k)
         value, G = self.criterion.evaluate(F1, self.Js, self.scale, M0=self.M0)
         n = q.shape[0]
-        grad = np.einsum("nak,njak->nj", G.reshape(n, 3, -1), dF1)
+        grad = np.einsum("nak,njak->nj", G.reshape(n, -1, F1.shape[1]), dF1)
         return value, grad
 
     def normalisation(self, value: float) -> float:

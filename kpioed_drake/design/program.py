@@ -100,7 +100,7 @@ class DesignProgram:
         self.constraints = DesignConstraints(problem, collision=collision)
         self.cost_scale = float(cost_scale)
         self.counters = CallbackCounters()
-        n_clear = self.constraints.rows_per_pose - 1
+        n_clear = self.constraints.rows_per_pose - self.constraints.n_incidence
         self.active_rows = None if (active_rows is None or n_clear == 0) else min(int(active_rows), n_clear)
         if self.active_rows is not None and self.active_rows < 1:
             raise InputError(f"active_rows must be positive, got {active_rows}")
@@ -130,7 +130,8 @@ class DesignProgram:
             )
         else:
             self.cost_binding = prog.AddCost(self._cost, vars=x)
-        r = self.rows_per_pose = 1 + (n_clear if self.active_rows is None else self.active_rows)
+        n_inc = self.constraints.n_incidence
+        r = self.rows_per_pose = n_inc + (n_clear if self.active_rows is None else self.active_rows)
         self._row_scale = self.constraints.row_scale(r)
         lb_pose = self.constraints.lower_bounds(r) * self._row_scale
         B = n if pose_block is None else max(1, min(int(pose_block), n))

@@ -104,7 +104,8 @@ class DesignResult:
 
     def summary(self) -> dict:
         """JSON-ready record (angles in degrees); ``given``, ``target``, ``values.kpi_vars_mm2`` and
-        the certificate (:func:`~kpioed_drake.design.certificate.certificate_fields`) only when set."""
+        only when set; the certificate's fields (:func:`~kpioed_drake.design.certificate.certificate_fields`)
+        always (null when not computed)."""
         out = {
             "robot": self.robot,
             "criterion": self.criterion,
@@ -142,8 +143,7 @@ class DesignResult:
         for key in ("given", "target"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
-        if self.certificate is not None:
-            out.update(certificate_fields(self.certificate))
+        out.update(certificate_fields(self.certificate))
         return out
 
 
@@ -206,11 +206,12 @@ def format_summary(res: DesignResult) -> str:
             f"  solver {res.solver}: {res.status}; {res.solve_s:.2f} s, {res.n_evals} cost evaluations"
         )
         if res.start == "approximate":
-            lines.append(f"  approximate start (column generation, rounding): {res.start_s:.2f} s")
+            lines.append(f"  approximate start (column generation, rounding, exchange): {res.start_s:.2f} s")
         if res.all_rows_retries:
             lines.append("  (solved again with all clearance rows after the reduced rows failed)")
     if res.certificate is not None:
-        lines.append("  " + certificate_line(res.certificate))
+        of = "" if res.criterion == "kpi" else " (of tr(Cs)/3, not of the design's criterion)"
+        lines.append("  " + certificate_line(res.certificate) + of)
     n_ok = res.n - res.n_infeasible_poses
     lines.append(
         f"  independent check: {n_ok}/{res.n} poses feasible; {res.n_colliding_poses} pose(s) collide"

@@ -21,6 +21,8 @@ Units: millimetres and radians.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from pydrake.solvers import SnoptSolver, SolverOptions
 
@@ -43,7 +45,7 @@ deep in incidence violation)."""
 def pose_rows(problem: Problem, q) -> np.ndarray:
     """Each pose's 3 rows of the weighted identification Jacobian: (m, 3, k) for ``q`` (m, 6) [rad]."""
     q = np.asarray(q, dtype=float).reshape(-1, problem.robot.n_joints)
-    return problem.F1(q).reshape(q.shape[0], 3, -1)
+    return problem.F1(q).reshape(q.shape[0], -1, problem.n_params)
 
 
 def dual_values(F: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -63,14 +65,14 @@ class DualObjective:
     def value(self, q, *, frames=None) -> float:
         """``-sum_i g(q_i)`` of ``q`` (n, 6) [rad]."""
         q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
-        F = self.problem.F1(q, frames=frames).reshape(q.shape[0], 3, -1)
+        F = self.problem.F1(q, frames=frames).reshape(q.shape[0], -1, self.problem.n_params)
         return -float(dual_values(F, self.Y).sum())
 
     def value_and_grad(self, q, *, frames=None) -> tuple[float, np.ndarray]:
         """The value and its gradient (n, 6) [1/rad]."""
         q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
         F1, dF = self.problem.F1(q, with_dq=True, frames=frames)
-        FY = np.einsum("iak,kc->iac", F1.reshape(q.shape[0], 3, -1), self.Y)
+        FY = np.einsum("iak,kc->iac", F1.reshape(q.shape[0], -1, self.problem.n_params), self.Y)
         dFY = np.einsum("ijak,kc->ijac", dF, self.Y)
         return -float(np.sum(FY * FY)), -2.0 * np.einsum("iac,ijac->ij", FY, dFY)
 
@@ -93,6 +95,8 @@ def maximize_dual(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, colli
     snopt, opts = SnoptSolver(), SolverOptions()
     for name, val in SEARCH_OPTIONS.items():
         opts.SetOption(snopt.solver_id(), name, val)
+    if problem.worst_case:  # the constraint rows without the worst case's epigraph variable
+        problem = dataclasses.replace(problem, kpi_aggregate="mean")
     out = []
     for k0 in range(0, q_start.shape[0], SEARCH_BATCH):
         b = min(SEARCH_BATCH, q_start.shape[0] - k0)

@@ -50,7 +50,7 @@ def remove_poses(problem: Problem, q: np.ndarray, m: int, *, given: np.ndarray |
         (m, 6) the kept poses [rad], in their original order.
     """
     n_par = problem.n_params
-    F = problem.F1(q).reshape(len(q), 3, n_par)
+    F = problem.F1(q).reshape(len(q), -1, n_par)
     M0 = np.zeros((n_par, n_par))
     if given is not None:
         Fg = problem.F1(given)

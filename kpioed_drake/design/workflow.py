@@ -4,8 +4,8 @@
 (:func:`~kpioed_drake.design.optimize.optimize_design`) and writes the design CSV (degrees), the
 JSON record and a picture; with several working poses (``--q-work`` repeated or a CSV of
 working poses), poses already measured (``--given``) or a target variance (``--target-var``,
-:func:`~kpioed_drake.design.target.design_for_target`); with ``--certify`` the optimality
-certificate (:func:`~kpioed_drake.design.certificate.certify`) of the design. :func:`demo`
+:func:`~kpioed_drake.design.target.design_for_target`); and (unless ``--no-certify``) the
+optimality certificate (:func:`~kpioed_drake.design.certificate.certify`) of the design. :func:`demo`
 compares the heuristic, the standard (``param``) and the KPI design of one robot (default: the
 KR 16) in the default cell.
 """
@@ -20,6 +20,7 @@ from kpioed_drake import designio
 from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed, require
 from kpioed_drake.design import certificate
 from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS, method_label
+from kpioed_drake.design.discriminate import discrimination_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
@@ -91,7 +92,8 @@ def run_design(
     target_var_mm2: float | None = None,
     html: str | Path | None = None,
     start: str | None = None,
-    certify: bool = False,
+    certify: bool | None = None,
+    discriminate: str | None = None,
 ) -> DesignResult:
     """Compute a design for a robot in the default cell and write its files (what ``kpioed design`` runs).
 
@@ -126,8 +128,16 @@ def run_design(
             their parameters and its KPI variance includes them (:func:`problem.make_problem`).
         certify: add the optimality certificate of the design (``res.certificate``, in the JSON
             record ``bound_mm2``, ``efficiency``, ``design_beyond_search`` and ``certificate``):
-            :func:`~kpioed_drake.design.certificate.certify` with this ``collision`` and ``seed``
-            (5-12 s once per robot; not with ``given``).
+            :func:`~kpioed_drake.design.certificate.certify` with this ``collision`` and ``seed``,
+            a bound on tr(Cs)/3 whatever the criterion (with ``given``: of the combined design).
+            None (default): certify unless ``discriminate``; False: ``bound_mm2`` and
+            ``efficiency`` are null. Costs 4-13 s once per robot, cell and setup (then cached on
+            disk, :mod:`~kpioed_drake.design.certcache`) and 1-4 s per design.
+        discriminate: ``"A|B"``, two competing explanations (effects, e.g.
+            ``"joint_scale:2=300|gear_cyclic:2:1"``): poses that tell them apart
+            (:func:`~kpioed_drake.design.discriminate.discrimination_design`; instead of
+            ``criterion``; ``given`` is the first data set). The JSON record's ``discrimination``
+            has the assumed sizes and each test's non-centrality and power before and after.
 
     Returns:
         :class:`DesignResult`.
@@ -135,10 +145,9 @@ def run_design(
     Raises:
         InputError: bad input. DesignError: solver failure or infeasible design.
     """
-    if certify and given is not None:
-        raise InputError(
-            "--certify is not available with --given (the certificate bounds designs of N poses alone)"
-        )
+    if discriminate is not None:
+        require(criterion == "kpi", f"--discriminate replaces --criterion (got criterion {criterion!r})")
+        require(target_var_mm2 is None and not certify, "--discriminate takes no --target-var or --certify")
     require(
         criterion in DESIGN_METHODS,
         f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {criterion!r}",
@@ -160,12 +169,19 @@ def run_design(
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
         kpi_aggregate=kpi_aggregate,
     )
+    require(not (certify and problem.n_targets > 1), "--certify is not available with several targets")
     q_given = None if given is None else designio.read_design(given, robot)
     common = dict(
         criterion=criterion, collision=collision, solver=solver, seed=seed, starts=starts, start=start
     )
     try:
-        if target_var_mm2 is None:
+        if discriminate is not None:
+            options = {k: v for k, v in common.items() if k != "criterion"}
+            res, problem = discrimination_design(
+                problem, discriminate, n=n, given=q_given, allow_infeasible=allow_infeasible, **options
+            )
+            criterion = res.criterion
+        elif target_var_mm2 is None:
             res = optimize_design(problem, n=n, allow_infeasible=allow_infeasible, given=q_given, **common)
         else:
             res = design_for_target(problem, target_var_mm2, given=q_given, **common)
@@ -173,8 +189,8 @@ def run_design(
         if json_path is not None and exc.result is not None:
             atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
         raise
-    if certify:
-        res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed)
+    if (certify or (certify is None and discriminate is None)) and problem.n_targets == 1:
+        res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed, given=q_given)
     with Outputs() as staged:
         if out is not None:
             extra = {
@@ -212,7 +228,8 @@ def first_kpi_covariance(problem, q) -> np.ndarray:
 def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, seed: int = 0) -> dict:
     """KPI design of ``robot`` in the default cell, compared with the heuristic and standard designs.
 
-    Prints tr(Cs)/3 of the heuristic, the standard (``param``) and the KPI design, and writes
+    Prints tr(Cs)/3 of the heuristic, the standard (``param``) and the KPI design (default start:
+    the approximate design) with each one's efficiency (certificate of tr(Cs)/3), and writes
     ``<out_dir>/<robot>-kpi-design.csv``, ``.png`` and ``.html`` (a 3-D Meshcat page of the KPI
     design with the heuristic's confidence ellipsoid beside its own).
 
@@ -228,7 +245,8 @@ def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, 
         results[crit] = res
         label = method_label(crit)
         extra = "" if crit == "heuristic" else f"  ({res.solve_s:.1f} s, {res.status})"
-        print(f"  {label:18s} {res.kpi_avg_var_mm2:.4f}{extra}")
+        eff = certificate.certify(problem, res.q, seed=seed)["efficiency"]  # its tr(Cs)/3's efficiency
+        print(f"  {label:18s} {res.kpi_avg_var_mm2:.4f}  efficiency {eff:.3f}{extra}")
     h, p, k = (results[c].kpi_avg_var_mm2 for c in ("heuristic", "param", "kpi"))
     print(
         f"  KPI vs heuristic: {100 * (1 - k / h):.0f} % lower; vs standard: {100 * (1 - k / p):.0f} % lower"

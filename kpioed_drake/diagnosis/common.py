@@ -10,3 +10,17 @@ MAX_EFFECTS = 4
 """Most effects the stepwise selection adds."""
 FOLD_SEED = 0
 """Seed of the random assignment of poses to folds."""
+MIN_HOLDOUT_GAIN = 0.02
+"""A candidate that lowers the held-out RMS by less than this fraction while the model with it still
+fails the goodness-of-fit test is a stand-in for an unexplained error, not a cause: not named."""
+MIN_EXCESS_SHARE = 0.10
+"""Likewise a candidate that removes less than this share of the held-out mean square above the
+noise (``holdout_rms^2 - sigma^2``) while the model with it still fails the goodness-of-fit test."""
+MAX_ALTERNATIVES = 3
+"""Most competing explanations listed per cause."""
+COUPLING_PAIRS = ((3, 2), (5, 4), (6, 4), (6, 5))
+"""(i, j) of the ``joint_coupling:i:j`` candidates: joint i errs with the angle of a joint j whose axis
+its drive train crosses (joint 3's drive through joint 2 on parallelogram arms; the wrist drives of
+joints 5 and 6 through joint 4, and of joint 6 through joint 5)."""
+BACKLASH_MIN_SIDE = 3
+"""Poses a backlash candidate needs on each side of the gravity torque (as ``calibrate --extend``)."""

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import scipy.stats
 
+from kpioed_drake import effects as fx
 from kpioed_drake.designio import q_to_file
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.measurement import reflector_world
@@ -40,7 +41,7 @@ def _signatures(prob, fit):
     idx = np.arange(prob.data.n)
     _, H, _ = prob.response(fit.model, fit.effects, idx)
     g = H[:, :, fit.model.layout.joint_angles].transpose(0, 2, 1)  # dh/dtheta_j = dh/dq_j
-    u = reflector_world(fit.model, prob.data.q) @ fit.model.R_WT
+    u = reflector_world(fit.model, prob.data.q, prob.data.target) @ fit.model.R_WT
     return g, u, fit.model.R_WT.T
 
 
@@ -163,20 +164,23 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     i = next(k for k, e in enumerate(fit.effects) if e.key == effect.key)
     sig = prob.effect_signal(fit, i)  # (n,3)
     r = residual + sig if partial else residual
-    if effect.family in ("joint_elasticity", "gear_cyclic"):
+    if effect.family in fx.JOINT_FAMILIES:
         j = effect.joint - 1
         y = np.rad2deg(_apparent(r, g[:, j]))
         ys = np.rad2deg(_apparent(sig, g[:, j]))
-        x = prob.tau[:, j] if effect.family == "joint_elasticity" else q_to_file(prob.robot, d.q)[:, j]
-        unit = "mm" if prob.robot.prismatic[j] else "deg"
-        elastic = effect.family == "joint_elasticity"
-        xl = f"gravity torque tau{j + 1} [N m]" if elastic else f"q{j + 1} [{unit}]"
+        if effect.family in ("joint_elasticity", "backlash"):
+            x, xl = prob.tau[:, j], f"gravity torque tau{j + 1} [N m]"
+        else:
+            jx = effect.coupled - 1 if effect.coupled is not None else j
+            unit = "mm" if prob.robot.prismatic[jx] else "deg"
+            x, xl = q_to_file(prob.robot, d.q)[:, jx], f"q{jx + 1} [{unit}]"
         return x, y, ys, xl, "apparent joint-angle error [deg]"
-    if effect.family == "thermal_expansion":
+    if effect.family in ("thermal_expansion", "tracker_scale"):
+        w = u if effect.family == "thermal_expansion" else d.eta  # scaled about the base / the tracker
         return (
             d.temperature_C,
-            1e6 * _apparent(r, u),
-            1e6 * _apparent(sig, u),
+            1e6 * _apparent(r, w),
+            1e6 * _apparent(sig, w),
             "temperature [C]",
             "apparent scale error [ppm]",
         )
@@ -235,11 +239,7 @@ def plot_before_after(report: DiagnosisReport, path) -> Path:
         ax.set_ylabel(yl)
         ax.legend(fontsize=7)
         cause = next(
-            (
-                c
-                for c in report.causes
-                if c["effect"] == e.family and c.get("joint") == e.joint and c.get("harmonic") == e.harmonic
-            ),
+            (c for c in report.causes if c.get("name", c["effect"]) == e.name),
             None,
         )
         ttl = f"after: {e.name}"

@@ -4,7 +4,8 @@
 - :func:`fit_summary`: rms, chi^2/dof, p-value and held-out rms of a fit;
 - :func:`kpi_summary`: the KPI (TCP at ``q_work``, paper eq. 24e) of the geometric and the
   extended model, its shift and its variance tr(Cs)/3;
-- :func:`causes`: the named effects with values, standard deviations and evidence.
+- :func:`causes`: the named effects with values, standard deviations and evidence, their competing
+  explanations (:mod:`.alternatives`) and plausibility (:mod:`.physical`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,10 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import kpi_and_covariance
 from kpioed_drake.designio import jsonable, q_to_file
+from kpioed_drake.diagnosis.alternatives import settle
+from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.physical import plausibility
 from kpioed_drake.diagnosis.selection import Selection
 from kpioed_drake.estimation import rms
 
@@ -42,6 +46,8 @@ class DiagnosisReport:
         steps: the selection steps.
         notes: remarks (candidates left out, poor fit).
         details: the fits and the problem, for plots (not part of the JSON).
+        unexplained: None when the extended model fits to the noise level, else the rest's size and
+            the variables it follows (:func:`~kpioed_drake.diagnosis.rest.unexplained_rest`).
     """
 
     robot: str
@@ -58,11 +64,18 @@ class DiagnosisReport:
     steps: list
     notes: list
     details: dict = dataclasses.field(default_factory=dict, repr=False)
+    unexplained: dict | None = None
 
     @property
     def cause_keys(self) -> set:
         """{(family, joint, harmonic)} of the named causes."""
-        return {(c["effect"], c.get("joint"), c.get("harmonic")) for c in self.causes}
+        return {_key(c) for c in self.causes}
+
+    @property
+    def explanation_keys(self) -> list[set]:
+        """Per named cause, the keys of the cause and of its alternatives (what the data cannot tell
+        apart); keys as :attr:`cause_keys`, for a coupling (family, joint, coupled joint)."""
+        return [{_key(c)} | {_key(a) for a in c.get("alternatives", [])} for c in self.causes]
 
     def to_json(self) -> dict:
         return jsonable(
@@ -80,6 +93,7 @@ class DiagnosisReport:
                 "residual_structure": self.residual_structure,
                 "steps": self.steps,
                 "notes": self.notes,
+                "unexplained": self.unexplained,
             }
         )
 
@@ -97,15 +111,28 @@ class DiagnosisReport:
                 vs = ", ".join(f"{a:.4g} +- {b:.2g}" for a, b in zip(v, s, strict=True))
             else:
                 vs = f"{v:.4g} +- {s:.2g}"
-            where = "".join(f":{c[k]}" for k in ("joint", "harmonic") if k in c)
+            where = "".join(f":{c[k]}" for k in ("joint", "harmonic", "coupled_joint") if k in c)
             ev = c["evidence"]
             lines.append(
                 f"  cause {c['effect']}{where}: {vs} {c['unit']} (LR {ev['lr_stat']:.1f}, "
                 f"p_corrected {ev['p_value_corrected']:.2g}, "
                 f"up to {ev['tool_max_mm']:.3f} mm at the reflector)"
             )
+            lines += _alternative_lines(c)
+            if not c.get("plausible", True):
+                lines.append(f"    implausible: {c['plausible_reason']}")
         if not self.causes:
-            lines.append("  no candidate effect is significant")
+            lines.append(
+                "  no cause named (no candidate effect is significant, or only as a stand-in: notes)"
+            )
+        if self.unexplained:
+            u = self.unexplained
+            top = ", ".join(f"{f['variable']} (R^2 {f['strength']:.2f})" for f in u["follows"][:3])
+            lines.append(
+                f"  unexplained rest: chi2/dof {u['chi2_per_dof']:.3f} (p = {u['p_value']:.2g}), about "
+                f"{u['excess_rms_mm']:.4f} mm per coordinate beyond the noise; "
+                + (f"it follows {top}" if top else "it follows none of the data's variables")
+            )
         b, e = self.baseline, self.extended
         lines.append(
             f"held-out RMS {b['holdout_rms_mm']:.4f} -> {e['holdout_rms_mm']:.4f} mm "
@@ -119,6 +146,31 @@ class DiagnosisReport:
                 f"{self.kpi['kpi_avg_var_mm2_extended']:.3g} mm^2"
             )
         return "\n".join(lines)
+
+
+def _key(c: dict) -> tuple:
+    """(family, joint, harmonic or coupled joint) of a cause or alternative dict."""
+    return (c["effect"], c.get("joint"), c.get("harmonic", c.get("coupled_joint")))
+
+
+def _alternative_lines(c: dict) -> list[str]:
+    """Summary lines of a cause's competing explanations."""
+    alts = c.get("alternatives") or []
+    if not alts:
+        return []
+    names = [c["name"]] + [a["name"] for a in alts]
+    out = [
+        f"    {' or '.join(names)}: the data cannot tell them apart; design poses with "
+        f"kpioed design --discriminate '{names[0]}|{names[1]}'"
+    ]
+    for a in alts:
+        ev = a["evidence"]
+        out.append(
+            f"    alternative {a['name']}: LR {ev['lr_stat']:.1f} vs {ev['lr_stat_cause']:.1f}, held-out RMS "
+            f"{ev['holdout_rms_mm']:.4f} mm, canonical correlation {ev['canonical_correlation']:.3f}"
+            + ("" if a.get("plausible", True) else "; implausible value")
+        )
+    return out
 
 
 def fit_summary(fit: Fit, holdout: np.ndarray) -> dict:
@@ -152,26 +204,48 @@ def kpi_summary(prob: FitProblem, base: Fit, ext: Fit) -> dict:
     }
 
 
-def causes(prob: FitProblem, sel: Selection) -> list[dict]:
-    """The effects of the extended model: values and standard deviations (display units) and the
-    evidence (the step's statistics, the final LR given all other effects, the size at the tool)."""
+def _plausible(prob: FitProblem, e, std) -> dict:
+    ok, why = plausibility(e, std, tau=prob.tau, time_s=prob.data.time_s)
+    return {"plausible": ok, "plausible_reason": why}
+
+
+def causes(
+    prob: FitProblem, sel: Selection, pool=(), *, alpha: float = ALPHA, k_folds: int = K_FOLDS
+) -> list[dict]:
+    """The effects of the extended model: values and standard deviations (display units), the
+    evidence (the step's statistics, the final LR given all other effects, the size at the tool),
+    ``plausible`` / ``plausible_reason`` (:mod:`.physical`) and ``alternatives``: the candidates of
+    ``pool`` the data cannot tell apart from the cause (:mod:`.alternatives`; a cause that one of
+    them beats is swapped first, in place on ``sel``)."""
+    settled = settle(prob, sel, pool, alpha=alpha, k_folds=k_folds)
     ext = sel.fit
     std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
     out, c = [], ext.layout.effects.start
     for i, e in enumerate(ext.effects):
         d = e.to_dict()
-        dv = e.display_values(std[c : c + e.n_params])
+        d["name"] = e.name
+        e_std = std[c : c + e.n_params]
+        dv = e.display_values(e_std)
         c += e.n_params
         d["std"] = dv[0] if len(dv) == 1 else dv
         d.pop("tool_mm", None)
         sig = prob.effect_signal(ext, i)
         ev = dict(sel.evidence.get(e.key, {}))
         # the final LR of this effect given all others (re-fitted without it)
-        f0 = prob.fit([x for x in ext.effects if x.key != e.key], start=ext)
+        f0, found = settled[e.key]
         ev["lr_stat_final"] = max(f0.cost - ext.cost, 0.0)
         ev["tool_max_mm"] = float(np.max(np.linalg.norm(sig, axis=1)))
         ev["tool_rms_mm"] = float(np.sqrt(np.mean(np.sum(sig**2, axis=1))))
         d["evidence"] = ev
+        d.update(_plausible(prob, e, e_std))
+        d["alternatives"] = []
+        for b, fb, ev_b in found:
+            a = {k: v for k, v in b.to_dict().items() if k != "tool_mm"}
+            a["name"] = b.name
+            a["evidence"] = ev_b
+            b_std = np.sqrt(np.clip(np.diag(fb.Cp), 0, None))[fb.layout.effects][-b.n_params :]
+            a.update(_plausible(prob, b, b_std))
+            d["alternatives"].append(a)
         out.append(d)
     return out
 

@@ -15,8 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis.common import COUPLING_PAIRS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.workflow import diagnose
+from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, nominal_model
 from kpioed_drake.measurements import Measurements
@@ -68,9 +70,10 @@ def synthetic_case(
     n_poses: int = 80,
     sigma: float = 0.02,
     seconds_per_pose: float = 20.0,
-    payload_kg: float | None = None,
+    payload_kg=None,
     cell=None,
     q=None,
+    mass_spread: float = 0.0,
 ) -> SyntheticCase:
     """Simulate a measurement campaign with hidden effects (texts or :class:`Effect`).
 
@@ -81,9 +84,17 @@ def synthetic_case(
     :func:`random_poses`.
     ``time_s`` = ``seconds_per_pose`` per pose; ``temperature_C`` = 20 C plus a smooth swing of 3-10 K
     amplitude (SPEC: +-10 K) over the run; noise N(0, sigma^2) per coordinate.
+    ``mass_spread`` > 0: the true robot's link masses and centres of mass differ from the file's
+    (:func:`perturbed_masses`, from a generator seeded by one draw of ``rng``).
+    ``payload_kg``: None, one mass for every pose, or a tuple of levels drawn per pose (a payload
+    that changes over the campaign).
     """
     cell = load_cell(robot=robot) if cell is None else cell
     truth = true_model(nominal_model(robot, cell), rng, tracker_spread_mm=200.0, scalar_first=False)
+    if mass_spread > 0:
+        truth = dataclasses.replace(
+            truth, robot=perturbed_masses(robot, np.random.default_rng(rng.integers(2**62)), mass_spread)
+        )
     q = random_poses(robot, n_poses, rng, cell=cell) if q is None else np.asarray(q, dtype=float)
     n_poses = q.shape[0]
     t = np.arange(n_poses) * seconds_per_pose
@@ -92,7 +103,10 @@ def synthetic_case(
     effs = [
         fx.parse_effect(e, rng, model=truth) if isinstance(e, str) else fx.resolve(e, truth) for e in effects
     ]
-    pay = None if payload_kg is None else np.full(n_poses, float(payload_kg))
+    if payload_kg is None or np.ndim(payload_kg) == 0:
+        pay = None if payload_kg is None else np.full(n_poses, float(payload_kg))
+    else:
+        pay = rng.choice(np.asarray(payload_kg, dtype=float), size=n_poses)
     h = fx.true_measurements(truth, q, effs, temperature_C=temp, time_s=t, payload_kg=pay)
     eta = h + sigma * rng.standard_normal(h.shape)
     data = Measurements.from_arrays(
@@ -101,14 +115,31 @@ def synthetic_case(
     return SyntheticCase(data, truth, effs, sigma)
 
 
+def perturbed_masses(robot: Robot, rng: np.random.Generator, spread: float = 0.3) -> Robot:
+    """``robot`` with other link masses and centres of mass: each mass times ``U(1 - spread, 1 + spread)``,
+    each centre-of-mass coordinate shifted by ``U(-spread, spread)`` times the link's centre-of-mass
+    distance (for a link whose centre of mass is at its frame origin: times 100 mm)."""
+    m = robot.masses * rng.uniform(1 - spread, 1 + spread, size=robot.masses.shape)
+    r = np.linalg.norm(robot.coms, axis=1, keepdims=True)
+    r = np.where(r > 0, r, 100.0)
+    c = robot.coms + rng.uniform(-spread, spread, size=robot.coms.shape) * r
+    return dataclasses.replace(robot, masses=m, coms=c)
+
+
 def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES) -> str:
-    """A random effect of SPEC's families (family, joint, harmonic uniform), without a value."""
+    """A random effect (family, joint, harmonic uniform; a coupling among the diagnosis's
+    :data:`~kpioed_drake.diagnosis.common.COUPLING_PAIRS`), without a value."""
     while True:
         fam = families[rng.integers(len(families))]
         if fam == "joint_elasticity":
             text = f"{fam}:{rng.integers(2, 7)}"
         elif fam == "gear_cyclic":
             text = f"{fam}:{rng.integers(1, 7)}:{rng.integers(1, 3)}"
+        elif fam in ("joint_scale", "backlash"):
+            text = f"{fam}:{rng.integers(1 if fam == 'joint_scale' else 2, 7)}"
+        elif fam == "joint_coupling":
+            i, j = COUPLING_PAIRS[rng.integers(len(COUPLING_PAIRS))]
+            text = f"{fam}:{i}:{j}"
         else:
             text = fam
         if fx.parse_effect(text).key not in {fx.parse_effect(x).key for x in exclude}:
@@ -144,15 +175,46 @@ def kpi_error(case: SyntheticCase, fit: Fit) -> float | None:
 
 
 CASE_KINDS = ("single", "pair", "clean")
+NEAR_THRESHOLD = (15.0, 150.0)
+"""Range of the hidden signal's non-centrality lambda (log-uniform) in ``near_threshold`` cases."""
+PAYLOAD_KG = (2.0, 15.0)
+"""Range of the second payload level of a ``payload="changes"`` case (the first is 0 kg)."""
+
+
+def _key_name(k) -> str:
+    return ":".join(str(x) for x in k if x is not None)
+
+
+def _as_elasticity(k):
+    """A gravity-basis elasticity names the elasticity of its joint."""
+    return ("joint_elasticity", *k[1:]) if k[0] == BASIS_FAMILY else k
 
 
 def run_synthetic_case(
-    kind: str, seed: int, robot="kr16", *, n_poses: int = 80, sigma: float = 0.02, families=fx.FAMILIES
+    kind: str,
+    seed: int,
+    robot="kr16",
+    *,
+    n_poses: int = 80,
+    sigma: float = 0.02,
+    families=fx.FAMILIES,
+    mass_spread: float = 0.0,
+    payload: str | None = None,
+    near_threshold: bool = False,
 ) -> dict:
     """One seeded case of the rate study: draw hidden effects (``single``: one, ``pair``: two
     different ones, ``clean``: none; family, joint and harmonic uniform, sizes in SPEC's ranges),
     simulate, diagnose, compare. Used by ``tests/test_diagnosis.py`` and
-    ``studies/diagnosis_rates.py``. ``families`` restricts the draw (e.g. to ``("gear_cyclic",)``)."""
+    ``studies/diagnosis_rates.py``. ``families`` restricts the draw (e.g. to ``("gear_cyclic",)``).
+
+    The harder harness (defaults off, so the old cases stay the same): ``mass_spread`` (true link
+    masses and centres of mass off the file's, :func:`perturbed_masses`); ``payload="changes"``
+    (each pose carries 0 kg or a second level uniform in :data:`PAYLOAD_KG`, recorded in the data);
+    ``near_threshold`` (each hidden effect rescaled so that its lambda is log-uniform in
+    :data:`NEAR_THRESHOLD`; the same truth, poses and noise otherwise). ``explained``: every hidden
+    effect is named or among a cause's ``alternatives`` and every cause stands for one (a named
+    gravity-basis elasticity counts as the elasticity of its joint).
+    """
     robot = load_robot(robot) if isinstance(robot, str | Path) else robot
     rng = np.random.default_rng([seed, CASE_KINDS.index(kind) + 1])
     texts = []
@@ -160,19 +222,46 @@ def run_synthetic_case(
         texts.append(draw_effect_text(rng, families=families))
     if kind == "pair":
         texts.append(draw_effect_text(rng, exclude=texts, families=families))
-    case = synthetic_case(robot, rng, texts, n_poses=n_poses, sigma=sigma)
+    hard = mass_spread > 0 or payload is not None or near_threshold
+    pay = None
+    if payload == "changes":
+        pay = (0.0, float(rng.uniform(*PAYLOAD_KG)))
+    kw = {"n_poses": n_poses, "sigma": sigma, "mass_spread": mass_spread, "payload_kg": pay}
+    if not hard:
+        case = synthetic_case(robot, rng, texts, **kw)
+    else:  # effects drawn from their own stream: rescaling them leaves every other draw alone
+        state = rng.bit_generator.state
+        erng = np.random.default_rng([seed, CASE_KINDS.index(kind) + 1, 7])
+        effs = [fx.parse_effect(t, erng) for t in texts]
+        case = synthetic_case(robot, rng, effs, **kw)
+        if near_threshold and effs:
+            lam = np.maximum(detectability(case), 1e-30)
+            target = np.exp(erng.uniform(*np.log(NEAR_THRESHOLD), size=len(lam)))
+            effs = [
+                e.with_values(e.value_array() * np.sqrt(t / x))
+                for e, t, x in zip(case.effects, target, lam, strict=True)
+            ]
+            rng.bit_generator.state = state
+            case = synthetic_case(robot, rng, effs, **kw)
     t0 = time.perf_counter()
     rep = diagnose(robot, case.data, sigma_mm=sigma)
     seconds = time.perf_counter() - t0
-    named = rep.cause_keys
+    named = {_as_elasticity(k) for k in rep.cause_keys}
+    explain = [{_as_elasticity(k) for k in ks} for ks in rep.explanation_keys]
+    truth = case.keys
+    explained = all(any(k in ks for ks in explain) for k in truth) and all(ks & truth for ks in explain)
     return {
         "kind": kind,
         "seed": seed,
         "truth": [e.text() for e in case.effects],
+        "truth_names": sorted(_key_name(k) for k in truth),
         "lambda": detectability(case),
-        "named": sorted(":".join(str(x) for x in k if x is not None) for k in named),
-        "exact": named == case.keys,
-        "all_named": case.keys <= named,
+        "named": sorted(_key_name(k) for k in named),
+        "named_raw": [c.get("name", c["effect"]) for c in rep.causes],
+        "alternatives": [sorted(_key_name(k) for k in ks) for ks in explain],
+        "exact": named == truth,
+        "explained": bool(explained),
+        "all_named": truth <= named,
         "discrepancy": rep.discrepancy,
         "p_gof": rep.test["p_value"],
         "holdout_base_over_sigma": rep.baseline["holdout_rms_mm"] / sigma,
@@ -180,5 +269,7 @@ def run_synthetic_case(
         "chi2_per_dof_ext": rep.extended["chi2_per_dof"],
         "kpi_error_base_mm": kpi_error(case, rep.details["base"]),
         "kpi_error_ext_mm": kpi_error(case, rep.details["ext"]),
+        "payload_kg": pay,
+        "mass_spread": mass_spread,
         "seconds": seconds,
     }

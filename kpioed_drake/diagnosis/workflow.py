@@ -12,7 +12,10 @@ Four steps on laser-tracker data (SPEC "Measured data and model discrepancy"; do
    (:func:`~kpioed_drake.diagnosis.selection.select_effects`).
 4. **The extended model and the gain**: RMS, chi^2/dof and held-out RMS before and after, and the
    KPI (TCP at ``q_work``): its shift between the two models and its variance tr(Cs)/3
-   (:mod:`kpioed_drake.diagnosis.report`).
+   (:mod:`kpioed_drake.diagnosis.report`); per cause its competing explanations
+   (:mod:`~kpioed_drake.diagnosis.alternatives`) and plausibility
+   (:mod:`~kpioed_drake.diagnosis.physical`); the unexplained rest when the extended model still
+   fails the goodness-of-fit test (:mod:`~kpioed_drake.diagnosis.rest`).
 """
 
 from __future__ import annotations
@@ -29,8 +32,10 @@ from kpioed_drake.calibration import hold_undetermined
 from kpioed_drake.dataformats import read_data
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
+from kpioed_drake.diagnosis.elastic_basis import add_alternatives, upgrade_elasticity
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
+from kpioed_drake.diagnosis.rest import unexplained_rest
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import covariance
@@ -103,7 +108,7 @@ def diagnose(
     # as calibrate: parameters these poses do not determine are held at nominal, with a note
     prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
     if candidates is None:
-        cands, notes = candidate_effects(data, tau=prob.tau)
+        cands, notes = candidate_effects(data, prob.tau)
     else:
         cands = [
             fx.parse_effect(c, model=prob.nominal)
@@ -126,15 +131,24 @@ def diagnose(
     test = _gof_test(base, alpha)
     structure = score_tests(prob, base, cands)
     sel = select_effects(prob, base, base_hold, cands, alpha=alpha, k_folds=k_folds, max_effects=max_effects)
+    basis_notes, basis_alts = upgrade_elasticity(prob, sel, alpha=alpha, k_folds=k_folds)  # masses off
 
-    causes = rp.causes(prob, sel)
+    causes = rp.causes(prob, sel, cands, alpha=alpha, k_folds=k_folds)
+    add_alternatives(causes, basis_alts)
+    notes += basis_notes
+    rest = unexplained_rest(prob, sel.fit, alpha=alpha)
+    for si in sel.stand_ins:
+        notes.append(
+            f"{si['candidate']} is significant (LR {si['lr_stat']:.1f}) but not named: it {si['reason']} "
+            "(a stand-in for the unexplained rest)"
+        )
     baseline = rp.fit_summary(base, base_hold)
     extended = rp.fit_summary(sel.fit, sel.holdout)
     kpi = rp.kpi_summary(prob, base, sel.fit)
     if test["rejects"] and not causes:
         notes.append(
-            "the geometric model does not explain the data but no candidate effect is significant: an "
-            "effect outside the candidate list, outliers, or a sigma that is too small"
+            "the geometric model does not explain the data but no candidate effect is named: an "
+            "effect outside the candidate list, outliers, or a sigma that is too small (see 'unexplained')"
         )
     if causes and extended["p_value"] < alpha:
         notes.append(
@@ -163,6 +177,7 @@ def diagnose(
             "ext_holdout": sel.holdout,
             "candidates": cands,
         },
+        unexplained=rest,
     )
 
 

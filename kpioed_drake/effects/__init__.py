@@ -15,6 +15,9 @@ family (``parse_effect``)     model                                         para
 ``tracker_scale[=k]``         distances from the tracker scale by           k [1/K] (text: ppm/K)
                               ``s_T = 1 + k (T - T_REF)`` (air refraction)
 ``backlash:i[=b]``            joint i angle error ``b sign(tau_i(q))``      b [rad] (text: deg)
+``joint_elasticity_basis:i``  joint i deflects by ``Y_i(q) . theta``        theta (r_i) [rad]
+                              (gravity basis: any link masses; see          (+ c_i of a varying
+                              :mod:`.gravity_basis`)                        payload)
 ============================  ============================================  ====================
 
 The first four (:data:`FAMILIES`) are SPEC's and diagnosis's candidates; the last four
@@ -76,7 +79,9 @@ Realistic sizes (SPEC), used when ``parse_effect`` draws a value with a random g
   (``BACKLASH_DEG``), positive; tracker scale: -0.93 ppm/K (``AIR_PPM_PER_K``, not drawn).
 
 Modules: :mod:`.model` (:class:`Effect`, the text syntax, sizes), :mod:`.gravity` (gravity and
-payload torques, the elastic lever), :mod:`.response` (the measurement model with effects, its
+payload torques, the elastic lever), :mod:`.gravity_basis` (the gravity torque as a combination of
+identifiable mass moments: elasticity without trusting the model file's masses), :mod:`.response`
+(the measurement model with effects, its
 Jacobian, the effects' design and KPI columns).
 """
 

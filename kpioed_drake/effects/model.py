@@ -11,15 +11,24 @@ import re
 import numpy as np
 
 from kpioed_drake.effects.gravity import elastic_lever
+from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
+from kpioed_drake.effects.gravity_basis import resolve_basis
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
 """Effect names as in SPEC (and ``none`` for a model that explains the data): diagnosis's candidates."""
-EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
+EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", BASIS_FAMILY)
 """Further families for simulation and ``--extend`` (not diagnosis candidates)."""
 ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES
-JOINT_FAMILIES = ("joint_elasticity", "gear_cyclic", "joint_scale", "joint_coupling", "backlash")
+JOINT_FAMILIES = (
+    "joint_elasticity",
+    "gear_cyclic",
+    "joint_scale",
+    "joint_coupling",
+    "backlash",
+    BASIS_FAMILY,
+)
 """Families that act as a joint-angle error ``delta_i(q)`` (no per-pose temperature or time needed)."""
 
 N_PARAMS = {
@@ -31,6 +40,7 @@ N_PARAMS = {
     "joint_coupling": 1,
     "tracker_scale": 1,
     "backlash": 1,
+    BASIS_FAMILY: None,  # robot-dependent: Effect.n_basis (gravity_basis.resolve_basis)
 }
 UNITS = {
     "joint_elasticity": "rad/(N m)",
@@ -41,6 +51,7 @@ UNITS = {
     "joint_coupling": "ppm",
     "tracker_scale": "ppm/K",
     "backlash": "deg",
+    BASIS_FAMILY: "rad",
 }
 """Units of the *displayed* values (text syntax, reports); inside the code see :class:`Effect`."""
 
@@ -60,6 +71,7 @@ BACKLASH_DEG = (0.003, 0.02)
 _DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expansion": 1.0}
 _DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
 _DISPLAY.update(joint_scale=1e-6, joint_coupling=1e-6, tracker_scale=1e-6, backlash=np.pi / 180.0)
+_DISPLAY[BASIS_FAMILY] = 1.0
 _DRAW = {
     "joint_scale": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
     "joint_coupling": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
@@ -84,6 +96,8 @@ class Effect:
         tool_mm: for an elasticity drawn by size: the largest tool displacement [mm] over the joint
             box; :func:`resolve` turns it into c for a robot.
         coupled: 1-based joint j whose angle drives ``joint_coupling:i:j``, else None.
+        n_basis: parameter count of ``joint_elasticity_basis`` (robot- and data-dependent, set by
+            :func:`resolve` / :func:`~kpioed_drake.effects.gravity_basis.resolve_basis`), else None.
     """
 
     family: str
@@ -92,9 +106,14 @@ class Effect:
     values: tuple[float, ...] | None = None
     tool_mm: float | None = None
     coupled: int | None = None
+    n_basis: int | None = None
 
     @property
     def n_params(self) -> int:
+        if self.family == BASIS_FAMILY:
+            if self.n_basis is None:
+                raise InputError(f"effect {self.name}: its size depends on the robot; resolve it first")
+            return self.n_basis
         return N_PARAMS[self.family]
 
     @property
@@ -116,6 +135,8 @@ class Effect:
 
     @property
     def param_names(self) -> list[str]:
+        if self.family == BASIS_FAMILY:
+            return [f"{self.name}.t{k}" for k in range(self.n_params)]
         sub = {
             "joint_elasticity": ["c"],
             "gear_cyclic": ["a", "b"],
@@ -254,7 +275,8 @@ def parse_effect(
         ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
         return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
     if family in EXTRA_FAMILIES:
-        return _parse_extra(family, parts, given, rng, spec, nj)
+        eff = _parse_extra(family, parts, given, rng, spec, nj)
+        return resolve(eff, model) if model is not None and family == BASIS_FAMILY else eff
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
     if family == "thermal_expansion":
@@ -276,6 +298,14 @@ def parse_effect(
 
 def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int = 6) -> Effect:
     """The further families (:data:`EXTRA_FAMILIES`): ``parts`` = the ':'-separated left side."""
+    if family == BASIS_FAMILY:
+        if len(parts) != 2:
+            raise InputError(f"effect {spec!r}: expected {BASIS_FAMILY}:JOINT[=t1,t2,... rad]")
+        joint = _joint(parts[1], spec)
+        if given is None and rng is not None:
+            raise InputError(f"effect {spec!r}: no size to draw; simulate joint_elasticity:{joint} instead")
+        vals = None if given is None else _numbers(given, len(given.split(",")), spec)
+        return Effect(family, joint, values=vals, n_basis=None if vals is None else len(vals))
     form = {
         "joint_scale": "joint_scale:JOINT[=eps ppm]",
         "joint_coupling": "joint_coupling:JOINT:JOINT[=c ppm]",
@@ -313,7 +343,10 @@ def parse_effects(texts, rng: np.random.Generator | None = None, *, model: Track
 
 
 def resolve(effect: Effect, model: TrackerModel) -> Effect:
-    """An effect with concrete values: an elasticity drawn by ``tool_mm`` gets its c for this robot."""
+    """An effect with concrete values: an elasticity drawn by ``tool_mm`` gets its c for this robot;
+    a ``joint_elasticity_basis`` without ``n_basis`` gets its parameter count (no payload column)."""
+    if effect.family == BASIS_FAMILY:
+        return resolve_basis(effect, model, n_given=effect.n_basis)
     if effect.values is not None or effect.family != "joint_elasticity" or effect.tool_mm is None:
         return effect
     lever = elastic_lever(model, effect.joint)

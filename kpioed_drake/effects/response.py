@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
+from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
+from kpioed_drake.effects.gravity_basis import basis_factors
 from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
 from kpioed_drake.errors import InputError
 from kpioed_drake.kinematics import flange_point, point_jacobian
@@ -54,6 +56,10 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
             i = e.joint - 1
             f = tau[:, i : i + 1]
             df = dtau[:, i, :, None] if with_dq else None
+        elif e.family == BASIS_FAMILY:  # gravity basis: f = Y_j(q) (+ the payload torque)
+            i = e.joint - 1
+            fb = basis_factors(model, q, e, tau=tau, payload_kg=payload_kg, with_dq=with_dq)
+            f, df = fb if with_dq else (fb, None)
         elif e.family == "gear_cyclic":
             i = e.joint - 1
             nq = e.harmonic * q[:, i]
@@ -108,7 +114,15 @@ def _scale_and_drift(effects, n: int, temperature_C, time_s):
 
 
 def augmented_response(
-    model: TrackerModel, q_cmd, effects=(), *, temperature_C=None, time_s=None, payload_kg=None, tau=None
+    model: TrackerModel,
+    q_cmd,
+    effects=(),
+    *,
+    temperature_C=None,
+    time_s=None,
+    payload_kg=None,
+    tau=None,
+    target=None,
 ) -> np.ndarray:
     """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
 
@@ -117,7 +131,7 @@ def augmented_response(
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     effects = list(effects)
     delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau)
-    p_WQ = flange_point(model.frames(q + delta), model.p_FQ)
+    p_WQ = flange_point(model.frames(q + delta), model.target_points(target))
     s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
@@ -132,6 +146,7 @@ def augmented_jacobian(
     payload_kg=None,
     with_dq: bool = False,
     tau=None,
+    target=None,
 ):
     """Response of the measurement model with effects and its Jacobian.
 
@@ -145,6 +160,7 @@ def augmented_jacobian(
         temperature_C, time_s, payload_kg: (n,) or scalars, as the effects need them.
         with_dq: also the derivative of the effect columns w.r.t. the commanded joint angles.
         tau: (n, 6) precomputed gravity torques (payload included) to skip Drake.
+        target: (n,) 0-based target of each row (None: target 0); a payload sits at target 0.
 
     Returns:
         h (n, 3) [mm]; H (n, 3, n_full) dh/dp; E (n, 3, k) dh/d(effect parameters), effects in order,
@@ -157,12 +173,12 @@ def augmented_jacobian(
     delta, factors = jd[0], jd[1]
     q_act = q + delta
     frames = model.frames(q_act)
-    out = point_jacobian(frames, model.p_FQ, with_dq=with_dq)
+    out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
     s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
     lay = model.layout
     R_TW = model.R_WT.T
-    h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift)
+    h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift, target=target)
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
     if payload_kg is not None and np.any(np.asarray(payload_kg) != 0):
         # the payload sits at p_FQ: its torque, hence an elastic deflection, depends on p_FQ
@@ -225,6 +241,7 @@ def true_measurements(
     temperature_C=None,
     time_s=None,
     payload_kg=None,
+    target=None,
 ) -> np.ndarray:
     """Noise-free reflector positions in the tracker frame [mm] of a robot with these effects.
 
@@ -235,6 +252,7 @@ def true_measurements(
             each must have values (an elasticity drawn by ``tool_mm`` is resolved for this robot).
         temperature_C, time_s, payload_kg: (n,) or scalars; required by thermal expansion and
             drift; payload adds to the gravity torques of joint elasticity.
+        target: (n,) 0-based target of each row (None: target 0).
 
     Returns:
         (n, 3) positions [mm].
@@ -249,7 +267,13 @@ def true_measurements(
             )
         effs.append(e)
     h, _, _ = augmented_jacobian(
-        model_true, q_cmd, effs, temperature_C=temperature_C, time_s=time_s, payload_kg=payload_kg
+        model_true,
+        q_cmd,
+        effs,
+        temperature_C=temperature_C,
+        time_s=time_s,
+        payload_kg=payload_kg,
+        target=target,
     )
     return h
 

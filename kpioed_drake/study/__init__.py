@@ -5,12 +5,17 @@ A study is a list of :class:`Task` (robot x design method x collision avoidance 
 :mod:`.tasks`), run on local processes or a Dask cluster with one atomic result file per task
 (:mod:`.runner`), summarised in Tables 6-8 beside the paper's numbers (:mod:`.tables`,
 :mod:`kpioed_drake.paper`), a markdown report (:mod:`.report`) and Figures 7 and 8 (:mod:`.plots`).
-:func:`run_study` does all of it.
+Per robot a :class:`BoundTask` computes the lower bound on tr(Cs)/3 of any design (the optimality
+certificate's search), joined into the rows and tables as each design's efficiency (:mod:`.bounds`).
+:func:`run_study` does all of it; :func:`regenerate_tables` rebuilds the tables of a finished study
+with the bounds, without making the designs again.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -23,6 +28,7 @@ from kpioed_drake.models import list_robots, load_robot
 from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.paper import PAPER
 from kpioed_drake.parameters import parameter_layout
+from kpioed_drake.study.bounds import add_efficiency, bound_tasks_of, bounds_frame, rows_from_results
 from kpioed_drake.study.plots import make_figures
 from kpioed_drake.study.report import make_report
 from kpioed_drake.study.runner import run_tasks
@@ -31,8 +37,10 @@ from kpioed_drake.study.tasks import (
     KUKA,
     METHODS,
     QUICK_NOTIONAL,
+    BoundTask,
     Task,
     is_notional,
+    make_bound_tasks,
     make_tasks,
     notional_lambda_mu,
     run_task,
@@ -41,6 +49,7 @@ from kpioed_drake.study.tasks import (
 from kpioed_drake.study.variants import DEFAULT, VARIANTS, Variant, get_variant, variant_problem
 
 __all__ = [
+    "BoundTask",
     "DEFAULT",
     "KUKA",
     "METHODS",
@@ -59,6 +68,7 @@ __all__ = [
     "notional_lambda_mu",
     "per_robot",
     "ratios",
+    "regenerate_tables",
     "results_frame",
     "run_study",
     "run_task",
@@ -106,15 +116,24 @@ def write_outputs(
     wall_s: float | None = None,
     figures: bool = True,
     title: str = "Study",
+    bound_rows: list[dict] = (),
 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame, pd.DataFrame, str, list[Path]]:
-    """Write ``results.csv``, ``per_robot.csv``, ``table6/7/8.csv``, ``report.md`` and (``figures``)
-    the figures into ``out_dir``, each atomically.
+    """Write ``results.csv``, ``per_robot.csv``, ``table6/7/8.csv``, ``report.md``, (``figures``)
+    the figures and (with ``bound_rows``) ``bounds.csv`` into ``out_dir``, each atomically.
+
+    Args:
+        rows: the design rows (:func:`run_task`); bound_rows: the rows of the :class:`BoundTask`
+            (joined as each design's ``bound_mm2`` and ``efficiency``, :mod:`.bounds`).
 
     Returns:
         the results frame, Tables 6, 7, 8, the report and the figure paths.
     """
     out_dir = Path(out_dir)
-    df = results_frame(rows)
+    df = results_frame(add_efficiency(rows, list(bound_rows)))
+    if bound_rows:
+        atomic_write_text(
+            out_dir / "bounds.csv", bounds_frame(list(bound_rows)).to_csv(index=False, float_format="%.6g")
+        )
     t6, t7, t8, pr = make_tables(df)
     atomic_write_text(out_dir / "results.csv", df.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out_dir / "per_robot.csv", pr.to_csv(float_format="%.6g"))
@@ -143,6 +162,7 @@ def run_study(
     figures: bool = True,
     design_api=None,
     variant: str = DEFAULT,
+    bounds: bool = True,
 ) -> StudyResult:
     """Run (or resume) the paper's study (``kpioed study``) and write ``results.csv``,
     ``table6/7/8.csv``, ``report.md`` and the figures into ``out_dir``.
@@ -161,6 +181,9 @@ def run_study(
         design_api: stand-in for :mod:`kpioed_drake.design` (tests).
         variant: the problem variant (:data:`VARIANTS`); its name is in the task ids, the design
             file names and the report's title unless ``default``.
+        bounds: also compute each robot's lower bound (:class:`BoundTask`, 4-13 s per robot) and
+            the designs' efficiencies (not with a ``design_api`` stand-in without
+            ``certified_design``).
 
     Raises:
         InputError: ``n`` below a robot's fewest poses, ``jobs`` below 1, an unknown robot or variant.
@@ -188,9 +211,15 @@ def run_study(
             )
     draws = heuristic_draws if heuristic_draws is not None else (3 if quick else 10)
     tasks = make_tasks(robots, n=n, heuristic_draws=draws, seed=seed, variant=var.name)
-    rows, n_run, n_skip = run_tasks(
+    if bounds and (
+        design_api is None or isinstance(design_api, str) or hasattr(design_api, "certified_design")
+    ):
+        tasks += make_bound_tasks(robots, n=n, variant=var.name)
+    all_rows, n_run, n_skip = run_tasks(
         tasks, out_dir, jobs=jobs, scheduler=scheduler, progress=progress, design_api=design_api
     )
+    rows = [r for t, r in zip(tasks, all_rows, strict=True) if not isinstance(t, BoundTask)]
+    bound_rows = [r for t, r in zip(tasks, all_rows, strict=True) if isinstance(t, BoundTask)]
     failed = [r for r in rows if r.get("error")]
     if rows and len(failed) == len(rows):
         raise SolverError(
@@ -201,7 +230,16 @@ def run_study(
     title = "Quick study" if quick else "Study"
     if var.name != DEFAULT:
         title += f", variant `{var.name}` ({var.description})"
-    df, t6, t7, t8, report, figs = write_outputs(out_dir, rows, wall_s=wall, figures=figures, title=title)
+    outputs = write_outputs(out_dir, rows, wall_s=wall, figures=figures, title=title, bound_rows=bound_rows)
+    n_errors = int(outputs[0]["error"].notna().sum()) + sum(1 for b in bound_rows if b.get("error"))
+    return _study_result(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), time.perf_counter() - t0)
+
+
+def _study_result(out_dir: Path, outputs: tuple, counts: tuple, wall_s: float) -> StudyResult:
+    """The :class:`StudyResult` of :func:`write_outputs`' ``outputs`` and the counts (tasks, run,
+    skipped, errors)."""
+    df, t6, t7, t8, report, figs = outputs
+    n_tasks, n_run, n_skip, n_errors = counts
     return StudyResult(
         out_dir=out_dir,
         results=df,
@@ -210,9 +248,47 @@ def run_study(
         table8=t8,
         report=report,
         figures=figs,
-        n_tasks=len(tasks),
+        n_tasks=n_tasks,
         n_run=n_run,
         n_skipped=n_skip,
-        n_errors=int(df["error"].notna().sum()),
-        wall_s=time.perf_counter() - t0,
+        n_errors=n_errors,
+        wall_s=wall_s,
     )
+
+
+_WALL = re.compile(r"^Wall time of this run: (\d+(?:\.\d*)?) s\.$", re.MULTILINE)
+
+
+def regenerate_tables(
+    out_dir: str | Path,
+    *,
+    jobs: int | None = None,
+    progress: bool = True,
+    figures: bool = True,
+    design_api=None,
+) -> StudyResult:
+    """Rebuild the tables, report and figures of a finished study in ``out_dir`` with the bounds and
+    efficiencies, without making the designs again (``kpioed study --tables-only``).
+
+    The design rows come from ``results.csv`` and ``designs/`` (:func:`.bounds.rows_from_results`);
+    the bounds (one :class:`BoundTask` per robot, variant and n) are computed where ``tasks/`` has no
+    result file yet (resumable like the designs). The report keeps the title and the wall time of the
+    run that made the designs.
+
+    Raises:
+        InputError: no ``results.csv`` or a missing design file. SolverError: every bound failed.
+    """
+    out_dir = Path(out_dir)
+    rows = rows_from_results(out_dir)
+    tasks = bound_tasks_of(rows)
+    bound_rows, n_run, n_skip = run_tasks(tasks, out_dir, jobs=jobs, progress=progress, design_api=design_api)
+    if bound_rows and all(b.get("error") for b in bound_rows):
+        raise SolverError(f"{out_dir}: every bound failed (first: {bound_rows[0]['error']})")
+    old = out_dir / "report.md"
+    text = old.read_text(encoding="utf-8") if old.is_file() else ""
+    wall = _WALL.search(text)
+    title = text.splitlines()[0].removeprefix("# ").split(":")[0] if text.startswith("# ") else "Study"
+    wall_s = float(wall.group(1)) if wall else None
+    outputs = write_outputs(out_dir, rows, wall_s=wall_s, figures=figures, title=title, bound_rows=bound_rows)
+    n_errors = sum(1 for b in bound_rows if b.get("error"))
+    return _study_result(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), wall_s or math.nan)

@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 from kpioed_drake import designio
 from kpioed_drake.errors import InputError
 from kpioed_drake.outputs import atomic_write_json
-from kpioed_drake.study.tasks import Task, run_task
+from kpioed_drake.study.tasks import BoundTask, Task, run_task
 
 OnDone = Callable[[Task, dict], None]
 
@@ -30,7 +30,7 @@ SCHEDULER_TIMEOUT_S = 10.0
 """How long to wait for a Dask scheduler to answer before giving up [s]."""
 
 
-def _task_path(out_dir: Path, task: Task) -> Path:
+def _task_path(out_dir: Path, task: Task | BoundTask) -> Path:
     return out_dir / "tasks" / f"{task.task_id}.json"
 
 
@@ -51,7 +51,7 @@ def _load_done(out_dir: Path, task: Task) -> dict | None:
 
 def _save(out_dir: Path, task: Task, row: dict) -> None:
     """Write the design (if any) and then the row, each atomically."""
-    if not row.get("error"):
+    if not row.get("error") and task.design_name is not None:
         designio.write_design(out_dir / "designs" / task.design_name, np.deg2rad(np.asarray(row["q_deg"])))
     atomic_write_json(_task_path(out_dir, task), row)
 

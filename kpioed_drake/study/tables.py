@@ -15,6 +15,11 @@ import pandas as pd
 from kpioed_drake.paper import TABLE6, TABLE7, TABLE8
 from kpioed_drake.study.tasks import KUKA, METHODS, is_notional, notional_lambda_mu
 
+EFFICIENCY_COLUMNS = ["bound_mm2", "heuristic_efficiency", "param_ca_efficiency", "kpi_ca_efficiency"]
+"""Per robot: the bound on tr(Cs)/3 of any design with collision avoidance [mm^2] and the mean
+efficiency (bound / value) of its heuristic draws and of its param and kpi designs with collision
+avoidance."""
+
 RESULT_COLUMNS = [
     "robot",
     "lambda_mm",
@@ -39,9 +44,13 @@ RESULT_COLUMNS = [
     "q_work_deg",
     "error",
     "variant",
+    "bound_mm2",
+    "efficiency",
 ]
 """Columns of ``results.csv`` (``criterion`` holds the design method, ``variant`` the problem
-variant of :mod:`.variants`)."""
+variant of :mod:`.variants`; ``bound_mm2`` the lower bound on tr(Cs)/3 of any design of as many
+poses with collision avoidance that covers this design's poses and ``efficiency`` = bound / value,
+:mod:`.bounds`; NaN without collision avoidance)."""
 
 
 def results_frame(rows: list[dict]) -> pd.DataFrame:
@@ -68,6 +77,8 @@ def per_robot(df: pd.DataFrame) -> pd.DataFrame:
             "heuristic": h.mean(),
             "heuristic_std": h.std(ddof=1) if len(h) > 1 else math.nan,
             "heuristic_draws": len(h),
+            "bound_mm2": g["bound_mm2"].astype(float).max() if "bound_mm2" in g else math.nan,
+            "heuristic_efficiency": _mean_efficiency(g[g["criterion"] == "heuristic"]),
         }
         for method in ("param", "kpi"):
             for ca in (True, False):
@@ -80,6 +91,7 @@ def per_robot(df: pd.DataFrame) -> pd.DataFrame:
                     )
                 else:
                     d[f"{key}_feasible"] = bool(s["feasible"].iloc[0]) if len(s) else False
+                    d[f"{key}_efficiency"] = _mean_efficiency(s)
         d["lambda_mm"], d["mu_mm"] = notional_lambda_mu(robot)
         out[robot] = d
     pr = pd.DataFrame.from_dict(out, orient="index")
@@ -87,17 +99,29 @@ def per_robot(df: pd.DataFrame) -> pd.DataFrame:
     return pr
 
 
+def _mean_efficiency(rows: pd.DataFrame) -> float:
+    """Mean ``efficiency`` of the rows (NaN without any)."""
+    if "efficiency" not in rows or not len(rows):
+        return math.nan
+    return float(rows["efficiency"].astype(float).mean())
+
+
 def _paper(v: float | None) -> float:
     return math.nan if v is None else v
 
 
 def make_tables(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """Tables 6, 7, 8 (with the paper's numbers beside ours) and the per-robot table."""
+    """Tables 6, 7, 8 (with the paper's numbers beside ours) and the per-robot table; with the bound
+    [mm^2] and the designs' efficiencies (Table 6, per robot: :data:`EFFICIENCY_COLUMNS`; Tables 7
+    and 8: ``ca_efficiency_min``, ``_max``, ``_mean`` over the notional robots; NaN without
+    bounds)."""
     pr = per_robot(df)
     kuka = [r for r in KUKA if r in pr.index]
     t6 = pr.loc[kuka, ["heuristic", "heuristic_std", "param_ca", "kpi_ca"]].copy()
     for c in ("heuristic", "param_ca", "kpi_ca"):
         t6[f"paper_{c}"] = [TABLE6[r][c] for r in kuka]
+    for c in EFFICIENCY_COLUMNS:
+        t6[c] = pr.loc[kuka, c]
     t6.index.name = "robot"
 
     nt = pr[[is_notional(r) for r in pr.index]]
@@ -110,6 +134,9 @@ def make_tables(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFr
             noca, ca = nt[f"{method}_noca"], nt[f"{method}_ca"]
         t7[method] = {"noca_min": noca.min(), "noca_max": noca.max(), "ca_min": ca.min(), "ca_max": ca.max()}
         t8[method] = {"noca_mean": noca.mean(), "ca_mean": ca.mean(), "n_robots": len(ca.dropna())}
+        eff = nt[f"{method}_efficiency" if method == "heuristic" else f"{method}_ca_efficiency"]
+        t7[method].update(ca_efficiency_min=eff.min(), ca_efficiency_max=eff.max())
+        t8[method]["ca_efficiency_mean"] = eff.mean()
         for k, v in TABLE7[method].items():
             t7[method][f"paper_{k}"] = _paper(v)
         for k, v in TABLE8[method].items():

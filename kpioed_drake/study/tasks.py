@@ -8,6 +8,11 @@ A :class:`Task` is one design: robot x design method (``heuristic``, ``param`` =
 (:class:`~kpioed_drake.feasibility.FeasibilityChecker`, collisions always checked, so a design made
 without collision avoidance reports its colliding poses). It runs in a worker process, on a Dask worker
 or inline, and returns a JSON-able row.
+
+A :class:`BoundTask` is the other kind of task: the lower bound on tr(Cs)/3 of any n-pose design of
+a robot with collision avoidance (:func:`kpioed_drake.design.certified_design`, the search behind
+the optimality certificate), the same for every design of the robot; :func:`run_task` computes it
+too and :mod:`.bounds` joins it into the tables as each design's efficiency.
 """
 
 from __future__ import annotations
@@ -99,6 +104,61 @@ class Task:
         base = f"{self.robot}_{self.method}_{self.ca}"
         base = f"{base}_s{self.seed}" if self.method == "heuristic" else base
         return f"{base}{self._suffix}.csv"
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundTask:
+    """The lower bound on tr(Cs)/3 of any ``n``-pose design of a robot with collision avoidance."""
+
+    robot: str
+    """Model name."""
+    n: int
+    """Number of poses."""
+    variant: str = DEFAULT
+    """Name of the problem variant (:mod:`.variants`)."""
+    seed: int = 0
+    """Seed of the search."""
+    method = "bound"
+    """The task kind (where a :class:`Task` has its design method)."""
+    collision = True
+    """The bound is on designs with collision avoidance."""
+
+    @property
+    def task_id(self) -> str:
+        """Unique name of the task (its result file is ``tasks/<task_id>.json``)."""
+        suffix = "" if self.variant == DEFAULT else f"_v{self.variant}"
+        return f"{self.robot}_bound_ca_s{self.seed}_n{self.n}{suffix}"
+
+    @property
+    def design_name(self) -> None:
+        """A bound has no design file."""
+        return None
+
+
+def make_bound_tasks(robots: Iterable[str], *, n: int = 60, seed: int = 0, variant: str = DEFAULT) -> list:
+    """One :class:`BoundTask` per robot."""
+    return [BoundTask(r, n, variant, seed) for r in robots]
+
+
+def _run_bound(api, problem: Problem, task: BoundTask) -> dict:
+    """The fields of a bound row: ``bound_mm2`` = ``tr(K^T Y)^2 / (n g_max)`` [mm^2] (the search's
+    bound), ``dual_mm2`` = ``tr(K^T Y)^2``, ``g_max``, ``Y`` (k, 3) (to cover a design's own poses,
+    :func:`.bounds.design_bound`), ``approximate_mm2`` (``Phi(w) / n``), the search's counts and time."""
+    t0 = time.perf_counter()
+    approx = api.certified_design(problem, collision=True, seed=task.seed)
+    return dict(
+        bound_mm2=approx.dual / approx.g_max / task.n,
+        dual_mm2=float(approx.dual),
+        g_max=float(approx.g_max),
+        Y=np.asarray(approx.Y).tolist(),
+        approximate_mm2=float(approx.phi) / task.n,
+        dual_gap=1.0 - approx.dual / approx.g_max / approx.phi,
+        rounds=int(approx.rounds),
+        converged=bool(approx.converged),
+        n_candidates=int(len(approx.q) + approx.n_checked),
+        n_local_searches=int(approx.n_searched),
+        solve_s=time.perf_counter() - t0,
+    )
 
 
 def _variant_of(row: Mapping) -> str:
@@ -200,11 +260,12 @@ def _make_design(api, problem: Problem, task: Task) -> tuple[np.ndarray, float, 
     return np.asarray(res.q), solve_s, info
 
 
-def run_task(task: Task, design_api=None) -> dict:
-    """Make, evaluate and check one design.
+def run_task(task: Task | BoundTask, design_api=None) -> dict:
+    """Make, evaluate and check one design (or compute a :class:`BoundTask`'s bound).
 
     Args:
-        task: the design to make.
+        task: the design to make, or a bound to compute (the row then has the fields of
+            :func:`_run_bound` instead of the design's).
         design_api: object or module name with ``heuristic_design`` and ``optimize_design`` (the API of
             :mod:`kpioed_drake.design`, the default); tests inject a stand-in.
 
@@ -226,6 +287,9 @@ def run_task(task: Task, design_api=None) -> dict:
     try:
         api = _design_api(design_api)
         problem, checker = _problem_and_checker(task.robot, task.variant)
+        if isinstance(task, BoundTask):
+            row.update(_run_bound(api, problem, task))
+            return row
         q, solve_s, info = _make_design(api, problem, task)
         raise_if_interrupted()
         crit = problem.criteria(q)

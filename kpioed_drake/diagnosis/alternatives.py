@@ -1,0 +1,161 @@
+"""Competing explanations: candidates that explain the data about as well as a named cause.
+
+For a cause A of the extended model (the other named causes R): ``f0`` is the fit of R alone, and
+for every candidate B not in the model ``LR_B = chi2(R) - chi2(R + B)`` against
+``LR_A = chi2(R) - chi2(R + A)`` (both refitted jointly with the geometry). B is an *alternative* to
+A when ``LR_B >= LR_A - c`` with ``c = chi2.isf(alpha, 1)`` (the 1-dof critical value at the test
+level: 6.63 at 1 %): a likelihood-ratio test of A against B cannot reject B at that level, the data
+cannot tell them apart; and B itself is significant (``p(LR_B) < alpha``, uncorrected). Only B
+whose score statistic (the linearised ``LR_B`` at ``f0``, cheap) comes within
+``c + max(c, 20 % of LR_A)`` of ``LR_A`` are refitted.
+
+The stepwise search adds causes one at a time, so with the other causes in the model a candidate
+may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > c`` and B also wins
+by the penalised likelihood (``LR - k ln(3 n)``) and the held-out RMS, and B's value is physically
+plausible (:mod:`.physical`), :func:`settle` swaps B in for A (recorded as a step with ``swapped``)
+and looks again, at most ``MAX_EFFECTS`` swaps.
+
+Evidence of each alternative: ``lr_stat`` (``LR_B``), ``lr_stat_cause`` (``LR_A``), ``dof``,
+``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B), and
+``canonical_correlation`` (largest canonical correlation between A's and B's columns after projecting
+out the geometry and R: near 1 when the poses make the two signatures alike).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.stats
+
+from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS
+from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.physical import plausibility
+from kpioed_drake.diagnosis.selection import Selection, columns, identifiability, projected_basis
+from kpioed_drake.estimation import rms
+
+
+def competing(
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool, *, alpha: float, k_folds: int
+) -> list[tuple[object, Fit, dict]]:
+    """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
+
+    Args:
+        prob: the fit problem.
+        ext: the extended model's fit; its effect ``i`` is the cause A.
+        i: index of A in ``ext.effects``.
+        f0: the fit of ``ext``'s other effects without A (started from ``ext``).
+        pool: the candidate effects (those already in ``ext`` are skipped).
+        alpha: the test level; k_folds: folds of the held-out error.
+
+    Returns:
+        Up to ``MAX_ALTERNATIVES`` tuples ``(effect B with its fitted values, fit of R + B, evidence)``,
+        largest ``LR_B`` first.
+    """
+    a = ext.effects[i]
+    lr_a = max(f0.cost - ext.cost, 0.0)
+    c = float(scipy.stats.chi2.isf(alpha, 1))
+    in_model = {e.key for e in ext.effects}
+    others = [b for b in pool if b.key not in in_model]
+    if not others:
+        return []
+    Jm, cols = columns(prob, f0, [a] + others)
+    Q, _ = np.linalg.qr(Jm)
+    r = (f0.residuals / prob.sigma).reshape(-1)
+    U_a = projected_basis(Q, cols[0])
+    ln_n = np.log(3 * prob.data.n)
+    found = []
+    for b, C in zip(others, cols[1:], strict=True):
+        U_b = projected_basis(Q, C)
+        if U_b.shape[1] == 0:
+            continue
+        proj = U_b.T @ r
+        if float(proj @ proj) < lr_a - c - max(c, 0.2 * lr_a):
+            continue
+        f = prob.fit(list(f0.effects) + [b], start=f0)
+        lr_b = max(f0.cost - f.cost, 0.0)
+        p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
+        if lr_b < lr_a - c or p_b >= alpha:
+            continue
+        corr = np.linalg.svd(U_a.T @ U_b, compute_uv=False) if U_a.shape[1] else np.zeros(1)
+        ev = {
+            "lr_stat": lr_b,
+            "lr_stat_cause": lr_a,
+            "dof": b.n_params,
+            "p_value": p_b,
+            "delta_bic": lr_b - b.n_params * ln_n,
+            "canonical_correlation": float(min(1.0, corr.max())),
+        }
+        found.append((f.effects[-1], f, ev))
+    found.sort(key=lambda t: -t[2]["lr_stat"])
+    found = found[:MAX_ALTERNATIVES]
+    for _, f, ev in found:
+        ev["holdout_rms_mm"] = rms(prob.holdout(f, k=k_folds))
+    return found
+
+
+def _swap_evidence(prob: FitProblem, f0: Fit, b, fb: Fit, ev: dict, hold, m: int, replaced: str) -> dict:
+    """Evidence of a cause B swapped in for ``replaced`` (the keys of a selection step's evidence)."""
+    Jm, (C,) = columns(prob, f0, [b])
+    return {
+        **identifiability(Jm, C),
+        "lr_stat": ev["lr_stat"],
+        "dof": ev["dof"],
+        "p_value": ev["p_value"],
+        "p_value_corrected": min(1.0, ev["p_value"] * m),
+        "delta_bic": ev["delta_bic"],
+        "holdout_rms_mm_with": rms(hold),
+        "holdout_rms_mm_without": rms(prob.holdout(f0)),
+        "step": "swap",
+        "replaced": replaced,
+    }
+
+
+def _plausible(prob: FitProblem, b, fb: Fit) -> bool:
+    """Whether the value of B (the last effect of ``fb``) is physically plausible."""
+    std = np.sqrt(np.clip(np.diag(fb.Cp), 0, None))[fb.layout.effects][-b.n_params :]
+    return plausibility(b, std, tau=prob.tau, time_s=prob.data.time_s)[0]
+
+
+def settle(prob: FitProblem, sel: Selection, pool, *, alpha: float, k_folds: int) -> dict:
+    """Swap causes for competing candidates that explain the data significantly better given the
+    other causes (in place on ``sel``), then return, per final cause key, ``(f0, alternatives)``:
+    the fit without the cause and :func:`competing`'s list."""
+    c = float(scipy.stats.chi2.isf(alpha, 1))
+    ln_n = np.log(3 * prob.data.n)
+    for _ in range(MAX_EFFECTS + 1):
+        ext, out, swap = sel.fit, {}, None
+        for i, a in enumerate(ext.effects):
+            f0 = prob.fit([x for x in ext.effects if x.key != a.key], start=ext)
+            found = competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds)
+            lr_a = max(f0.cost - ext.cost, 0.0)
+            if found and len(sel.swaps) < MAX_EFFECTS:
+                ev = found[0][2]
+                better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
+                if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
+                    swap = (a, f0, *found[0])
+                    break
+            out[a.key] = (f0, found)
+        if swap is None:
+            return out
+        a, f0, b, fb, ev = swap
+        hold = prob.holdout(fb, k=k_folds)
+        m = len([x for x in pool if x.key not in {e.key for e in ext.effects}])
+        sel.evidence.pop(a.key, None)
+        sel.evidence[b.key] = _swap_evidence(prob, f0, b, fb, ev, hold, max(m, 1), a.name)
+        sel.fit, sel.holdout = fb, hold
+        rec = {
+            "replaced": a.name,
+            "by": b.name,
+            "lr_stat": ev["lr_stat"],
+            "lr_stat_replaced": ev["lr_stat_cause"],
+        }
+        sel.swaps.append(rec)
+        sel.steps.append(
+            {
+                "step": len(sel.steps) + 1,
+                "added": b.name,
+                "removed": [a.name],
+                "swapped": rec,
+                "candidates": [],
+            }
+        )
+    return out

@@ -1,0 +1,315 @@
+"""Elasticity without trusting the masses in the diagnosis: upgrade a named ``joint_elasticity:j``
+to the gravity basis ``joint_elasticity_basis:j`` when the data show that the model file's masses
+are wrong (:mod:`kpioed_drake.effects.gravity_basis`).
+
+The selection names elasticity with the model file's torques (one parameter, the most powerful
+test when the masses are right). Afterwards each named ``joint_elasticity:j`` is refitted with the
+basis in its place (``r_j`` moments, plus the payload compliance when the payload varies), and
+every other named effect is re-tested for removal (the selection's backward step: a stand-in for
+the mass mismatch goes). The result replaces the model if it has a lower BIC
+(``chi2 + k ln(3 n)``, k = effect parameters) and a lower held-out RMS. The cause is then
+``joint_elasticity_basis:j``; its evidence gains the upgrade's statistics (``basis_upgrade``: the
+likelihood ratio against the file's masses ``LR = chi2_elasticity - chi2_basis`` on
+``n_basis - 1`` dof, the removed stand-ins) and the compliance against the file's torques
+(:func:`~kpioed_drake.effects.gravity_basis.basis_compliance`). If the result is not better but
+the backward step removed effects (the basis explains them together with the elasticity: e.g. a
+``gear_cyclic:2:1`` that mimics the joint-2 torque of other masses), the data cannot tell "those
+effects" from "other masses": each removed effect's cause gets the basis as an ``alternative``.
+When the model then still fails the goodness-of-fit test, the basis of every joint without an
+elasticity is a further candidate (:func:`_add_basis_if_unexplained`).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import scipy.stats
+
+from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
+from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.selection import Selection, _backward
+from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.estimation import rms
+
+
+def basis_for(prob: FitProblem, joint: int) -> fx.Effect:
+    """The ``joint_elasticity_basis:joint`` extension sized for this robot and data's payload."""
+    return gb.resolve_basis(fx.Effect(gb.FAMILY, joint), prob.nominal, prob.data.payload_kg)
+
+
+def _bic(fit) -> float:
+    """chi2 plus the BIC penalty of the effect parameters, ``k ln(3 n)``."""
+    return fit.cost + fit.k * np.log(fit.residuals.size)
+
+
+def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int):
+    """Replace named elasticities by their gravity basis where the data demand it (in place).
+
+    For each named ``joint_elasticity:j``: the basis in its place, then the backward step (effects
+    that were stand-ins for the mass mismatch, e.g. a gear error of joint j, go). Accepted if the
+    result has a lower BIC (``chi2 + k ln(3 n)``) and a lower held-out RMS than the current model.
+
+    If the upgrade is not better but its backward step removes effects (the basis explains them
+    with the elasticity), each removed effect gets the basis as a competing explanation.
+
+    Returns:
+        notes for the report, one per upgrade, and per effect key the alternatives to add to its
+        cause (:func:`add_alternatives`).
+    """
+    notes, alternatives = [], {}
+    ln_n = np.log(3 * prob.data.n)
+    for e in [x for x in sel.fit.effects if x.family == "joint_elasticity"]:
+        b = basis_for(prob, e.joint)
+        f = prob.fit([b if x.key == e.key else x for x in sel.fit.effects], start=sel.fit)
+        dof = b.n_params - e.n_params
+        lr = max(sel.fit.cost - f.cost, 0.0)
+        p = float(scipy.stats.chi2.sf(lr, dof))
+        trial = Selection(fit=f, holdout=prob.holdout(f, k=k_folds), steps=[], evidence=dict(sel.evidence))
+        removed = _backward(prob, trial, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        before, after = rms(sel.holdout), rms(trial.holdout)
+        if _bic(trial.fit) >= _bic(sel.fit) or after >= before:
+            # not better, but the effects it makes redundant are stand-ins for a mass mismatch
+            named = {x.name: x for x in sel.fit.effects}
+            for x in (named[nm] for nm in removed):
+                alternatives.setdefault(_key(x), []).append(
+                    {
+                        "effect": b.family,
+                        "joint": b.joint,
+                        "name": b.name,
+                        "evidence": {
+                            "lr_stat_vs_file_masses": lr,
+                            "dof": dof,
+                            "p_value": p,
+                            "explains": f"{x.name} and {e.name} together: {e.name} with the link masses "
+                            "and centres of mass unlike the model file's",
+                        },
+                    }
+                )
+            continue
+        ev = trial.evidence.pop(e.key, {})
+        fb = next(x for x in trial.fit.effects if x.key == b.key)
+        comp = gb.basis_compliance(fb, trial.fit.model)
+        ev["basis_upgrade"] = {
+            "replaces": e.name,
+            "lr_stat": lr,
+            "dof": dof,
+            "p_value": p,
+            "delta_bic": _bic(sel.fit) - _bic(trial.fit),
+            "removed": removed,
+            "holdout_rms_mm_before": before,
+            "holdout_rms_mm_after": after,
+            "compliance_file_masses": float(e.value_array()[0]),
+            **{f"basis_{k}": v for k, v in comp.items()},
+        }
+        trial.evidence[b.key] = ev
+        sel.fit, sel.holdout, sel.evidence = trial.fit, trial.holdout, trial.evidence
+        notes.append(
+            f"{e.name}: the model file's masses do not explain the deflection (LR {lr:.1f} on {dof} dof); "
+            f"named with the gravity basis {b.name} ({b.n_params} moments), compliance against the "
+            f"file's torques {comp['compliance']:.3g} rad/(N m)"
+            + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
+        )
+    notes += _add_basis_if_unexplained(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
+    notes += _backlash_with_fitted_torque(prob, sel, k_folds=k_folds)
+    _stand_in_alternatives(prob, sel, alternatives, alpha=alpha)
+    return notes, alternatives
+
+
+def _stand_in_alternatives(prob: FitProblem, sel: Selection, alternatives: dict, *, alpha: float) -> None:
+    """A named joint-angle cause of joint j (gear, scale, coupling, backlash) that adds nothing to
+    the gravity basis of joint j (likelihood ratio not significant at ``alpha`` once the basis is in
+    the model) is also joint j's elasticity with masses unlike the file's: the basis becomes its
+    alternative (e.g. ``gear_cyclic:2:1``, whose sin/cos(q_2) are part of joint 2's torque)."""
+    named = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
+    for x in sel.fit.effects:
+        if x.family not in fx.JOINT_FAMILIES or x.family == "joint_elasticity" or x.joint in named:
+            continue
+        if gb.joint_basis(prob.robot, x.joint).rank == 0:
+            continue
+        b = basis_for(prob, x.joint)
+        others = [y for y in sel.fit.effects if y.key != x.key]
+        f_b = prob.fit([*others, b], start=sel.fit)
+        lr_x = max(f_b.cost - prob.fit([*others, b, x], start=f_b).cost, 0.0)
+        p_x = float(scipy.stats.chi2.sf(lr_x, x.n_params))
+        if p_x < alpha:
+            continue
+        alternatives.setdefault(_key(x), []).append(
+            {
+                "effect": b.family,
+                "joint": b.joint,
+                "name": b.name,
+                "evidence": {
+                    "chi2_difference": f_b.cost - sel.fit.cost,
+                    "n_params": b.n_params,
+                    "lr_stat_cause_given_basis": lr_x,
+                    "p_value_cause_given_basis": p_x,
+                    "explains": f"{x.name} lies within the gravity torque of joint {x.joint} with other link "
+                    f"masses: an elasticity of joint {x.joint} explains it as well",
+                },
+            }
+        )
+
+
+def _with_tau(prob: FitProblem, tau: np.ndarray) -> FitProblem:
+    """A copy of ``prob`` whose fit conditions hold other gravity torques (n, 6) [N m]."""
+    trial = copy.copy(prob)
+    trial.conditions = dataclasses.replace(prob.conditions, tau=tau)
+    return trial
+
+
+def _best_side(prob: FitProblem, sel: Selection, e, Y: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """(n,) the torque shape ``Y theta'`` whose sign, as a backlash of e's joint, best explains the
+    residuals of the model without e (score statistic): ``theta`` of the basis fit and, for a
+    two-dimensional basis (a wrist joint), 36 directions over the half circle."""
+    others = [x for x in sel.fit.effects if x.key != e.key]
+    f0 = prob.fit(others, start=sel.fit)
+    tau1 = prob.tau.copy()
+    tau1[:, e.joint - 1] = 1.0
+    n = prob.data.n
+    _, H, E = _with_tau(prob, tau1).response(
+        f0.model, [*others, fx.Effect("backlash", e.joint)], np.arange(n)
+    )
+    Q, _ = np.linalg.qr(np.concatenate([H[:, :, f0.free], E[:, :, :-1]], axis=2).reshape(3 * n, -1))
+    G = E[:, :, -1] / prob.sigma  # (n, 3) the joint's angle column
+    r0 = (f0.residuals / prob.sigma).reshape(-1)
+    dirs = [theta]
+    if theta.size == 2:
+        dirs += [np.array([np.cos(a), np.sin(a)]) for a in np.linspace(0.0, np.pi, 36, endpoint=False)]
+    best, out = -1.0, Y @ theta
+    for d in dirs:
+        c = (G * np.sign(Y @ d)[:, None]).reshape(-1)
+        c = c - Q @ (Q.T @ c)
+        cc = float(c @ c)
+        score = float(c @ r0) ** 2 / cc if cc > 0 else 0.0
+        if score > best:
+            best, out = score, Y @ d
+    return out
+
+
+def _backlash_with_fitted_torque(prob: FitProblem, sel: Selection, *, k_folds: int) -> list[str]:
+    """A named elasticity that is a backlash whose side the file's masses get wrong.
+
+    ``backlash:j`` follows the sign of joint j's gravity torque; with masses unlike the file's that
+    sign is wrong near its zero crossings (for a wrist joint everywhere: its torque comes from a
+    centre of mass near the axis), and the selection names the elasticity as the closest stand-in.
+    For each named elasticity (file masses or basis) of joint j: the torque shape ``Y_j theta`` of
+    the basis fit replaces the file's torque of joint j in the fit conditions (scaled to its RMS) and
+    ``backlash:j`` replaces the elasticity. Accepted, with the conditions kept (the report's plots
+    and signals then use the fitted torque of joint j), if the BIC is lower and the held-out RMS
+    too. For a wrist joint (two basis moments) the side is searched over 36 directions of the
+    torque (:func:`_best_side`).
+    """
+    notes = []
+    for e in [x for x in sel.fit.effects if x.family in ("joint_elasticity", gb.FAMILY)]:
+        j = e.joint - 1
+        jb = gb.joint_basis(prob.robot, e.joint)
+        if e.family == gb.FAMILY:
+            theta = e.value_array()[: jb.rank]
+        else:
+            f = prob.fit(
+                [basis_for(prob, e.joint) if x.key == e.key else x for x in sel.fit.effects], start=sel.fit
+            )
+            theta = next(x for x in f.effects if x.joint == e.joint and x.family == gb.FAMILY).value_array()
+            theta = theta[: jb.rank]
+        shape = _best_side(prob, sel, e, jb.regressor(prob.robot, prob.data.q), theta)
+        side = np.sign(shape)
+        if min(np.sum(side > 0), np.sum(side < 0)) < BACKLASH_MIN_SIDE or not np.any(shape):
+            continue
+        tau = prob.tau.copy()
+        tau[:, j] = shape * np.sqrt(np.mean(prob.tau[:, j] ** 2) / np.mean(shape**2))
+        trial = _with_tau(prob, tau)
+        bl = fx.Effect("backlash", e.joint)
+        f = trial.fit([bl if x.key == e.key else x for x in sel.fit.effects], start=sel.fit)
+        if _bic(f) >= _bic(sel.fit):
+            continue
+        hold = trial.holdout(f, k=k_folds)
+        if rms(hold) >= rms(sel.holdout):
+            continue
+        ev = sel.evidence.pop(e.key, {})
+        ev["backlash_side_from_data"] = {
+            "replaces": e.name,
+            "chi2_with": f.cost,
+            "chi2_without": sel.fit.cost,
+            "holdout_rms_mm_before": rms(sel.holdout),
+            "holdout_rms_mm_after": rms(hold),
+            "poses_side_differs_from_file": int(np.sum(side != np.sign(prob.tau[:, j]))),
+        }
+        prob.conditions = trial.conditions
+        sel.fit, sel.holdout = f, hold
+        sel.evidence[bl.key] = ev
+        side_ev = ev["backlash_side_from_data"]
+        notes.append(
+            f"{e.name} is a backlash: backlash:{e.joint} with the side of the gravity torque fitted from the "
+            f"data (the file's masses put {side_ev['poses_side_differs_from_file']} poses on the other "
+            f"side) fits better (chi2 {f.cost:.1f} against {side_ev['chi2_without']:.1f})"
+        )
+    return notes
+
+
+def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int, ln_n: float):
+    """If the model still fails the goodness-of-fit test: the gravity basis of each joint without
+    an elasticity as a further candidate (likelihood ratio, Bonferroni over these candidates, BIC,
+    held-out RMS, as in the selection), the best one added if the model with it passes the test
+    (else it would be a stand-in for an unexplained rest), then the backward step. This finds an
+    elasticity whose torque with the true masses looks nothing like the file's (e.g. a wrist joint
+    whose link's centre of mass sits near its axis in the file)."""
+    if scipy.stats.chi2.sf(sel.fit.cost, sel.fit.dof) >= alpha:
+        return []
+    have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
+    pool = []
+    for j in range(1, prob.robot.n_joints + 1):
+        if j not in have and gb.joint_basis(prob.robot, j).rank > 0:
+            pool.append(basis_for(prob, j))
+    best = None
+    for b in pool:
+        f = prob.fit(list(sel.fit.effects) + [b], start=sel.fit)
+        lr = max(sel.fit.cost - f.cost, 0.0)
+        p = float(scipy.stats.chi2.sf(lr, b.n_params))
+        dbic = lr - b.n_params * ln_n
+        if min(1.0, p * len(pool)) < alpha and dbic > 0 and (best is None or dbic > best[3]):
+            best = (b, f, p, dbic, lr)
+    if best is None:
+        return []
+    b, f, p, dbic, lr = best
+    if scipy.stats.chi2.sf(f.cost, f.dof) < alpha:  # not the rest, at most a stand-in for it
+        return []
+    hold = prob.holdout(f, k=k_folds)
+    before = rms(sel.holdout)
+    if rms(hold) >= before:
+        return []
+    fb = next(x for x in f.effects if x.key == b.key)
+    comp = gb.basis_compliance(fb, f.model)
+    sel.evidence[b.key] = {
+        "lr_stat": lr,
+        "dof": b.n_params,
+        "p_value": p,
+        "p_value_corrected": min(1.0, p * len(pool)),
+        "delta_bic": dbic,
+        "holdout_rms_mm_without": before,
+        "holdout_rms_mm_with": rms(hold),
+        "step": "gravity basis after the selection (the model failed the fit test)",
+        **{f"basis_{k}": v for k, v in comp.items()},
+    }
+    sel.fit, sel.holdout = f, hold
+    removed = _backward(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    return [
+        f"the model still failed the fit test; {b.name} (the gravity torque of joint {b.joint} with any link "
+        f"masses) explains the rest (LR {lr:.1f} on {b.n_params} dof), compliance against the file's "
+        f"torques {comp['compliance']:.3g} rad/(N m)"
+        + (f"; removed: {', '.join(removed)}" if removed else "")
+    ]
+
+
+def _key(e: fx.Effect) -> tuple:
+    """The report's key of an effect (as ``DiagnosisReport`` keys a cause dict)."""
+    return (e.family, e.joint, e.harmonic if e.coupled is None else e.coupled)
+
+
+def add_alternatives(causes: list[dict], alternatives: dict) -> None:
+    """Append the basis alternatives of :func:`upgrade_elasticity` to the causes (in place)."""
+    for c in causes:
+        key = (c["effect"], c.get("joint"), c.get("harmonic", c.get("coupled_joint")))
+        c.setdefault("alternatives", []).extend(alternatives.get(key, []))

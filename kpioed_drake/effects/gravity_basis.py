@@ -1,0 +1,291 @@
+"""Joint elasticity without trusting the model file's masses: a gravity basis per joint.
+
+The gravity torque of joint j is linear in the first mass moments of the links it carries
+(links k = j..6, ``pi_k = (m_k, m_k c_k)``, ``c_k`` the centre of mass in link frame k [mm]):
+
+    tau_j(q) = sum_k  g . (w_j x (o_k - a_j)) m_k  +  (R_k^T (g x w_j)) . (m_k c_k)      (x 1e-3)
+             = Y_j^full(q) pi_j
+
+with ``w_j``/``a_j`` the axis of joint j and a point on it, ``o_k``/``R_k`` the origin and
+orientation of link frame k (numpy kinematics, nominal geometry, robot base = Drake's W) and ``g``
+Drake's gravity vector in W [m/s^2]. Not every moment is seen by ``tau_j``: the columns of
+``Y_j^full`` (scaled to unit RMS over :func:`~kpioed_drake.effects.gravity.reference_poses`) are
+reduced by an SVD over those poses to their ``r_j`` independent directions ``V_j`` (the minimal
+identifiable set of joint j): ``Y_j(q) = (Y_j^full(q) / D_j) V_j`` (n, r_j) and
+``beta_j = V_j^T (D_j pi_j)`` [N m], so that ``tau_j = Y_j beta_j`` exactly.
+
+The effect ``joint_elasticity_basis:j`` deflects joint j by ``dq_j = Y_j(q) . theta_j`` with
+``theta_j = c_j beta_j`` [rad] estimated linearly (any masses and centres of mass of the links).
+A payload (a point mass at the reflector point, torque ``tau_pay_j``) is a known moment: if the
+payload is the same at every pose it is a link-6 moment and lies in the span of ``Y_j``; if it
+varies over the data, ``c_j`` is identifiable on its own and the effect has one more parameter,
+``c_j`` multiplying ``tau_pay_j(q)`` (:func:`resolve_basis` with the data's payload). The model
+file's moments ``beta_j^file`` are the reference: :func:`basis_compliance` reports the compliance
+``c_j = <Y theta, Y beta^file> / |Y beta^file|^2`` over the reference poses (the compliance that
+reproduces the fitted deflection best with the model file's torques) and the moment ratio
+``|theta| / (c_j |beta^file|)``.
+
+Joint 1: with gravity along its axis ``r_1 = 0`` and :func:`resolve_basis` refuses it; the check
+is the torque range, not the joint number (a tilted base or gravity makes it identifiable).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.effects.gravity import gravity_model, reference_poses
+from kpioed_drake.errors import InputError
+from kpioed_drake.kinematics import cross, forward_kinematics
+from kpioed_drake.measurement import TrackerModel
+from kpioed_drake.models import Robot
+
+FAMILY = "joint_elasticity_basis"
+_N_REF = 500
+_RANK_TOL = 1e-7
+"""Relative singular value below which a direction of the moments is not seen by tau_j."""
+_CACHE: dict = {}
+
+
+def link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
+    """Full gravity regressor of joint ``joint`` (1-based) over its downstream links.
+
+    Args:
+        robot: the robot (nominal geometry).
+        q: (n, 6) joint angles [rad].
+        joint: 1-based joint j.
+        g: (3,) gravity in W [m/s^2] (default: Drake's, :class:`~.gravity.GravityModel`).
+        with_dq: also the joint-angle derivative.
+
+    Returns:
+        Y (n, 4 (7 - j)) [N m per kg, N m per kg mm], columns per link k = j..6:
+        ``m_k, m_k c_kx, m_k c_ky, m_k c_kz``; with ``with_dq`` also dY (n, 6, 4 (7 - j)).
+    """
+    g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
+    fr = forward_kinematics(robot, q)
+    n = fr.o.shape[0]
+    j = joint - 1
+    w, a = fr.joint_axes, fr.joint_points  # (n, 6, 3)
+    wj, aj = w[:, j], a[:, j]
+    nj, pris = fr.n_joints, fr.prismatic
+    links = range(joint, nj + 1)
+    gxw = cross(g[None, :], wj)  # (n, 3)
+    Y = np.empty((n, 4 * len(links)))
+    dY = np.zeros((n, nj, Y.shape[1])) if with_dq else None
+    for col, k in zip(range(0, Y.shape[1], 4), links, strict=True):
+        Rk, ok = fr.R[:, k], fr.o[:, k]
+        if pris[j]:  # a prismatic joint carries the links' weight: a force [N per kg], no moments
+            Y[:, col], Y[:, col + 1 : col + 4] = wj @ g, 0.0
+            for i in range(j if with_dq else 0):  # only the revolute joints before j turn w_j
+                if not pris[i]:
+                    dY[:, i, col] = cross(w[:, i], wj) @ g
+            continue
+        X = cross(wj, ok - aj)  # (n, 3)
+        Y[:, col] = 1e-3 * (X @ g)
+        Y[:, col + 1 : col + 4] = 1e-3 * np.einsum("nab,na->nb", Rk, gxw)
+        if not with_dq:
+            continue
+        for i in range(k):  # joints 1..k move link k
+            wi = w[:, i]
+            if pris[i]:  # a translation: before joint j nothing changes, after it link k moves by w_i
+                if i > j:
+                    dY[:, i, col] = 1e-3 * (cross(wj, wi) @ g)
+                continue
+            if i < j:  # the whole chain from joint j on turns about w_i
+                dX = cross(wi, X)
+                dgxw = cross(g[None, :], cross(wi, wj))
+            else:  # only link k turns (about w_i through a_i); w_j and a_j stay
+                dX = cross(wj, cross(wi, ok - a[:, i]))
+                dgxw = np.zeros_like(gxw)
+            dY[:, i, col] = 1e-3 * (dX @ g)
+            # d(R_k^T v) = R_k^T (dv - w_i x v)
+            dv = dgxw - cross(wi, gxw)
+            dY[:, i, col + 1 : col + 4] = 1e-3 * np.einsum("nab,na->nb", Rk, dv)
+    return (Y, dY) if with_dq else Y
+
+
+def link_moments(robot: Robot, joint: int) -> np.ndarray:
+    """(4 (7 - j),) the model file's first moments of links j..6: ``m_k, m_k c_k`` [kg, kg mm]."""
+    ks = np.arange(joint, robot.n_joints + 1)
+    m = robot.masses[ks]
+    return np.concatenate([m[:, None], m[:, None] * robot.coms[ks]], axis=1).reshape(-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class JointBasis:
+    """The minimal identifiable gravity basis of one joint.
+
+    Attributes:
+        joint: 1-based joint.
+        D: (p,) RMS of each full regressor column over the reference poses.
+        V: (p, r) the identifiable directions of the scaled moments (orthonormal).
+        beta_file: (r,) the model file's moments in this basis [N m].
+        g: (3,) the gravity vector used [m/s^2].
+    """
+
+    joint: int
+    D: np.ndarray
+    V: np.ndarray
+    beta_file: np.ndarray
+    g: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        return self.V.shape[1]
+
+    def regressor(self, robot: Robot, q, *, with_dq: bool = False):
+        """Y_j (n, r) [N m per N m]; with ``with_dq`` also dY_j (n, 6, r)."""
+        out = link_regressor(robot, q, self.joint, g=self.g, with_dq=with_dq)
+        T = self.V / self.D[:, None]
+        if not with_dq:
+            return out @ T
+        return out[0] @ T, out[1] @ T
+
+
+def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
+    """The (cached) :class:`JointBasis` of ``joint``: SVD of the scaled full regressor over
+    :data:`_N_REF` seeded reference poses in the joint box; directions with a singular value
+    below ``_RANK_TOL`` times the largest (or all, if the torque is zero everywhere) are dropped."""
+    g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
+    key = (
+        robot.name,
+        robot.geometry.tobytes(),
+        robot.masses.tobytes(),
+        robot.coms.tobytes(),
+        joint,
+        g.tobytes(),
+    )
+    if key not in _CACHE:
+        Y = link_regressor(robot, reference_poses(robot, _N_REF), joint, g=g)
+        D = np.sqrt(np.mean(Y**2, axis=0))
+        scale = max(float(D.max()), 1e-300)
+        keep = D > 1e-12 * scale
+        D = np.where(keep, D, 1.0)
+        Ys = Y / D * keep
+        _, s, Vt = np.linalg.svd(Ys, full_matrices=False)
+        big = s > _RANK_TOL * s[0] if s[0] > 1e-9 * np.sqrt(_N_REF) else np.zeros_like(s, dtype=bool)
+        V = Vt[big].T
+        beta = V.T @ (D * link_moments(robot, joint))
+        _CACHE[key] = JointBasis(joint, D, V, beta, g)
+    return _CACHE[key]
+
+
+def payload_varies(payload_kg) -> bool:
+    """True if the payload takes more than one value over the data."""
+    if payload_kg is None:
+        return False
+    p = np.atleast_1d(np.asarray(payload_kg, dtype=float))
+    return bool(p.size > 1 and np.ptp(p) > 0)
+
+
+def resolve_basis(effect, model: TrackerModel, payload_kg=None, *, n_given: int | None = None):
+    """``effect`` (a ``joint_elasticity_basis``) with its parameter count for this robot and data:
+    the rank ``r_j`` of joint j's basis, plus one (``c_j`` of the payload torque) when the payload
+    varies over the data. ``n_given``: a count already chosen (values given), checked instead.
+
+    Raises:
+        InputError: gravity exerts no torque on the joint (``r_j = 0``, e.g. a vertical joint 1),
+            or ``n_given`` is neither r_j nor r_j + 1.
+    """
+    jb = joint_basis(model.robot, effect.joint)
+    if jb.rank == 0:
+        raise InputError(
+            f"effect {effect.name}: gravity exerts no torque on joint {effect.joint} of {model.robot.name} "
+            "(its axis is parallel to gravity at every pose), so its elasticity has no effect"
+        )
+    if n_given is not None:
+        if n_given not in (jb.rank, jb.rank + 1):
+            raise InputError(
+                f"effect {effect.name}: {n_given} values given; joint {effect.joint} of {model.robot.name} "
+                f"has {jb.rank} basis moments (plus 1 for a varying payload)"
+            )
+        return effect
+    n = jb.rank + int(payload_varies(payload_kg))
+    values = None
+    if effect.values is not None:
+        v = np.zeros(n)
+        m = min(n, len(effect.values))
+        v[:m] = effect.values[:m]
+        values = tuple(float(x) for x in v)
+    return dataclasses.replace(effect, n_basis=n, values=values)
+
+
+def resolve_all(effects, model: TrackerModel, payload_kg=None) -> list:
+    """``effects`` with every ``joint_elasticity_basis`` sized for this robot and payload
+    (:func:`resolve_basis`); the other effects unchanged."""
+    return [
+        resolve_basis(e, model, payload_kg, n_given=e.n_basis if e.values is not None else None)
+        if e.family == FAMILY
+        else e
+        for e in effects
+    ]
+
+
+def basis_factors(model: TrackerModel, q, effect, *, tau=None, payload_kg=None, with_dq: bool = False):
+    """The deflection factors of ``joint_elasticity_basis:j``: ``d dq_j / d values``.
+
+    Args:
+        model: the model (its robot's nominal geometry and the file's masses for the payload split).
+        q: (n, 6) commanded angles [rad].
+        effect: a resolved basis effect (``n_basis`` = r_j or r_j + 1).
+        tau: (n, 6) gravity torques with the payload (as in the estimation's conditions); the
+            payload torque is ``tau_j - Y_j beta_file``; computed from ``payload_kg`` if not given.
+        payload_kg: scalar or (n,), used when ``tau`` is not given or with ``with_dq``.
+        with_dq: also the joint-angle derivative.
+
+    Returns:
+        f (n, n_basis); with ``with_dq`` also df (n, 6, n_basis).
+    """
+    robot = model.robot
+    jb = joint_basis(robot, effect.joint)
+    out = jb.regressor(robot, q, with_dq=with_dq)
+    Y, dY = out if with_dq else (out, None)
+    if effect.n_params == jb.rank:
+        return (Y, dY) if with_dq else Y
+    j = effect.joint - 1
+    gm = gravity_model(robot)
+    pay = payload_kg is not None and np.any(np.asarray(payload_kg) != 0)
+    if tau is not None:
+        tp = tau[:, j] - Y @ jb.beta_file
+    elif pay:
+        tp = gm.payload_torques(q, payload_kg, model.p_FQ)[:, j]
+    else:
+        tp = np.zeros(Y.shape[0])
+    f = np.concatenate([Y, tp[:, None]], axis=1)
+    if not with_dq:
+        return f
+    dtp = (
+        gm.payload_torques(q, payload_kg, model.p_FQ, with_dq=True)[1][:, j]
+        if pay
+        else np.zeros(dY.shape[:2])
+    )
+    return f, np.concatenate([dY, dtp[:, :, None]], axis=2)
+
+
+def basis_compliance(effect, model: TrackerModel) -> dict:
+    """The fitted basis deflection against the model file's torques (see the module docstring).
+
+    Returns:
+        ``compliance`` c_j [rad/(N m)] (least squares of ``Y theta`` on ``Y beta_file`` over the
+        reference poses), ``moment_ratio`` ``|theta| / |c_j beta_file|`` (1 = the file's moments up
+        to scale), ``payload_compliance`` (the payload parameter, if any) and ``rank`` r_j.
+    """
+    robot = model.robot
+    jb = joint_basis(robot, effect.joint)
+    v = effect.value_array()
+    theta = v[: jb.rank]
+    Y = jb.regressor(robot, reference_poses(robot, _N_REF))
+    ref = Y @ jb.beta_file
+    fit = Y @ theta
+    denom = float(ref @ ref)
+    c = float(fit @ ref) / denom if denom > 0 else float("nan")
+    nb = float(np.linalg.norm(c * jb.beta_file))
+    out = {
+        "compliance": c,
+        "moment_ratio": float(np.linalg.norm(theta)) / nb if nb > 0 else float("nan"),
+        "rank": jb.rank,
+    }
+    if v.size > jb.rank:
+        out["payload_compliance"] = float(v[jb.rank])
+    return out

@@ -1,0 +1,58 @@
+"""The cheap parts of the diagnosis's fits (issue 12, item 9) give the numbers of the expensive ones.
+
+- ``FitProblem.holdout``: each fold's refit is one Gauss-Newton step from the fit on all poses;
+  compared here with full Levenberg-Marquardt refits of every fold.
+- ``estimate`` stops when the Gauss-Newton step predicts a cost decrease below ``tol``; compared
+  with the same fit run to a tolerance a thousand times tighter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kpioed_drake import estimation, models
+from kpioed_drake.diagnosis import synthetic_case
+from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.effects import parse_effect
+
+SIGMA = 0.02
+
+
+@pytest.fixture(scope="module")
+def problem():
+    robot = models.load_robot("kr16")
+    case = synthetic_case(robot, np.random.default_rng(7), ["joint_elasticity:2"], n_poses=120, sigma=SIGMA)
+    return FitProblem(robot, case.data, SIGMA)
+
+
+def refit_holdout(prob: FitProblem, full, k: int = 5) -> np.ndarray:
+    """Held-out residuals with every fold refitted to convergence (the expensive reference)."""
+    n = prob.data.n
+    out = np.empty((n, 3))
+    for test in prob.folds(k):
+        train = np.setdiff1d(np.arange(n), test)
+        out[test] = prob.fit(full.effects, start=full, idx=train).residuals[test]
+    return out
+
+
+@pytest.mark.parametrize("effects", [[], ["joint_elasticity:2"], ["joint_elasticity:2", "gear_cyclic:3:1"]])
+def test_one_step_holdout_equals_refits(problem, effects):
+    base = problem.fit([])
+    full = problem.fit([parse_effect(e) for e in effects], start=base) if effects else base
+    cheap, exact = problem.holdout(full), refit_holdout(problem, full)
+    assert np.max(np.abs(cheap - exact)) < 1e-3 * SIGMA
+    rms = lambda r: np.sqrt(np.mean(r**2))  # noqa: E731
+    assert abs(rms(cheap) - rms(exact)) < 1e-5 * rms(exact)
+    assert rms(cheap) > rms(full.residuals)  # held out is worse than fitted: it is not the fit itself
+
+
+def test_predicted_decrease_stop_is_converged(problem):
+    data = problem.data
+    model = problem.nominal
+    fast = estimation.estimate(model, data.q, data.eta, sigma=SIGMA)
+    tight = estimation.estimate(model, data.q, data.eta, sigma=SIGMA, tol=1e-13)
+    assert fast.converged and fast.iterations < 10
+    assert abs(fast.cost - tight.cost) <= 1e-9 * tight.cost
+    dz = (fast.model.p[fast.free] - tight.model.p[tight.free]) / tight.std
+    assert np.max(np.abs(dz)) < 1e-3  # parameter differences far below their standard deviations
