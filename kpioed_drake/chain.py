@@ -163,23 +163,31 @@ def auto_gauge(
 ) -> tuple[str, ...]:
     """Names of the joint parameters held at nominal: those that do not add to the rank.
 
-    The Jacobian of the reflector ``p_FQ`` [mm] (in W, with the tracker's six columns
-    ``-I`` and ``(p - p_WT) x e_k``, the reflector's three) at ``n_poses`` seeded poses uniform in
-    the limits is column-normalised; columns are visited in the preference order of the module
-    docstring and kept when their residual after projection on the kept ones exceeds ``rtol``.
-    The number kept equals the rank of a column-pivoted QR (checked).
+    The Jacobian of the reflector ``p_FQ`` [mm] ((3,), or (T, 3) for T targets each measured at
+    every pose) in W, with the tracker's six columns ``-I`` and ``(p - p_WT) x e_k`` and the
+    targets' three each, at ``n_poses`` seeded poses uniform in the limits is column-normalised;
+    columns are visited in the preference order of the module docstring and kept when their
+    residual after projection on the kept ones exceeds ``rtol``. The number kept equals the rank
+    of a column-pivoted QR (checked).
     """
     nj = chain.n_joints
     rng = np.random.default_rng(seed)
     q = rng.uniform(lower, upper, size=(n_poses, nj))
     fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
-    p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], np.asarray(p_FQ, dtype=float))
-    d = p[:, None, None, :] - fr.elem_o
-    cols = np.where(fr.elem_rot[None, :, :, None], np.cross(fr.elem_u, d), fr.elem_u)
-    joint_cols = cols.reshape(n_poses, nj * PER_JOINT, 3).transpose(0, 2, 1)
-    eye = np.broadcast_to(np.eye(3), (n_poses, 3, 3))
-    tracker_rot = np.cross((p - _GENERIC_TRACKER)[:, None, :], np.eye(3)[None]).transpose(0, 2, 1)
-    A = np.concatenate([-eye, tracker_rot, fr.R[:, nj], joint_cols], axis=2).reshape(3 * n_poses, -1)
+    targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
+    T = targets.shape[0]
+    blocks = []
+    for t, p_t in enumerate(targets):
+        p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], p_t)
+        d = p[:, None, None, :] - fr.elem_o
+        cols = np.where(fr.elem_rot[None, :, :, None], np.cross(fr.elem_u, d), fr.elem_u)
+        joint_cols = cols.reshape(n_poses, nj * PER_JOINT, 3).transpose(0, 2, 1)
+        eye = np.broadcast_to(np.eye(3), (n_poses, 3, 3))
+        tracker_rot = np.cross((p - _GENERIC_TRACKER)[:, None, :], np.eye(3)[None]).transpose(0, 2, 1)
+        target_cols = np.zeros((n_poses, 3, 3 * T))
+        target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, nj]
+        blocks.append(np.concatenate([-eye, tracker_rot, target_cols, joint_cols], axis=2))
+    A = np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
     norms = np.linalg.norm(A, axis=0)
     live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
     A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
@@ -194,8 +202,8 @@ def auto_gauge(
         r = np.linalg.norm(v)
         if r > rtol:
             basis.append(v / r)
-        elif k >= 9:
-            held.append(names[k - 9])
+        elif k >= 6 + 3 * T:
+            held.append(names[k - 6 - 3 * T])
         else:
             raise ValueError("tracker or target columns are dependent: reflector or chain degenerate")
     _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)

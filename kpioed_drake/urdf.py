@@ -73,6 +73,7 @@ class SidecarSpec:
     name: str = ""
     description: str = ""
     reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
+    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
     tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
     tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
     base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
@@ -300,9 +301,16 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         caps = _side_capsules(side, n, sw)
     else:
         caps = _capsules(xml, plant, ctx, inst, bodies, owner, path)
-    p_FQ = None
+    p_FQ, targets = None, None
     if side.reflector_position_mm:
         p_FQ = _vec(side.reflector_position_mm, f"{sw}: reflector_position_mm")
+    if side.targets_mm:  # several targets: target 1 is the reflector (as targets_mm of a YAML robot)
+        targets = np.array([_vec(t, f"{sw}: targets_mm[{k}]") for k, t in enumerate(side.targets_mm)])
+        if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
+            raise InputError(
+                f"{sw}: reflector_position_mm differs from targets_mm[0] (target 1 is the reflector)"
+            )
+        p_FQ = targets[0]
     q_work = _q_work(side, pris, lo, up, sw)
     X_WT = None
     if side.tracker_position_mm:
@@ -318,7 +326,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         pairs.append((int(min(pr)), int(max(pr))))
     if any(not 0 <= x <= n for x in side.beam_links):
         raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
-    gauge = _gauge(side, chain, lo, up, p_FQ, sw, path)
+    gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -337,6 +345,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         p_FQ=p_FQ,
         X_WT=X_WT,
         extra_gauge=tuple(side.extra_gauge),
+        targets=targets,
         chain=chain,
         gauge=gauge,
         urdf=source,

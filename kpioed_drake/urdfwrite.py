@@ -76,7 +76,7 @@ def calibrated_urdf(robot: Robot, geometry: np.ndarray, note: str = "") -> str:
     return '<?xml version="1.0"?>\n' + comment + text + "\n"
 
 
-def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, note: str = "") -> str:
+def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: str = "") -> str:
     """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, and the
     nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
     src = sidecar_path(Path(robot.urdf.path))
@@ -88,6 +88,7 @@ def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, note: str = "") -> str
         tracker_position_mm=np.asarray(p_WT, dtype=float).tolist(),
         tracker_rpy_deg=np.rad2deg(RollPitchYaw(RotationMatrix(R_WT)).vector()).tolist(),
         gauge=list(robot.gauge),
+        targets_mm=[] if targets is None else np.asarray(targets, dtype=float).tolist(),
         notes=(side.notes + " " if side.notes else "") + note,
     )
     header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"

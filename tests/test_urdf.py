@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake import calibration, simulation
+from kpioed_drake.calibration.modelfile import calibrated_urdf_files
 from kpioed_drake.cli import main
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis import candidate_effects
@@ -253,3 +254,26 @@ def test_sidecar_capsules_replace_the_urdf_geometry(tmp_path):
     robot = load_robot(str(tmp_path / "c.urdf"))
     assert [(c.name, c.frame, c.radius) for c in robot.capsules] == [("arm", 2, 50.0)]
     assert len(load_robot(str(ROBOTS / "ur5.urdf")).capsules) == 7  # the URDF's cylinders
+
+
+def test_several_targets_of_a_urdf_robot(tmp_path):
+    """targets_mm in the sidecar: the gauge sees every target (target 1 on joint 6's axis, the others
+    off it: joint 6's wrist parameters are determined again), simulated data calibrates within 3
+    sigma, and the calibrated URDF model keeps the targets."""
+    (tmp_path / "t.urdf").write_text(UR5_URDF)
+    side = "targets_mm: [[0, 0, 31], [60, 80, 40], [-40, 100, 30]]\n"
+    (tmp_path / "t.kpioed.yaml").write_text(side + "q_work: [19.2, -63.3, 102.2, -41.1, 99.3, -0.9]\n")
+    robot = load_robot(str(tmp_path / "t.urdf"))
+    assert robot.n_targets == 3 and "off6" in robot.gauge  # turning joint 6 turns all free targets
+    lay = nominal_model(robot, load_cell(robot=robot)).layout
+    assert lay.n_free == 27 + 6  # 27 with one target off every axis, plus 3 for each further target
+    q = np.random.default_rng(8).uniform(robot.lower, robot.upper, size=(30, 6))
+    table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=3)
+    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=0.02)
+    assert rep.result.converged and np.max(np.abs(_z_scores(rep, truth["model"]))) < 3.0
+    urdf, side_text = calibrated_urdf_files(rep)
+    (tmp_path / "c.urdf").write_text(urdf)
+    (tmp_path / "c.kpioed.yaml").write_text(side_text)
+    again = load_robot(str(tmp_path / "c.urdf"))
+    assert again.n_targets == 3
+    assert_allclose(again.targets, rep.model.target_offsets, atol=1e-9)

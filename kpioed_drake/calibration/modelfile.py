@@ -132,5 +132,8 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
     rob, model = report.robot, report.model
     note = _note(report)
     urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))
-    side = calibrated_sidecar(rob, p_FQ=model.p_FQ, p_WT=model.p_WT, R_WT=model.R_WT, note=note)
+    targets = model.target_offsets if model.layout.n_targets > 1 else None
+    side = calibrated_sidecar(
+        rob, p_FQ=model.p_FQ, p_WT=model.p_WT, R_WT=model.R_WT, targets=targets, note=note
+    )
     return urdf, side
