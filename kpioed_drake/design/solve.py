@@ -46,8 +46,9 @@ SNOPT_INFO = {
 """SNOPT's exit conditions by ``info`` code (as in the SNOPT user's guide)."""
 
 
-def solver_options(solver: str, n: int, n_joints: int = N_JOINTS) -> dict[str, float | int | str]:
-    """Options passed to the solver for an ``n``-pose design of a robot of ``n_joints`` joints."""
+def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
+    """Options passed to the solver for an ``n``-pose design (six joints; :func:`solve_once` raises
+    SNOPT's superbasics limit for more)."""
     if solver == "snopt":
         return {
             # 1e-5 (SNOPT's default 1e-6): measured on kr16 KPI with CA, 60 poses, seeds 0-9: 29 %
@@ -67,7 +68,7 @@ def solver_options(solver: str, n: int, n_joints: int = N_JOINTS) -> dict[str, f
             # the param criterion has a long flat tail (kr300, 60 poses, no CA: 1609 major iterations)
             "Major iterations limit": 3000,
             "Iterations limit": 200000,
-            "Superbasics limit": max(500, n_joints * n + 50),
+            "Superbasics limit": max(500, N_JOINTS * n + 50),
         }
     # IPOPT's tol is on its scaled NLP error (not comparable one to one with SNOPT's); 1e-5 was
     # measured to reach SNOPT-quality optima. The constraint-violation tolerances are tight so that
@@ -179,7 +180,10 @@ def solve_once(
     )
     s = make_solver(solver)
     opts = SolverOptions()
-    for key, val in solver_options(solver, n, problem.robot.n_joints).items():
+    options = solver_options(solver, n)
+    if "Superbasics limit" in options:  # one per joint variable (a robot of more than six joints)
+        options["Superbasics limit"] = max(options["Superbasics limit"], problem.robot.n_joints * n + 50)
+    for key, val in options.items():
         opts.SetOption(s.solver_id(), key, val)
     t0 = time.perf_counter()
     try:
