@@ -277,3 +277,12 @@ def test_several_targets_of_a_urdf_robot(tmp_path):
     again = load_robot(str(tmp_path / "c.urdf"))
     assert again.n_targets == 3
     assert_allclose(again.targets, rep.model.target_offsets, atol=1e-9)
+
+
+def test_a_missing_sidecar_field_names_the_sidecar(tmp_path, capsys):
+    (tmp_path / "n.urdf").write_text(UR5_URDF)  # no sidecar: no working pose
+    before = sorted(p.name for p in tmp_path.iterdir())
+    argv = ["design", "--robot", str(tmp_path / "n.urdf"), "--criterion", "kpi", "--n", "10"]
+    assert main(argv + ["--out", str(tmp_path / "d.csv")]) == 2
+    assert "no q_work in its sidecar; pass --q-work" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
