@@ -32,6 +32,7 @@ from pydrake.multibody.tree import PrismaticJoint
 
 from kpioed_drake.chain import Chain, auto_gauge, param_names
 from kpioed_drake.errors import InputError
+from kpioed_drake.jointmap import JointMapSpec, joint_map_from_spec
 from kpioed_drake.modelspec import CapsuleSpec
 
 MM = 1e-3
@@ -86,6 +87,8 @@ class SidecarSpec:
     q_work: list[float] = dataclasses.field(default_factory=list)
     car_shift_x_mm: float = 0.0
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
+    joint_map: JointMapSpec | None = None
+    """Controller angles to model angles, as in the YAML files (six-joint robots only)."""
     gauge: list[str] = dataclasses.field(default_factory=list)
     """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
     nominal robot's: its small errors make the exact dependencies only nearly exact)."""
@@ -327,6 +330,8 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     if any(not 0 <= x <= n for x in side.beam_links):
         raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
     gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
+    if side.joint_map is not None and n != 6:
+        raise InputError(f"{sw}: joint_map is available for six-joint robots only ({path} has {n} joints)")
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -345,6 +350,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         p_FQ=p_FQ,
         X_WT=X_WT,
         extra_gauge=tuple(side.extra_gauge),
+        joint_map=joint_map_from_spec(side.joint_map, sw),
         targets=targets,
         chain=chain,
         gauge=gauge,

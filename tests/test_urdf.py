@@ -17,6 +17,7 @@ from kpioed_drake.cli import main
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis import candidate_effects
 from kpioed_drake.effects.gravity import gravity_torques
+from kpioed_drake.errors import InputError
 from kpioed_drake.kinematics import forward_kinematics
 from kpioed_drake.measurement import measure, nominal_model
 from kpioed_drake.measurements import Measurements, read_measurements
@@ -286,3 +287,18 @@ def test_a_missing_sidecar_field_names_the_sidecar(tmp_path, capsys):
     assert main(argv + ["--out", str(tmp_path / "d.csv")]) == 2
     assert "no q_work in its sidecar; pass --q-work" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_sidecar_joint_map(tmp_path):
+    (tmp_path / "j.urdf").write_text(UR5_URDF)
+    (tmp_path / "j.kpioed.yaml").write_text(
+        "joint_map: {sign: [1, -1, 1, 1, 1, 1], offset_deg: [0, 90, 0, 0, 0, 0]}\n"
+    )
+    robot = load_robot(str(tmp_path / "j.urdf"))
+    assert_allclose(robot.joint_map.to_model(np.zeros((1, 6)))[0], np.deg2rad([0, 90, 0, 0, 0, 0]))
+    shutil.copy(ROBOTS / "lift7.urdf", tmp_path / "l.urdf")
+    (tmp_path / "l.kpioed.yaml").write_text("joint_map: {sign: [1, -1, 1, 1, 1, 1]}\n")
+    with pytest.raises(
+        InputError, match=r"l\.kpioed\.yaml: joint_map is available for six-joint robots only"
+    ):
+        load_robot(str(tmp_path / "l.urdf"))
