@@ -111,12 +111,14 @@ class Conditions:
         tau: (n, 6) gravity torques [N m] at the commanded angles, payload included (joint
             elasticity); computed by the effects module when needed and not given.
         target: (n,) 0-based target (reflector) of each row; None: target 0 for every row.
+        side: (n, 6) a backlash's side per pose; None: the sign of ``tau``.
     """
 
     temperature_C: np.ndarray | None = None
     time_s: np.ndarray | None = None
     tau: np.ndarray | None = None
     target: np.ndarray | None = None
+    side: np.ndarray | None = None
 
     def subset(self, idx) -> Conditions:
         """The poses ``idx``."""
@@ -124,7 +126,9 @@ class Conditions:
         def pick(x):
             return None if x is None else x[idx]
 
-        return Conditions(pick(self.temperature_C), pick(self.time_s), pick(self.tau), pick(self.target))
+        return Conditions(
+            pick(self.temperature_C), pick(self.time_s), pick(self.tau), pick(self.target), pick(self.side)
+        )
 
 
 def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
@@ -153,6 +157,7 @@ def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bo
         time_s=conditions.time_s,
         tau=conditions.tau,
         target=conditions.target,
+        side=conditions.side,
     )
 
 

@@ -6,7 +6,8 @@ checked capsule pair computed by Drake's own signed-distance query
 from the model files: robot vs floor, wall, mount and car, and the robot self pairs of the model.
 The laser beam changes with the pose and is not SceneGraph geometry; its clearance to the robot
 links and the car is a segment-segment distance (:func:`kpioed_drake.geometry.segment_distance`,
-itself tested against Drake's capsule-capsule distance).
+itself tested against Drake's capsule-capsule distance), for the beam of every target the pose
+measures (:func:`kpioed_drake.geometry.beam_targets`).
 
 A pose is feasible if every clearance is ``>= -tol_mm`` and every angle is within its limit up to
 ``tol_deg`` (defaults: 1 micrometre, 1e-6 degree: the optimiser's feasibility tolerance).
@@ -18,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.geometry import segment_distance
+from kpioed_drake.geometry import beam_targets, segment_distance
 from kpioed_drake.kinematics import Frames, flange_point, forward_kinematics
 from kpioed_drake.measurement import incidence_cosines, nominal_model
 from kpioed_drake.models import Cell, Robot
@@ -68,10 +69,12 @@ class FeasibilityChecker:
         self.scene: Scene = build_scene(robot, cell)
         self._beam_caps = [c for c in robot.capsules if c.frame in robot.beam_links]
         self._beam_obs = [o for o in cell.obstacles if o.moves_with_car]
+        self._beams = beam_targets(robot, cell)
         self._model = nominal_model(robot, cell)
 
     def clearances(self, q, *, frames: Frames | None = None) -> dict[str, float]:
-        """All pair clearances [mm] of one pose: Drake pairs and the beam pairs."""
+        """All pair clearances [mm] of one pose: Drake pairs and the beam pairs (every target's
+        beam: ``beam vs B``, several targets ``beam1 vs B`` .. ``beamT vs B``)."""
         q = np.asarray(q, dtype=float)
         sc = self.scene
         sc.set_q(q)
@@ -84,15 +87,16 @@ class FeasibilityChecker:
                 a, b = b, a
             out[f"{a} vs {b}"] = pr.distance / MM
         fr = forward_kinematics(self.robot, q) if frames is None else frames
-        p_Q = flange_point(fr, self.cell.p_FQ)[0]
-        for c in self._beam_caps:
-            A = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.a
-            B = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.b
-            d, _, _ = segment_distance(p_Q, self.cell.p_WT, A, B)
-            out[f"beam vs {c.name}"] = float(d) - c.radius - self.cell.beam_radius
-        for o in self._beam_obs:
-            d, _, _ = segment_distance(p_Q, self.cell.p_WT, o.a, o.b)
-            out[f"beam vs {o.name}"] = float(d) - o.radius - self.cell.beam_radius
+        for label, p_FQ in self._beams:
+            p_Q = flange_point(fr, p_FQ)[0]
+            for c in self._beam_caps:
+                A = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.a
+                B = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.b
+                d, _, _ = segment_distance(p_Q, self.cell.p_WT, A, B)
+                out[f"{label} vs {c.name}"] = float(d) - c.radius - self.cell.beam_radius
+            for o in self._beam_obs:
+                d, _, _ = segment_distance(p_Q, self.cell.p_WT, o.a, o.b)
+                out[f"{label} vs {o.name}"] = float(d) - o.radius - self.cell.beam_radius
         return out
 
     def incidence_deg(self, q, *, frames: Frames | None = None) -> float:

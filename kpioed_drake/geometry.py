@@ -7,8 +7,9 @@ Every collision constraint of the design problem (paper Table 5) is a clearance 
   ``z - r - floor_z`` and ``x - r - wall_x`` (the extreme of a capsule against a plane is at an
   end point, so this is exact);
 - robot capsule vs fixed obstacle capsule (mount, car), robot self pairs of non-neighbour links,
-  and the laser beam (a thin capsule from the reflector to the tracker) vs robot links and the
-  car: segment-segment distance minus the radii (eq. 20, 21).
+  and the laser beam (a thin capsule from the reflector to the tracker; several targets: one beam
+  per target, :func:`beam_targets`) vs robot links and the car: segment-segment distance minus
+  the radii (eq. 20, 21).
 
 Segment-segment distances use the clamped closed form (Lumelsky; Ericson 5.1.9), vectorised
 over poses and pairs. The gradient with respect to the joint angles follows from the envelope
@@ -57,12 +58,28 @@ def segment_distance(p1, q1, p2, q2):
     return np.linalg.norm(cA - cB, axis=-1), s, t
 
 
+def beam_targets(robot: Robot, cell: Cell) -> list[tuple[str, np.ndarray]]:
+    """The laser beams of a pose, one per target: ``(label, p_FQ)`` with ``p_FQ`` (3,) [mm].
+
+    A pose measures every target, so each target's beam (reflector to tracker) must be clear.
+    Target 1 is the cell's reflector ``cell.p_FQ``, targets 2..T the robot file's ``targets_mm``
+    (as in :func:`kpioed_drake.measurement.nominal_model`). Labels: ``beam`` for one target,
+    ``beam1`` .. ``beamT`` for several (as the incidence rows ``incidence1`` ..).
+    """
+    offsets = [np.asarray(cell.p_FQ, float)]
+    offsets += [np.asarray(robot.targets[t], float) for t in range(1, robot.n_targets)]
+    if len(offsets) == 1:
+        return [("beam", offsets[0])]
+    return [(f"beam{t + 1}", p) for t, p in enumerate(offsets)]
+
+
 @dataclasses.dataclass(frozen=True)
 class ClearanceRows:
     """The clearance rows of one pose, in evaluation order."""
 
     names: tuple[str, ...]
-    """Row names, e.g. ``upper_arm.a vs floor``, ``forearm vs car_body``, ``beam vs wrist``."""
+    """Row names, e.g. ``upper_arm.a vs floor``, ``forearm vs car_body``, ``beam vs wrist``
+    (several targets: ``beam1 vs wrist``, ``beam2 vs wrist``, ...)."""
     kinds: tuple[str, ...]
     """Per row: ``floor``, ``wall``, ``obstacle``, ``self`` or ``beam``."""
 
@@ -122,17 +139,17 @@ class ClearanceModel:
                         segs.append(self._cap(ci) + self._cap(cj) + (ci.radius + cj.radius,))
                         names.append(f"{ci.name} vs {cj.name}")
                         kinds.append("self")
-        if beam:
-            beam_side = (robot.n_joints, np.asarray(cell.p_FQ, float), 0, np.asarray(cell.p_WT, float))
+        for label, p_FQ in beam_targets(robot, cell) if beam else ():
+            beam_side = (robot.n_joints, p_FQ, 0, np.asarray(cell.p_WT, float))
             for c in caps:
                 if c.frame in robot.beam_links:
                     segs.append(beam_side + self._cap(c) + (c.radius + cell.beam_radius,))
-                    names.append(f"beam vs {c.name}")
+                    names.append(f"{label} vs {c.name}")
                     kinds.append("beam")
             for ob in cell.obstacles:
                 if ob.moves_with_car:
                     segs.append(beam_side + self._world(ob.a, ob.b) + (ob.radius + cell.beam_radius,))
-                    names.append(f"beam vs {ob.name}")
+                    names.append(f"{label} vs {ob.name}")
                     kinds.append("beam")
         self._segs = segs
         self.rows = ClearanceRows(tuple(names), tuple(kinds))

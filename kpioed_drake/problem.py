@@ -34,6 +34,7 @@ from kpioed_drake.effects import (
     extension_columns,
     extension_param_names,
     parse_effect,
+    resolve,
 )
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
@@ -327,7 +328,7 @@ def make_problem(
         except ValueError as exc:
             raise InputError(f"{robot.name}: {exc}") from None
     return Problem(
-        extensions=exts,
+        extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
         robot=robot,
         cell=cell,
         model=model,

@@ -145,7 +145,7 @@ def misses(records: list[dict]) -> list[str]:
         bad = r["discrepancy"] if r["kind"] == "clean" else not r.get("explained", r["exact"])
         if bad or r["holdout_ext_over_sigma"] > 1.3:
             out.append(
-                f"{r['kind']} seed {r['seed']}: truth {r.get('truth_names', r['truth'])} (lambda "
+                f"{r['kind']} seed {r['seed']}: truth {[t.split('=')[0] for t in r['truth']]} (lambda "
                 f"{[round(x, 1) for x in r['lambda']]}), named {r['named']}, alternatives "
                 f"{r.get('alternatives')}, held-out/sigma {r['holdout_ext_over_sigma']:.2f}"
             )

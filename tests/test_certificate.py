@@ -317,3 +317,24 @@ def test_certified_design_is_read_back_from_the_disk_cache(kr16, tmp_path, monke
     fresh = make_problem("kr16")  # another problem object: not in the memory cache
     again = certified_design(fresh, seed=9)
     assert again is not first and again.bound == first.bound and np.array_equal(again.Y, first.Y)
+
+
+def test_the_search_of_another_noise_is_the_unit_noise_search_scaled(tmp_path, monkeypatch):
+    monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
+    for name, value in (
+        ("VERIFY_POOL", 200),
+        ("VERIFY_STARTS", 4),
+        ("CERTIFY_ROUNDS", 1),
+        ("VERIFY_ROUNDS", 1),
+    ):
+        monkeypatch.setattr(certificate, name, value)
+    unit, noisy = make_problem("kr16", sigma_mm=1.0), make_problem("kr16", sigma_mm=0.3)
+    a, b = certified_design(unit, seed=2), certified_design(noisy, seed=2)
+    assert len(list(tmp_path.glob("certificate-*.npz"))) == 1  # one search for both
+    np.testing.assert_allclose(b.F, pose_rows(noisy, b.q), rtol=1e-12)
+    np.testing.assert_allclose(dual_values(b.F, b.Y), dual_values(a.F, a.Y), rtol=1e-10)
+    assert b.bound == pytest.approx(0.09 * a.bound, rel=1e-12) and b.g_max == a.g_max
+    q = heuristic_design(noisy, n=20, seed=1)
+    c_noisy, c_unit = certify(noisy, q, seed=2, refinements=0), certify(unit, q, seed=2, refinements=0)
+    assert c_noisy["efficiency"] == pytest.approx(c_unit["efficiency"], rel=1e-9)
+    assert c_noisy["bound_mm2"] <= c_noisy["value_mm2"]

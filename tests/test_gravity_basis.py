@@ -5,6 +5,8 @@ robot whose masses and centres of mass are +-30 % off the file is fitted to the 
 basis and not by the model-mass elasticity."""
 
 import dataclasses
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,16 +14,21 @@ from fd import central_fd
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
+from kpioed_drake.cli import main as cli_main
 from kpioed_drake.diagnosis import diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.errors import InputError
+from kpioed_drake.problem import make_problem
 
 
 @pytest.fixture(scope="module")
 def q(kr16):
     return np.random.default_rng(5).uniform(kr16.lower, kr16.upper, size=(4, 6))
+
+
+DESIGN = Path(__file__).resolve().parents[1] / "studies" / "results" / "designs" / "kr16_kpi_ca.csv"
 
 
 @pytest.mark.parametrize("joint", [2, 3, 5, 6])
@@ -175,3 +182,56 @@ def test_backlash_side_from_the_data_when_masses_are_off():
     )
     assert rec["truth_names"] == ["backlash:6"] and rec["lambda"][0] > 25
     assert rec["named"] == ["backlash:6"] and rec["holdout_ext_over_sigma"] < 1.3
+
+
+@pytest.mark.parametrize("joint", [2, 4, 6])
+def test_torque_std_matches_monte_carlo_of_the_mass_prior(kr16, q, joint):
+    """torque_std (first-order propagation) against the spread of the torque over robots whose
+    masses and centres of mass are drawn as the harness draws them (``perturbed_masses``)."""
+    Y = gb.link_regressor(kr16, q, joint)
+    rng = np.random.default_rng(joint)
+    taus = np.array(
+        [Y @ gb.link_moments(perturbed_masses(kr16, rng, gb.MASS_PRIOR_SPREAD), joint) for _ in range(4000)]
+    )
+    np.testing.assert_allclose(gb.torque_std(kr16, q, joint), taus.std(axis=0), rtol=0.08)
+    assert np.all(gb.torque_std(kr16, q, joint, spread=0.0) == 0.0)
+
+
+def test_expected_side():
+    tau = np.array([-2.0, 0.0, 1.0, 1.0, 3.0])
+    std = np.array([1.0, 1.0, 1.0, 0.0, 1e-6])
+    np.testing.assert_allclose(gb.expected_side(tau, std), [-0.9545, 0.0, 0.6827, 1.0, 1.0], atol=1e-4)
+    assert gb.expected_side(np.array([0.0]), np.array([0.0]))[0] == 0.0
+
+
+def test_design_extend_with_the_basis(kr16):
+    """``design --extend joint_elasticity_basis:3`` (API): sized per robot, its columns in F1."""
+    prob = make_problem(kr16, extend=["joint_elasticity_basis:3"])
+    assert prob.n_params == prob.model.layout.n_free + 8
+    q = np.random.default_rng(0).uniform(kr16.lower, kr16.upper, size=(40, 6))
+    F1 = prob.F1(q)
+    assert F1.shape == (120, prob.n_params) and np.linalg.matrix_rank(F1) == prob.n_params
+
+
+@pytest.mark.parametrize(
+    ("argv", "pattern"),
+    [
+        (
+            "simulate --robot kr16 --design {design} --effect joint_elasticity_basis:3 --out {out}",
+            "no size to draw",
+        ),
+        (
+            "design --robot kr16 --criterion kpi --extend joint_elasticity_basis:1 --out {out}",
+            "no torque on joint 1",
+        ),
+        ("evaluate --robot kr16 --design {design} --extend joint_elasticity_basis:3=1,2", "basis moments"),
+    ],
+)
+def test_cli_bad_input(tmp_path, capsys, argv, pattern):
+    """Bad basis extensions on the command line: exit 2, one line naming the effect, nothing written."""
+    out = tmp_path / "out.csv"
+    code = cli_main(argv.format(design=DESIGN, out=out).split())
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert re.search(pattern, [ln for ln in err.splitlines() if ln.startswith("kpioed:")][-1])
+    assert not out.exists()

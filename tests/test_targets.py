@@ -15,6 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fd import central_fd
+from pydrake.geometry import (
+    Capsule,
+    FramePoseVector,
+    GeometryFrame,
+    GeometryInstance,
+    ProximityProperties,
+    SceneGraph,
+)
+from pydrake.math import RigidTransform
 from test_identifiability_warnings import WRIST, named
 
 from kpioed_drake import api, calibration, identifiability, measurement, models, simulation
@@ -24,8 +33,12 @@ from kpioed_drake.designio import write_design
 from kpioed_drake.diagnosis import diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import FeasibilityChecker
+from kpioed_drake.geometry import ClearanceModel
+from kpioed_drake.kinematics import flange_point, forward_kinematics
 from kpioed_drake.measurements import Measurements, read_measurements
+from kpioed_drake.plant import MM, capsule_pose
 from kpioed_drake.problem import make_problem
+from kpioed_drake.scene3d.drawing import clearance_witness
 from kpioed_drake.validation import validate as validate_model
 
 REPO = Path(__file__).resolve().parents[1]
@@ -346,3 +359,88 @@ def test_in_memory_data_naming_unknown_targets_are_refused(kr16, design):
         validate_model(kr16, bad)
     with pytest.raises(InputError, match="target"):
         Measurements.from_arrays(data.q, data.eta, target=np.full(20, -1))
+
+
+# --- every target's beam is clear (optimiser rows and independent checker) ------------------
+TWO = [[-89.58, -2.84, 327.03], [-89.58, 60.0, 300.0]]
+BLOCKED_DEG = [112.6, -131.9, -1.0, -256.9, -64.0, -4.8]
+"""A kr16 pose where target 2's beam passes through the wrist, target 1's clears it by ~24 mm."""
+
+
+def _drake_capsule_distance(a1, b1, r1, a2, b2, r2) -> float:
+    """Signed distance [mm] of two capsules (axis end points, radius [mm]) by Drake's query."""
+    sg = SceneGraph()
+    src = sg.RegisterSource("beam")
+    frame = sg.RegisterFrame(src, GeometryFrame("beam"))
+    ids = []
+    for a, b, r in ((a1, b1, r1), (a2, b2, r2)):
+        X, length = capsule_pose(a, b)
+        inst = GeometryInstance(X, Capsule(r * MM, length), f"capsule{len(ids)}")
+        gid = sg.RegisterGeometry(src, frame, inst) if not ids else sg.RegisterAnchoredGeometry(src, inst)
+        sg.AssignRole(src, gid, ProximityProperties())
+        ids.append(gid)
+    context = sg.CreateDefaultContext()
+    poses = FramePoseVector()
+    poses.set_value(frame, RigidTransform())
+    sg.get_source_pose_port(src).FixValue(context, poses)
+    query = sg.get_query_output_port().Eval(context)
+    return query.ComputeSignedDistancePairClosestPoints(ids[0], ids[1]).distance / MM
+
+
+def test_blocked_second_beam_is_infeasible_for_optimiser_and_checker(kr16):
+    """Target 2's beam through the wrist: a clearance row ``beam2 vs wrist`` < 0 in the design
+    constraints and a ``beam`` failure of the Drake checker; with target 1 alone the pose's
+    clearances all pass. The numpy value agrees with Drake's capsule-capsule distance."""
+    robot = with_targets(kr16, TWO)
+    cell = models.load_cell(robot=robot)
+    q = np.deg2rad(BLOCKED_DEG)
+    one = ClearanceModel(kr16, models.load_cell(robot=kr16))
+    v1 = dict(zip(one.rows.names, one.values(q[None])[0], strict=True))
+    assert "beam vs wrist" in v1 and min(v1.values()) > 20.0
+    cons = DesignConstraints(make_problem(robot, sigma_mm=SIGMA))
+    v = dict(zip(cons.row_names, cons.evaluate(q[None])[0][0], strict=True))
+    # the one-target rows, target 1's beam renamed beam1, then target 2's beam rows
+    renamed = [n.replace("beam vs", "beam1 vs") for n in one.rows.names]
+    beam2 = [n.replace("beam vs", "beam2 vs") for n in one.rows.names if n.startswith("beam vs")]
+    assert list(cons.clearance.rows.names) == renamed + beam2
+    assert all(v[r] == x for r, x in zip(renamed, v1.values(), strict=True))
+    assert v["beam2 vs wrist"] < -15.0 and min(v[n] for n in renamed) > 20.0
+    # the independent checker
+    fr = forward_kinematics(robot, q[None])
+    wrist = next(c for c in robot.capsules if c.name == "wrist")
+    A, B = (fr.o[0, wrist.frame] + fr.R[0, wrist.frame] @ p for p in (wrist.a, wrist.b))
+    p_Q = flange_point(fr, np.asarray(TWO[1]))[0]
+    drake = _drake_capsule_distance(p_Q, cell.p_WT, cell.beam_radius, A, B, wrist.radius)
+    assert abs(v["beam2 vs wrist"] - drake) < 0.05, (v["beam2 vs wrist"], drake)
+    checker = FeasibilityChecker(robot, cell)
+    clear = checker.clearances(q)
+    assert {k for k in clear if k.startswith("beam")} == {n for n in v if n.startswith("beam")}
+    assert abs(clear["beam2 vs wrist"] - drake) < 0.05
+    report = checker.check_pose(q)
+    failed = {(f["check"], f["name"]) for f in report.failures if f["check"] in ("beam", "collision")}
+    assert not report.feasible and failed == {("beam", "beam2 vs wrist")}
+    assert report.min_clearance_pair == "beam2 vs wrist"
+    p_A, p_B = clearance_witness(checker.scene, robot, cell, q, "beam2 vs wrist")  # 3-D pages
+    assert np.linalg.norm(p_A - p_B) == pytest.approx(-clear["beam2 vs wrist"], abs=1e-6)
+    alone = FeasibilityChecker(kr16, models.load_cell(robot=kr16)).check_pose(q)
+    assert not any(f["check"] in ("beam", "collision") for f in alone.failures)
+
+
+def test_two_target_design_clears_every_beam(kr16):
+    """An optimised two-target design (collision rows on) passes the checker, which tests the
+    beam of each target (rows beam1 .. and beam2 ..) of every pose."""
+    robot = with_targets(kr16, TWO)
+    pb = make_problem(robot, sigma_mm=SIGMA)
+    res = optimize_design(pb, criterion="kpi", n=8, seed=1)
+    checker = FeasibilityChecker(robot, pb.cell)
+    assert all(r.feasible for r in checker.check(res.q))
+    for qk in res.q:
+        clear = checker.clearances(qk)
+        per_target = [[d for k, d in clear.items() if k.startswith(f"beam{t} vs")] for t in (1, 2)]
+        assert all(len(d) == 7 and min(d) >= -checker.tol_mm for d in per_target)
+
+
+def test_calibration_summary_counts_rows_and_poses(three):
+    """Several targets: the summary says rows and poses (40 poses x 3 targets = 120 rows)."""
+    text = three[3].summary()
+    assert "120 rows (40 poses, 3 targets), 120 used" in text.splitlines()[0], text

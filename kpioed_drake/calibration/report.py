@@ -273,8 +273,11 @@ class CalibrationReport:
     def summary(self) -> str:
         """A human-readable summary."""
         d = self
+        rows = f"{d.data.n} poses"
+        if d.data.n_targets > 1:  # a pose has one row per target (same joint angles)
+            rows = f"{d.data.n} rows ({len(np.unique(d.data.q, axis=0))} poses, {d.data.n_targets} targets)"
         lines = [
-            f"{d.robot.name}: calibrated from {d.data.path}: {d.data.n} poses, "
+            f"{d.robot.name}: calibrated from {d.data.path}: {rows}, "
             f"{int(np.count_nonzero(d.used))} used, {d.result.n_params} parameters, "
             f"sigma {d.result.sigma:g} mm",
             f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",

@@ -189,7 +189,9 @@ def certified_design(
 ) -> ApproximateDesign:
     """The approximate design behind :func:`certify`, cached per problem object, ``collision`` and
     ``seed`` (per thread) and, without ``warm``, on disk (:mod:`~kpioed_drake.design.certcache`:
-    keyed by the problem's content, ``collision``, ``seed`` and :func:`search_settings`).
+    keyed by the problem's content, ``collision``, ``seed`` and :func:`search_settings`). Without
+    ``warm`` the search is that of the problem with unit noise, scaled by :func:`with_noise` (one
+    search for every noise level).
 
     Column generation (:data:`CERTIFY_ROUNDS` rounds at most, continuing ``warm`` if given), then up
     to :data:`VERIFY_ROUNDS` times :func:`verify_search` (seeds ``seed + 1``, ``seed + 2``, ...);
@@ -200,20 +202,32 @@ def certified_design(
     hit = cache.get(key)
     if hit is not None and hit[0] is problem:
         return hit[1]
-    disk_key = (
-        None
-        if warm is not None
-        else certcache.problem_key(problem, collision=collision, seed=seed, settings=search_settings())
-    )
-    approx = None if disk_key is None else certcache.load(disk_key)
-    if approx is None:
+    if warm is not None:
         approx = _search(problem, collision=collision, seed=seed, warm=warm)
-        if disk_key is not None:
+    else:  # the search of the problem with unit noise, scaled (it does not depend on the noise)
+        unit = dataclasses.replace(problem, sigma=1.0)
+        disk_key = certcache.problem_key(unit, collision=collision, seed=seed, settings=search_settings())
+        approx = certcache.load(disk_key)
+        if approx is None:
+            approx = _search(unit, collision=collision, seed=seed, warm=None)
             certcache.store(disk_key, approx)
+        approx = with_noise(approx, problem.sigma)
     if len(cache) > 8:
         cache.clear()
     cache[key] = (problem, approx)
     return approx
+
+
+def with_noise(approx: ApproximateDesign, sigma: float) -> ApproximateDesign:
+    """``approx`` of a problem with unit noise for noise ``sigma`` [mm]: rows ``F / sigma``, ``Y``
+    times ``sigma`` (so ``g = ||F Y||^2`` and the weights are unchanged), ``phi`` and ``dual`` times
+    ``sigma^2``: the same search, as every step depends on ``F`` only through ``g`` and ``Phi``."""
+    if sigma == 1.0:
+        return approx
+    s = float(sigma)
+    return dataclasses.replace(
+        approx, F=approx.F / s, Y=approx.Y * s, phi=approx.phi * s * s, dual=approx.dual * s * s
+    )
 
 
 def search_settings() -> dict:

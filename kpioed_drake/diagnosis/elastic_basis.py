@@ -114,7 +114,6 @@ def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_fold
         )
     notes += _add_basis_if_unexplained(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
     notes += _backlash_with_fitted_torque(prob, sel, k_folds=k_folds)
-    _stand_in_alternatives(prob, sel, alternatives, alpha=alpha)
     return notes, alternatives
 
 
@@ -153,10 +152,34 @@ def _stand_in_alternatives(prob: FitProblem, sel: Selection, alternatives: dict,
         )
 
 
+def backlash_sides(prob: FitProblem) -> np.ndarray:
+    """(n, 6) the side of a backlash per pose for the fit: the expected sign of each joint's gravity
+    torque when the file's masses and centres of mass are uncertain
+    (:func:`~kpioed_drake.effects.gravity_basis.expected_side` with
+    :func:`~kpioed_drake.effects.gravity_basis.torque_std`): +-1 where the file's torque is clearly
+    on one side, towards 0 where its sign is within its uncertainty (those poses say little about
+    the side, and a wrong sign there would work against the test)."""
+    tau = prob.tau
+    side = np.sign(tau)
+    for j in range(1, prob.robot.n_joints + 1):  # joints gravity loads (a vertical joint 1: rank 0)
+        if gb.joint_basis(prob.robot, j).rank:
+            side[:, j - 1] = gb.expected_side(tau[:, j - 1], gb.torque_std(prob.robot, prob.data.q, j))
+    return side
+
+
+def use_expected_sides(prob: FitProblem) -> None:
+    """Fit every backlash with :func:`backlash_sides` (in place, in ``prob.conditions``)."""
+    prob.conditions = dataclasses.replace(prob.conditions, side=backlash_sides(prob))
+
+
 def _with_tau(prob: FitProblem, tau: np.ndarray) -> FitProblem:
-    """A copy of ``prob`` whose fit conditions hold other gravity torques (n, 6) [N m]."""
+    """A copy of ``prob`` whose fit conditions hold other gravity torques (n, 6) [N m]; a backlash of
+    a joint whose torque changed takes its sign (a side fitted from the data)."""
     trial = copy.copy(prob)
-    trial.conditions = dataclasses.replace(prob.conditions, tau=tau)
+    side = prob.conditions.side
+    if side is not None:
+        side = np.where(tau != prob.tau, np.sign(tau), side)
+    trial.conditions = dataclasses.replace(prob.conditions, tau=tau, side=side)
     return trial
 
 
@@ -250,56 +273,73 @@ def _backlash_with_fitted_torque(prob: FitProblem, sel: Selection, *, k_folds: i
 
 
 def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int, ln_n: float):
-    """If the model still fails the goodness-of-fit test: the gravity basis of each joint without
-    an elasticity as a further candidate (likelihood ratio, Bonferroni over these candidates, BIC,
-    held-out RMS, as in the selection), the best one added if the model with it passes the test
-    (else it would be a stand-in for an unexplained rest), then the backward step. This finds an
-    elasticity whose torque with the true masses looks nothing like the file's (e.g. a wrist joint
-    whose link's centre of mass sits near its axis in the file)."""
+    """If the model still fails the goodness-of-fit test: for each joint j without an elasticity,
+    its gravity basis and a backlash whose side follows the torque fitted from the data
+    (:func:`_best_side`) as further candidates (likelihood ratio, Bonferroni over these
+    candidates, BIC, held-out RMS, as in the selection); the best one is added if the model with
+    it passes the test (else it would be a stand-in for an unexplained rest), then the backward
+    step. This finds an elasticity or a backlash whose torque with the true masses looks nothing
+    like the file's (e.g. a wrist joint whose link's centre of mass sits near its axis in the file)."""
     if scipy.stats.chi2.sf(sel.fit.cost, sel.fit.dof) >= alpha:
         return []
-    have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
-    pool = []
+    have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY, "backlash")}
+    tried = []  # (effect, problem, fit)
     for j in range(1, prob.robot.n_joints + 1):
-        if j not in have and gb.joint_basis(prob.robot, j).rank > 0:
-            pool.append(basis_for(prob, j))
+        jb = gb.joint_basis(prob.robot, j)
+        if j in have or jb.rank == 0:
+            continue
+        b = basis_for(prob, j)
+        f = prob.fit([*sel.fit.effects, b], start=sel.fit)
+        tried.append((b, prob, f))
+        theta = next(x for x in f.effects if x.key == b.key).value_array()[: jb.rank]
+        shape = _best_side(prob, sel, b, jb.regressor(prob.robot, prob.data.q), theta)
+        side = np.sign(shape)
+        if min(np.sum(side > 0), np.sum(side < 0)) >= BACKLASH_MIN_SIDE:
+            tau = prob.tau.copy()
+            tau[:, j - 1] = shape * np.sqrt(np.mean(prob.tau[:, j - 1] ** 2) / np.mean(shape**2))
+            trial = _with_tau(prob, tau)
+            bl = fx.Effect("backlash", j)
+            tried.append((bl, trial, trial.fit([*sel.fit.effects, bl], start=sel.fit)))
     best = None
-    for b in pool:
-        f = prob.fit(list(sel.fit.effects) + [b], start=sel.fit)
+    for b, pb, f in tried:
         lr = max(sel.fit.cost - f.cost, 0.0)
         p = float(scipy.stats.chi2.sf(lr, b.n_params))
         dbic = lr - b.n_params * ln_n
-        if min(1.0, p * len(pool)) < alpha and dbic > 0 and (best is None or dbic > best[3]):
-            best = (b, f, p, dbic, lr)
+        if min(1.0, p * len(tried)) < alpha and dbic > 0 and (best is None or dbic > best[4]):
+            best = (b, pb, f, p, dbic, lr)
     if best is None:
         return []
-    b, f, p, dbic, lr = best
+    b, pb, f, p, dbic, lr = best
     if scipy.stats.chi2.sf(f.cost, f.dof) < alpha:  # not the rest, at most a stand-in for it
         return []
-    hold = prob.holdout(f, k=k_folds)
+    hold = pb.holdout(f, k=k_folds)
     before = rms(sel.holdout)
     if rms(hold) >= before:
         return []
-    fb = next(x for x in f.effects if x.key == b.key)
-    comp = gb.basis_compliance(fb, f.model)
-    sel.evidence[b.key] = {
+    ev = {
         "lr_stat": lr,
         "dof": b.n_params,
         "p_value": p,
-        "p_value_corrected": min(1.0, p * len(pool)),
+        "p_value_corrected": min(1.0, p * len(tried)),
         "delta_bic": dbic,
         "holdout_rms_mm_without": before,
         "holdout_rms_mm_with": rms(hold),
-        "step": "gravity basis after the selection (the model failed the fit test)",
-        **{f"basis_{k}": v for k, v in comp.items()},
+        "step": "after the selection (the model failed the fit test)",
     }
+    if b.family == gb.FAMILY:
+        comp = gb.basis_compliance(next(x for x in f.effects if x.key == b.key), f.model)
+        ev.update({f"basis_{k}": v for k, v in comp.items()})
+        what = f"the gravity torque of joint {b.joint} with any link masses; compliance against the file's "
+        what += f"torques {comp['compliance']:.3g} rad/(N m)"
+    else:
+        what = f"the side of joint {b.joint}'s gravity torque fitted from the data"
+        prob.conditions = pb.conditions
+    sel.evidence[b.key] = ev
     sel.fit, sel.holdout = f, hold
     removed = _backward(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
     return [
-        f"the model still failed the fit test; {b.name} (the gravity torque of joint {b.joint} with any link "
-        f"masses) explains the rest (LR {lr:.1f} on {b.n_params} dof), compliance against the file's "
-        f"torques {comp['compliance']:.3g} rad/(N m)"
-        + (f"; removed: {', '.join(removed)}" if removed else "")
+        f"the model still failed the fit test; {b.name} ({what}) explains the rest (LR {lr:.1f} on "
+        f"{b.n_params} dof)" + (f"; removed: {', '.join(removed)}" if removed else "")
     ]
 
 
@@ -308,8 +348,13 @@ def _key(e: fx.Effect) -> tuple:
     return (e.family, e.joint, e.harmonic if e.coupled is None else e.coupled)
 
 
-def add_alternatives(causes: list[dict], alternatives: dict) -> None:
-    """Append the basis alternatives of :func:`upgrade_elasticity` to the causes (in place)."""
+def add_alternatives(
+    prob: FitProblem, sel: Selection, causes: list[dict], alternatives: dict, *, alpha: float
+):
+    """Append the basis alternatives of :func:`upgrade_elasticity` and of
+    :func:`_stand_in_alternatives` (on the final model ``sel.fit``) to the causes (in place)."""
+    alternatives = {k: list(v) for k, v in alternatives.items()}
+    _stand_in_alternatives(prob, sel, alternatives, alpha=alpha)
     for c in causes:
         key = (c["effect"], c.get("joint"), c.get("harmonic", c.get("coupled_joint")))
         c.setdefault("alternatives", []).extend(alternatives.get(key, []))

@@ -168,7 +168,7 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
         j = effect.joint - 1
         y = np.rad2deg(_apparent(r, g[:, j]))
         ys = np.rad2deg(_apparent(sig, g[:, j]))
-        if effect.family in ("joint_elasticity", "backlash"):
+        if effect.family in ("joint_elasticity", "backlash", "joint_elasticity_basis"):
             x, xl = prob.tau[:, j], f"gravity torque tau{j + 1} [N m]"
         else:
             jx = effect.coupled - 1 if effect.coupled is not None else j

@@ -213,7 +213,8 @@ def run_synthetic_case(
     ``near_threshold`` (each hidden effect rescaled so that its lambda is log-uniform in
     :data:`NEAR_THRESHOLD`; the same truth, poses and noise otherwise). ``explained``: every hidden
     effect is named or among a cause's ``alternatives`` and every cause stands for one (a named
-    gravity-basis elasticity counts as the elasticity of its joint).
+    gravity-basis elasticity counts as the elasticity of its joint). ``lambda`` is in the order of
+    ``truth`` (``truth_names`` is sorted).
     """
     robot = load_robot(robot) if isinstance(robot, str | Path) else robot
     rng = np.random.default_rng([seed, CASE_KINDS.index(kind) + 1])

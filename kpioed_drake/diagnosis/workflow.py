@@ -32,7 +32,7 @@ from kpioed_drake.calibration import hold_undetermined
 from kpioed_drake.dataformats import read_data
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
-from kpioed_drake.diagnosis.elastic_basis import add_alternatives, upgrade_elasticity
+from kpioed_drake.diagnosis.elastic_basis import add_alternatives, upgrade_elasticity, use_expected_sides
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.rest import unexplained_rest
@@ -107,6 +107,7 @@ def diagnose(
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=force)
     # as calibrate: parameters these poses do not determine are held at nominal, with a note
     prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
+    use_expected_sides(prob)  # a backlash's side where the file's masses leave it uncertain
     if candidates is None:
         cands, notes = candidate_effects(data, prob.tau)
     else:
@@ -134,7 +135,7 @@ def diagnose(
     basis_notes, basis_alts = upgrade_elasticity(prob, sel, alpha=alpha, k_folds=k_folds)  # masses off
 
     causes = rp.causes(prob, sel, cands, alpha=alpha, k_folds=k_folds)
-    add_alternatives(causes, basis_alts)
+    add_alternatives(prob, sel, causes, basis_alts, alpha=alpha)
     notes += basis_notes
     rest = unexplained_rest(prob, sel.fit, alpha=alpha)
     for si in sel.stand_ins:

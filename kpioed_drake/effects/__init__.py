@@ -20,8 +20,11 @@ family (``parse_effect``)     model                                         para
                               :mod:`.gravity_basis`)                        payload)
 ============================  ============================================  ====================
 
-The first four (:data:`FAMILIES`) are SPEC's and diagnosis's candidates; the last four
-(:data:`EXTRA_FAMILIES`) are for simulation and ``--extend`` only. ``joint_scale``,
+The first four (:data:`FAMILIES`) are SPEC's; the next four (:data:`EXTRA_FAMILIES`) are further
+diagnosis candidates (issue 13) and work in simulation and ``--extend``; the gravity basis
+(``joint_elasticity_basis``, also in :data:`EXTRA_FAMILIES`) works in ``--extend`` and in the
+diagnosis's upgrade of a named elasticity (:mod:`kpioed_drake.diagnosis.elastic_basis`), it has no
+size to draw for simulation. ``joint_scale``,
 ``joint_coupling`` and ``backlash`` are joint-angle effects like elasticity and gear
 (:data:`JOINT_FAMILIES`): their column is joint i's theta column times the factor ``q_i``, ``q_j``
 or ``sign(tau_i)``. A backlash follows the sign of the gravity torque (the data format has no

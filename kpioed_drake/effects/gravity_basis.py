@@ -25,6 +25,12 @@ file's moments ``beta_j^file`` are the reference: :func:`basis_compliance` repor
 reproduces the fitted deflection best with the model file's torques) and the moment ratio
 ``|theta| / (c_j |beta^file|)``.
 
+The side of a backlash (``sign tau_j``) is uncertain where the torque is: :func:`torque_std` is
+the standard deviation of ``tau_j(q)`` when each file mass and centre of mass is off by
+:data:`MASS_PRIOR_SPREAD` (linear propagation through ``Y_j^full``), and :func:`expected_side` the
+expectation of the true side under that prior, ``erf(tau_j / (sqrt 2 std))`` (+-1 where the file's
+torque is certain, about 0 where its sign is not known).
+
 Joint 1: with gravity along its axis ``r_1 = 0`` and :func:`resolve_basis` refuses it; the check
 is the torque range, not the joint number (a tilted base or gravity makes it identifiable).
 """
@@ -34,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.special
 
 from kpioed_drake.effects.gravity import gravity_model, reference_poses
 from kpioed_drake.errors import InputError
@@ -46,6 +53,10 @@ _N_REF = 500
 _RANK_TOL = 1e-7
 """Relative singular value below which a direction of the moments is not seen by tau_j."""
 _CACHE: dict = {}
+MASS_PRIOR_SPREAD = 0.3
+"""Assumed uncertainty of the model file's link masses and centres of mass (issue 13: each
++-30 %, uniform): mass ``m (1 + a)``, centre of mass shifted by ``d`` times its distance from the
+link frame (100 mm when the file puts it at the origin), ``a, d ~ U(-s, s)``."""
 
 
 def link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
@@ -289,3 +300,29 @@ def basis_compliance(effect, model: TrackerModel) -> dict:
     if v.size > jb.rank:
         out["payload_compliance"] = float(v[jb.rank])
     return out
+
+
+def torque_std(robot: Robot, q, joint: int, *, spread: float = MASS_PRIOR_SPREAD) -> np.ndarray:
+    """(n,) prior standard deviation of joint ``joint``'s gravity torque [N m] when the file's link
+    masses and centres of mass are uncertain by ``spread`` (:data:`MASS_PRIOR_SPREAD`): first-order
+    propagation of the independent uniform errors ``a, d`` (variance ``spread^2 / 3``) through
+    :func:`link_regressor`. A recorded payload is known and adds nothing."""
+    Y = link_regressor(robot, q, joint)
+    v = spread**2 / 3.0
+    u2 = np.zeros(Y.shape[0])
+    for col, k in zip(range(0, Y.shape[1], 4), range(joint, robot.n_joints + 1), strict=True):
+        m, c = robot.masses[k], robot.coms[k]
+        r = float(np.linalg.norm(c)) or 100.0
+        p = np.concatenate([[m], m * c])  # d pi / d a
+        S = v * np.outer(p, p) + v * (m * r) ** 2 * np.diag([0.0, 1.0, 1.0, 1.0])
+        Yk = Y[:, col : col + 4]
+        u2 += np.einsum("na,ab,nb->n", Yk, S, Yk)
+    return np.sqrt(u2)
+
+
+def expected_side(tau: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Expected sign of a torque known as ``tau`` +- ``std`` (Gaussian): ``erf(tau / (sqrt 2 std))``
+    (the sign itself where ``std`` is 0)."""
+    tau, std = np.asarray(tau, dtype=float), np.asarray(std, dtype=float)
+    z = np.divide(tau, np.sqrt(2.0) * std, out=np.sign(tau) * 1e300, where=std > 0)
+    return scipy.special.erf(z)

@@ -19,7 +19,8 @@ from kpioed_drake.measurement import TrackerModel
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
 """Effect names as in SPEC (and ``none`` for a model that explains the data): diagnosis's candidates."""
 EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", BASIS_FAMILY)
-"""Further families for simulation and ``--extend`` (not diagnosis candidates)."""
+"""Further families for simulation and ``--extend``; the first four are diagnosis candidates too, the
+gravity basis enters the diagnosis through :mod:`kpioed_drake.diagnosis.elastic_basis`."""
 ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES
 JOINT_FAMILIES = (
     "joint_elasticity",

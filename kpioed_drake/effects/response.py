@@ -26,12 +26,15 @@ def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
     return per_pose(x, n, f"effect {effect}: {what}")
 
 
-def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_dq: bool = False, tau=None):
+def joint_deltas(
+    model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_dq: bool = False, tau=None, side=None
+):
     """Joint-angle errors of the joint effects at their values [rad], and what their columns need.
 
     The joint effects (:data:`~kpioed_drake.effects.model.JOINT_FAMILIES`) add ``factor(q) @ values``
     to joint i: elasticity ``tau_i``, gear ``(sin n q_i, cos n q_i)``, scale ``q_i``, coupling
-    ``q_j``, backlash ``sign(tau_i)`` (``tau``: gravity torques at the commanded angles).
+    ``q_j``, backlash ``sign(tau_i)`` (``tau``: gravity torques at the commanded angles; ``side``
+    (n, 6): the backlash's side per pose instead, e.g. its expectation when the masses are uncertain).
 
     Returns:
         delta: (n, 6) angle errors; factors: list over effects of (n, n_params) or None (the
@@ -41,7 +44,9 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     n = q.shape[0]
     need_dtau = with_dq and any(e.family == "joint_elasticity" for e in effects)
-    need_tau = any(e.family in ("joint_elasticity", "backlash") for e in effects)
+    need_tau = any(
+        e.family == "joint_elasticity" or (e.family == "backlash" and side is None) for e in effects
+    )
     dtau = None
     if (need_tau and tau is None) or need_dtau:
         out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=need_dtau)
@@ -73,7 +78,10 @@ def joint_deltas(model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_d
         elif e.family in ("joint_scale", "joint_coupling", "backlash"):
             i = e.joint - 1
             j = e.coupled - 1 if e.family == "joint_coupling" else i
-            f = np.sign(tau[:, i : i + 1]) if e.family == "backlash" else q[:, j : j + 1]
+            if e.family == "backlash":
+                f = np.sign(tau[:, i : i + 1]) if side is None else side[:, i : i + 1]
+            else:
+                f = q[:, j : j + 1]
             df = np.zeros((n, nj, 1)) if with_dq else None
             if with_dq and e.family != "backlash":  # d sign(tau)/dq = 0 almost everywhere
                 df[:, j, 0] = 1.0
@@ -123,6 +131,7 @@ def augmented_response(
     payload_kg=None,
     tau=None,
     target=None,
+    side=None,
 ) -> np.ndarray:
     """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
 
@@ -130,7 +139,7 @@ def augmented_response(
     """
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     effects = list(effects)
-    delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau)
+    delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau, side=side)
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target))
     s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
@@ -147,6 +156,7 @@ def augmented_jacobian(
     with_dq: bool = False,
     tau=None,
     target=None,
+    side=None,
 ):
     """Response of the measurement model with effects and its Jacobian.
 
@@ -161,6 +171,7 @@ def augmented_jacobian(
         with_dq: also the derivative of the effect columns w.r.t. the commanded joint angles.
         tau: (n, 6) precomputed gravity torques (payload included) to skip Drake.
         target: (n,) 0-based target of each row (None: target 0); a payload sits at target 0.
+        side: (n, 6) a backlash's side per pose (None: ``sign(tau)``, :func:`joint_deltas`).
 
     Returns:
         h (n, 3) [mm]; H (n, 3, n_full) dh/dp; E (n, 3, k) dh/d(effect parameters), effects in order,
@@ -169,7 +180,7 @@ def augmented_jacobian(
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     n = q.shape[0]
     effects = list(effects)
-    jd = joint_deltas(model, q, effects, payload_kg=payload_kg, with_dq=with_dq, tau=tau)
+    jd = joint_deltas(model, q, effects, payload_kg=payload_kg, with_dq=with_dq, tau=tau, side=side)
     delta, factors = jd[0], jd[1]
     q_act = q + delta
     frames = model.frames(q_act)

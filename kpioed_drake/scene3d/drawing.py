@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.geometry import Box, Rgba
 
-from kpioed_drake.geometry import segment_distance
+from kpioed_drake.geometry import beam_targets, segment_distance
 from kpioed_drake.kinematics import flange_point, forward_kinematics
 from kpioed_drake.models import Cell, Robot
 from kpioed_drake.plant import MM, Scene
@@ -122,8 +122,9 @@ def clearance_witness(scene: Scene, robot: Robot, cell: Cell, q, pair: str) -> t
             obstacle, whose points are the closest points of the two axes moved to the surfaces.
     """
     a, _, b = pair.partition(" vs ")
-    if a == "beam":
-        p_Q = reflector_point(robot, cell, q)
+    beams = dict(beam_targets(robot, cell))  # ``beam``, or ``beam1`` .. ``beamT`` (several targets)
+    if a in beams:
+        p_Q = flange_point(forward_kinematics(robot, np.asarray(q, float)[None, :]), beams[a])[0]
         A, B, radius = _capsule_in_world(robot, cell, q, b)
         d, s, t = segment_distance(p_Q, cell.p_WT, A, B)
         c_beam = p_Q + s * (cell.p_WT - p_Q)

@@ -287,7 +287,11 @@ def regenerate_tables(
     old = out_dir / "report.md"
     text = old.read_text(encoding="utf-8") if old.is_file() else ""
     wall = _WALL.search(text)
-    title = text.splitlines()[0].removeprefix("# ").split(":")[0] if text.startswith("# ") else "Study"
+    title = (
+        text.splitlines()[0].removeprefix("# ").rsplit(": KPI-based OED", 1)[0]
+        if text.startswith("# ")
+        else "Study"
+    )
     wall_s = float(wall.group(1)) if wall else None
     outputs = write_outputs(out_dir, rows, wall_s=wall_s, figures=figures, title=title, bound_rows=bound_rows)
     n_errors = sum(1 for b in bound_rows if b.get("error"))

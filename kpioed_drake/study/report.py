@@ -93,7 +93,9 @@ def _efficiency_section(pr: pd.DataFrame) -> list[str]:
         "",
         "Efficiency = a lower bound on tr(Cs)/3 of any design of as many poses with collision avoidance "
         "(per robot, the optimality certificate's search, `bounds.csv`; lowered where a design's own poses "
-        "go beyond the search) / the design's tr(Cs)/3; at most 1 (docs/certificate.md). Over the "
+        "go beyond the search) / the design's tr(Cs)/3; at most 1 (docs/certificate.md). Conservative: "
+        "unlike `kpioed evaluate`, no search continues from the design's poses, so a design that went "
+        "beyond the search only lowers its own bound. Over the "
         f"{int(pr['bound_mm2'].notna().sum())} robots: " + "; ".join(parts) + ". Per robot: `per_robot.csv`; "
         "Table 6 and Tables 7-8 (`ca_efficiency_*`) above.",
         "",
