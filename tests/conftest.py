@@ -1,10 +1,19 @@
-"""Fixtures shared by the effect tests."""
+"""Fixtures shared by the effect tests; the test session's own certificate cache."""
+
+import os
+import tempfile
 
 import numpy as np
 import pytest
 
 from kpioed_drake.measurement import nominal_model
 from kpioed_drake.models import load_cell, load_robot
+
+
+def pytest_configure(config):
+    """Run the tests with an empty certificate cache of their own (as on a fresh CI machine), never
+    the user's ``~/.cache/kpioed``; subprocesses of the CLI tests inherit it."""
+    os.environ["KPIOED_CACHE"] = tempfile.mkdtemp(prefix="kpioed-test-cache-")
 
 
 @pytest.fixture(scope="module")

@@ -303,7 +303,9 @@ def test_disk_cache_of_the_certificate_search(kr16, small_approx, tmp_path, monk
     assert certcache.load(key) is None
 
 
-def test_certified_design_is_read_back_from_the_disk_cache(kr16, tmp_path, monkeypatch):
+@pytest.fixture
+def small_search_cached_in(tmp_path, monkeypatch):
+    """A short certificate search whose disk cache is ``tmp_path``."""
     monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
     for name, value in (
         ("VERIFY_POOL", 200),
@@ -312,6 +314,11 @@ def test_certified_design_is_read_back_from_the_disk_cache(kr16, tmp_path, monke
         ("VERIFY_ROUNDS", 1),
     ):
         monkeypatch.setattr(certificate, name, value)
+    return tmp_path
+
+
+def test_certified_design_is_read_back_from_the_disk_cache(kr16, small_search_cached_in):
+    tmp_path = small_search_cached_in
     first = certified_design(kr16, seed=9)
     assert len(list(tmp_path.glob("certificate-*.npz"))) == 1
     fresh = make_problem("kr16")  # another problem object: not in the memory cache
@@ -319,15 +326,8 @@ def test_certified_design_is_read_back_from_the_disk_cache(kr16, tmp_path, monke
     assert again is not first and again.bound == first.bound and np.array_equal(again.Y, first.Y)
 
 
-def test_the_search_of_another_noise_is_the_unit_noise_search_scaled(tmp_path, monkeypatch):
-    monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
-    for name, value in (
-        ("VERIFY_POOL", 200),
-        ("VERIFY_STARTS", 4),
-        ("CERTIFY_ROUNDS", 1),
-        ("VERIFY_ROUNDS", 1),
-    ):
-        monkeypatch.setattr(certificate, name, value)
+def test_the_search_of_another_noise_is_the_unit_noise_search_scaled(small_search_cached_in):
+    tmp_path = small_search_cached_in
     unit, noisy = make_problem("kr16", sigma_mm=1.0), make_problem("kr16", sigma_mm=0.3)
     a, b = certified_design(unit, seed=2), certified_design(noisy, seed=2)
     assert len(list(tmp_path.glob("certificate-*.npz"))) == 1  # one search for both

@@ -273,14 +273,17 @@ def test_cli_several_working_poses_from_a_file_and_repeated(tmp_path, capsys, kr
         rec["values"]["kpi_avg_var_mm2"], np.dot(rec["values"]["kpi_vars_mm2"], rec["kpi_weights"]), rtol=1e-9
     )
     assert "KPI of 3 working poses" in capsys.readouterr().out
+    # the certificate of the weighted mean: K stacks the 3 working poses (k, 9)
+    assert 0.0 < rec["bound_mm2"] <= rec["values"]["kpi_avg_var_mm2"] and 0.0 < rec["efficiency"] <= 1.0
     deg = np.rad2deg(path)
     args = [f"--q-work={','.join(map(str, row))}" for row in deg]
     js2 = tmp_path / "m.json"
-    base = f"{kr} --kpi-aggregate max --out {out} --json {js2}"
+    base = f"{kr} --kpi-aggregate max --no-certify --out {out} --json {js2}"
     assert main(base.split() + args) == 0
     rec2 = json.loads(js2.read_text())
     assert rec2["kpi_aggregate"] == "max"
     assert_allclose(rec2["values"]["kpi_avg_var_mm2"], max(rec2["values"]["kpi_vars_mm2"]), rtol=1e-12)
+    assert rec2["start"] == "heuristic" and rec2["efficiency"] is None
     assert main(base.split() + args + ["--kpi-weights", "1,2,3"]) == 2
 
 

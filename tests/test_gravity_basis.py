@@ -204,6 +204,32 @@ def test_expected_side():
     assert gb.expected_side(np.array([0.0]), np.array([0.0]))[0] == 0.0
 
 
+def test_backlash_column_takes_the_given_side(model, q):
+    """A backlash's column is ``G sign(tau)`` by default and ``G side`` with a given side (the
+    diagnosis's expected side); the response agrees with the Jacobian's column."""
+    bl = fx.Effect("backlash", 4, values=(0.0,))
+    tau = fx.gravity_torques(model.robot, q)
+    side = np.tile(np.array([0.9, -0.2, 0.0, 1.0])[:, None], (1, 6))
+    _, _, E_sign = fx.augmented_jacobian(model, q, [bl], tau=tau)
+    _, _, E_side = fx.augmented_jacobian(model, q, [bl], tau=tau, side=side)
+    G = E_sign[:, :, 0] * np.sign(tau[:, 3])[:, None]
+    np.testing.assert_allclose(E_side[:, :, 0], G * side[:, 3:4], atol=1e-12)
+    h0 = fx.augmented_response(model, q, [bl], tau=tau, side=side)
+    h1 = fx.augmented_response(model, q, [bl.with_values((1e-6,))], tau=tau, side=side)
+    np.testing.assert_allclose(h1 - h0, 1e-6 * E_side[:, :, 0], atol=1e-8)
+
+
+def test_backlash_with_the_expected_side_when_masses_are_off():
+    """backlash:6 near the threshold (harness case single/backlash seed 87, lambda 37): the file's
+    torque puts 10 of 80 poses on the wrong side and the file-sign column keeps lambda 17.5, nothing
+    was named; the expected side (uncertain poses weigh little) names it."""
+    rec = run_synthetic_case(
+        "single", 87, "kr16", families=("backlash",), mass_spread=0.3, payload="changes", near_threshold=True
+    )
+    assert rec["truth_names"] == ["backlash:6"] and 25 < rec["lambda"][0] < 50
+    assert rec["named"] == ["backlash:6"] and rec["holdout_ext_over_sigma"] < 1.3
+
+
 def test_design_extend_with_the_basis(kr16):
     """``design --extend joint_elasticity_basis:3`` (API): sized per robot, its columns in F1."""
     prob = make_problem(kr16, extend=["joint_elasticity_basis:3"])

@@ -29,6 +29,7 @@ from test_identifiability_warnings import WRIST, named
 from kpioed_drake import api, calibration, identifiability, measurement, models, simulation
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignConstraints, optimize_design
+from kpioed_drake.design.approximate import rank3_changes
 from kpioed_drake.designio import write_design
 from kpioed_drake.diagnosis import diagnose
 from kpioed_drake.errors import InputError
@@ -331,20 +332,33 @@ def test_diagnose_three_targets_finds_the_effect(kr16):
 
 
 def test_design_and_evaluate_cli_with_two_targets(tmp_path, capsys):
-    """The commands take a several-target model: heuristic start, no certificate (null fields);
-    --certify and the approximate start are refused (exit 2), nothing written."""
+    """The commands take a several-target model: the approximate start (its cones hold a pose's 6
+    rows) and the certificate, whose bound is below the design's value."""
     rfile = robot_file(tmp_path, [[-89.58, -2.84, 327.03], [-89.58, 60.0, 300.0]])
     out, js = tmp_path / "des.csv", tmp_path / "des.json"
     base = ["design", "--robot", str(rfile), "--criterion", "kpi", "--n", "10", "--out", str(out)]
     assert main([*base, "--json", str(js)]) == 0
     rec = json.loads(js.read_text())
-    assert rec["start"] == "heuristic" and rec["bound_mm2"] is None and rec["feasible"]
-    assert main(["evaluate", "--robot", str(rfile), "--design", str(out)]) == 0
+    assert rec["start"] == "approximate" and rec["feasible"]
+    value = rec["values"]["kpi_avg_var_mm2"]
+    assert 0 < rec["bound_mm2"] <= value and 0 < rec["efficiency"] <= 1
+    ev = tmp_path / "ev.json"
+    assert main(["evaluate", "--robot", str(rfile), "--design", str(out), "--json", str(ev)]) == 0
     assert "feasible: True" in capsys.readouterr().out
-    for extra in (["--certify"], ["--start", "approximate"]):
-        out2 = tmp_path / "other.csv"
-        assert main([*base[:-1], str(out2), *extra]) == 2 and not out2.exists()
-        assert "several targets" in capsys.readouterr().err
+    assert 0 < json.loads(ev.read_text())["bound_mm2"] <= value * (1 + 1e-9)
+
+
+def test_exchange_changes_with_two_targets_are_exact():
+    """The exchange's rank-6 updates (a pose's rows of two targets) equal Phi recomputed."""
+    rng = np.random.default_rng(11)
+    F = rng.standard_normal((7, 6, 9))
+    K = rng.standard_normal((9, 3))
+    M = np.einsum("iak,ial->kl", F[:4], F[:4]) + np.eye(9)
+    phi = float(np.trace(K.T @ np.linalg.solve(M, K)))
+    added = [float(np.trace(K.T @ np.linalg.solve(M + f.T @ f, K))) for f in F]
+    removed = [float(np.trace(K.T @ np.linalg.solve(M - f.T @ f, K))) for f in F[:4]]
+    np.testing.assert_allclose(rank3_changes(F, M, K, 1.0), phi - np.array(added), rtol=1e-9)
+    np.testing.assert_allclose(rank3_changes(F[:4], M, K, -1.0), np.array(removed) - phi, rtol=1e-9)
 
 
 def test_in_memory_data_naming_unknown_targets_are_refused(kr16, design):

@@ -132,15 +132,15 @@ def solve_pool(F: np.ndarray, K: np.ndarray, *, tol: float = CLARABEL_TOL) -> Po
     Raises:
         InputError: if the solver fails or the weighted candidates do not determine the parameters.
     """
-    m, _, k = F.shape
+    m, r, k = F.shape  # r: 3 rows per pose, 3 T with T targets
     nc = K.shape[1]  # 3; several working poses: 3 K
     prog = MathematicalProgram()
     y = prog.NewContinuousVariables(nc * k, "y")  # Y[j, c] = y[nc j + c]
-    A = np.zeros((m, 1 + 3 * nc, nc * k))  # cone i: (1, vec(F_i Y)) with vec row-major
-    for a in range(3):
+    A = np.zeros((m, 1 + r * nc, nc * k))  # cone i: (1, vec(F_i Y)) with vec row-major
+    for a in range(r):
         for c in range(nc):
             A[:, 1 + nc * a + c, c::nc] = F[:, a]
-    b = np.eye(1 + 3 * nc)[0]
+    b = np.eye(1 + r * nc)[0]
     cones = [prog.AddLorentzConeConstraint(A[i], b, y) for i in range(m)]
     prog.AddLinearCost(-K.reshape(-1), 0.0, y)
     solver = ClarabelSolver()
@@ -325,12 +325,19 @@ def efficient_rounding(w: np.ndarray, n: int) -> np.ndarray:
 
 def rank3_changes(F: np.ndarray, M: np.ndarray, K: np.ndarray, sign: float) -> np.ndarray:
     """(m,) change magnitudes of ``Phi = tr(K^T M^-1 K)`` when one copy of each candidate's rows
-    ``F`` (m, 3, k) is added (``sign`` +1: the decrease ``tr((F X)^T (I + F M^-1 F^T)^-1 F X)``,
-    ``X = M^-1 K``) or removed (``sign`` -1: the increase, with ``I - F M^-1 F^T``)."""
+    ``F`` (m, 3, k) ((m, 3 T, k) with T targets) is added (``sign`` +1: the decrease
+    ``tr((F X)^T (I + F M^-1 F^T)^-1 F X)``, ``X = M^-1 K``) or removed (``sign`` -1: the increase,
+    with ``I - F M^-1 F^T``)."""
     Minv = np.linalg.inv(M)
     FM = F @ Minv  # (m, 3, k)
-    S = np.eye(3) + sign * (FM @ F.transpose(0, 2, 1))
+    S = np.eye(F.shape[1]) + sign * (FM @ F.transpose(0, 2, 1))
     FX = FM @ K  # (m, 3, 3)
+    if F.shape[1] != 3:  # several targets: 3 T rows per pose, batched solves instead of 3 x 3 adjugates
+        det = np.linalg.det(S)
+        ok = det > DET_FLOOR
+        change = np.full(len(F), np.inf if sign < 0 else -np.inf)
+        change[ok] = np.einsum("iac,iac->i", FX[ok], np.linalg.solve(S[ok], FX[ok]))
+        return change
     r0, r1, r2 = S[:, 0], S[:, 1], S[:, 2]
     adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], axis=2)  # det * S^-1
     det = np.einsum("ia,ia->i", r0, adj[:, :, 0])

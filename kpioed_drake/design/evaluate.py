@@ -84,7 +84,6 @@ def evaluate_file(
         "feasibility": summarize(reports),
         "poses": [r.as_dict() for r in reports],
     }
-    certify = certify and prob.n_targets == 1  # the certificate's cones hold 3 rows per pose
     result.update(certificate_fields(certify_design(prob, q, collision=True) if certify else None))
     with Outputs() as staged:
         if json_path:

@@ -77,23 +77,19 @@ def _validate(
         raise InputError(f"sweep_block must be a positive integer, got {sweep_block!r}")
 
 
-def resolve_start(
-    start: str | None, criterion: str, *, given=None, n_targets: int = 1, worst_case: bool = False
-) -> str:
+def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: bool = False) -> str:
     """The start method of :func:`optimize_design`: ``start``, or for None
     :data:`~kpioed_drake.design.common.DEFAULT_START` where it applies (``kpi`` criterion, no
-    ``given`` poses, one target per pose, not the worst case of several working poses, whose
-    approximate design would be that of their mean) and else ``heuristic``.
+    ``given`` poses, not the worst case of several working poses, whose approximate design would
+    be that of their mean) and else ``heuristic``.
 
     Raises:
         InputError: an unknown start, or ``approximate`` for another criterion than ``kpi``,
-            with given poses or with several targets (its cones hold 3 rows per pose).
+            or with given poses.
     """
     if start is None:
-        applies = criterion == "kpi" and given is None and n_targets == 1 and not worst_case
+        applies = criterion == "kpi" and given is None and not worst_case
         return DEFAULT_START if applies else "heuristic"
-    if start == "approximate" and n_targets > 1:
-        raise InputError("start 'approximate' is not available with several targets per pose (targets_mm)")
     if start not in START_METHODS:
         raise InputError(f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}")
     if start == "approximate" and criterion != "kpi":
@@ -249,9 +245,7 @@ def optimize_design(
         problem, criterion, n, solver, starts, max_block, sweep_block, 0 if given is None else len(given)
     )
     n = int(n)
-    start = resolve_start(
-        start, criterion, given=given, n_targets=problem.n_targets, worst_case=problem.worst_case
-    )
+    start = resolve_start(start, criterion, given=given, worst_case=problem.worst_case)
     base = dict(
         criterion=criterion,
         collision=collision,

@@ -169,7 +169,6 @@ def run_design(
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
         kpi_aggregate=kpi_aggregate,
     )
-    require(not (certify and problem.n_targets > 1), "--certify is not available with several targets")
     q_given = None if given is None else designio.read_design(given, robot)
     common = dict(
         criterion=criterion, collision=collision, solver=solver, seed=seed, starts=starts, start=start
@@ -189,7 +188,7 @@ def run_design(
         if json_path is not None and exc.result is not None:
             atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
         raise
-    if (certify or (certify is None and discriminate is None)) and problem.n_targets == 1:
+    if certify or (certify is None and discriminate is None):
         res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed, given=q_given)
     with Outputs() as staged:
         if out is not None:

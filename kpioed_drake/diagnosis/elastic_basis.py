@@ -112,8 +112,11 @@ def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_fold
             f"file's torques {comp['compliance']:.3g} rad/(N m)"
             + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
         )
+    # the named causes' sides first, then (if the model still fails the test) further causes
+    done = {e.key for e in sel.fit.effects}
+    notes += _backlash_with_fitted_torque(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
     notes += _add_basis_if_unexplained(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
-    notes += _backlash_with_fitted_torque(prob, sel, k_folds=k_folds)
+    notes += _backlash_with_fitted_torque(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n, skip=done)
     return notes, alternatives
 
 
@@ -212,7 +215,9 @@ def _best_side(prob: FitProblem, sel: Selection, e, Y: np.ndarray, theta: np.nda
     return out
 
 
-def _backlash_with_fitted_torque(prob: FitProblem, sel: Selection, *, k_folds: int) -> list[str]:
+def _backlash_with_fitted_torque(
+    prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int, ln_n: float, skip=()
+) -> list[str]:
     """A named elasticity that is a backlash whose side the file's masses get wrong.
 
     ``backlash:j`` follows the sign of joint j's gravity torque; with masses unlike the file's that
@@ -223,10 +228,15 @@ def _backlash_with_fitted_torque(prob: FitProblem, sel: Selection, *, k_folds: i
     ``backlash:j`` replaces the elasticity. Accepted, with the conditions kept (the report's plots
     and signals then use the fitted torque of joint j), if the BIC is lower and the held-out RMS
     too. For a wrist joint (two basis moments) the side is searched over 36 directions of the
-    torque (:func:`_best_side`).
+    torque (:func:`_best_side`). A named ``backlash:j`` (whose side is the file's torque's expected
+    sign) is tried with the fitted side alike. After an accepted replacement the backward step
+    removes the effects that stood in for the poses on the wrong side. Effects whose key is in
+    ``skip`` (already tried) are left alone.
     """
     notes = []
-    for e in [x for x in sel.fit.effects if x.family in ("joint_elasticity", gb.FAMILY)]:
+    for e in [x for x in sel.fit.effects if x.family in ("joint_elasticity", gb.FAMILY, "backlash")]:
+        if e.key in skip or e.key not in {x.key for x in sel.fit.effects}:
+            continue  # tried before, or removed by the backward step of an earlier replacement
         j = e.joint - 1
         jb = gb.joint_basis(prob.robot, e.joint)
         if e.family == gb.FAMILY:
@@ -264,10 +274,13 @@ def _backlash_with_fitted_torque(prob: FitProblem, sel: Selection, *, k_folds: i
         sel.fit, sel.holdout = f, hold
         sel.evidence[bl.key] = ev
         side_ev = ev["backlash_side_from_data"]
+        removed = _backward(prob, sel, bl, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        side_ev["removed"] = removed
         notes.append(
             f"{e.name} is a backlash: backlash:{e.joint} with the side of the gravity torque fitted from the "
             f"data (the file's masses put {side_ev['poses_side_differs_from_file']} poses on the other "
             f"side) fits better (chi2 {f.cost:.1f} against {side_ev['chi2_without']:.1f})"
+            + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
         )
     return notes
 

@@ -165,6 +165,9 @@ def _alternative_lines(c: dict) -> list[str]:
     ]
     for a in alts:
         ev = a["evidence"]
+        if "lr_stat" not in ev:  # an alternative of another kind (e.g. the gravity-torque basis)
+            out.append(f"    alternative {a['name']}: {ev.get('explains', 'explains the data as well')}")
+            continue
         out.append(
             f"    alternative {a['name']}: LR {ev['lr_stat']:.1f} vs {ev['lr_stat_cause']:.1f}, held-out RMS "
             f"{ev['holdout_rms_mm']:.4f} mm, canonical correlation {ev['canonical_correlation']:.3f}"

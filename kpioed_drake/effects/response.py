@@ -44,9 +44,8 @@ def joint_deltas(
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     n = q.shape[0]
     need_dtau = with_dq and any(e.family == "joint_elasticity" for e in effects)
-    need_tau = any(
-        e.family == "joint_elasticity" or (e.family == "backlash" and side is None) for e in effects
-    )
+    fams = {e.family for e in effects}
+    need_tau = "joint_elasticity" in fams or ("backlash" in fams and side is None)
     dtau = None
     if (need_tau and tau is None) or need_dtau:
         out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=need_dtau)

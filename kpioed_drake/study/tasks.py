@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import math
 import re
 import time
@@ -233,6 +234,13 @@ def _design_api(design_api):
     return design_api
 
 
+def _start_option(optimize) -> dict:
+    """``{"start": STUDY_START}`` if ``optimize`` takes a ``start`` (a stand-in may not)."""
+    params = inspect.signature(optimize).parameters
+    takes = "start" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    return {"start": STUDY_START} if takes else {}
+
+
 def _make_design(api, problem: Problem, task: Task) -> tuple[np.ndarray, float, dict]:
     """The poses q: (n, 6) [rad], the solve time [s] and the solver fields of the row."""
     t0 = time.perf_counter()
@@ -254,7 +262,7 @@ def _make_design(api, problem: Problem, task: Task) -> tuple[np.ndarray, float, 
         collision=task.collision,
         seed=task.seed,
         allow_infeasible=True,
-        start=STUDY_START,
+        **_start_option(api.optimize_design),
     )
     solve_s = float(getattr(res, "solve_s", time.perf_counter() - t0))
     info = dict(
