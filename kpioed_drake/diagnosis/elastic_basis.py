@@ -30,7 +30,7 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.selection import Selection, _backward
+from kpioed_drake.diagnosis.selection import Selection, backward_step
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation import rms
 
@@ -68,7 +68,7 @@ def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_fold
         lr = max(sel.fit.cost - f.cost, 0.0)
         p = float(scipy.stats.chi2.sf(lr, dof))
         trial = Selection(fit=f, holdout=prob.holdout(f, k=k_folds), steps=[], evidence=dict(sel.evidence))
-        removed = _backward(prob, trial, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        removed = backward_step(prob, trial, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
         before, after = rms(sel.holdout), rms(trial.holdout)
         if _bic(trial.fit) >= _bic(sel.fit) or after >= before:
             # not better, but the effects it makes redundant are stand-ins for a mass mismatch
@@ -274,7 +274,7 @@ def _backlash_with_fitted_torque(
         sel.fit, sel.holdout = f, hold
         sel.evidence[bl.key] = ev
         side_ev = ev["backlash_side_from_data"]
-        removed = _backward(prob, sel, bl, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        removed = backward_step(prob, sel, bl, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
         side_ev["removed"] = removed
         notes.append(
             f"{e.name} is a backlash: backlash:{e.joint} with the side of the gravity torque fitted from the "
@@ -349,7 +349,7 @@ def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float,
         prob.conditions = pb.conditions
     sel.evidence[b.key] = ev
     sel.fit, sel.holdout = f, hold
-    removed = _backward(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    removed = backward_step(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
     return [
         f"the model still failed the fit test; {b.name} ({what}) explains the rest (LR {lr:.1f} on "
         f"{b.n_params} dof)" + (f"; removed: {', '.join(removed)}" if removed else "")

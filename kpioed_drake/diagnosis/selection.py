@@ -273,7 +273,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
     return rows, best
 
 
-def _backward(prob: FitProblem, sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
+def backward_step(prob: FitProblem, sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
     """Remove every chosen effect (but the one just added) that no longer earns its place."""
     removed = []
     for old in list(sel.fit.effects):
@@ -357,7 +357,7 @@ def select_effects(
         ev["holdout_rms_mm_without"] = before
         sel.evidence[e.key] = ev
         sel.fit, sel.holdout = row["_fit"], row["_hold"]
-        removed = _backward(prob, sel, e, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        removed = backward_step(prob, sel, e, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
         if removed:
             rec["removed"] = removed
         sel.steps.append(rec)
