@@ -19,6 +19,9 @@ Example::
     print(report["kpi_avg_var_mm2"], report["feasible"])
     res = api.design("kr16", discriminate="joint_scale:2=300|gear_cyclic:2:1", given="first.csv", n=20)
     print(res.discrimination["after"])                        # lambda, power of both tests
+    plan = api.design("kr16", discriminate="thermal_expansion|tracker_scale", given="first.csv", n=20,
+                      condition_span="3K")                    # poses and their temperature
+    print(plan.discrimination["plan"]["spans"], plan.plan_columns["temperature_offset_K"])
 
 Every command function checks its arguments and its output paths before any work (an output may
 not overwrite an input, name a folder, or be named twice; :mod:`kpioed_drake.arguments`) and raises

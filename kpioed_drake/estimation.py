@@ -112,6 +112,7 @@ class Conditions:
             elasticity); computed by the effects module when needed and not given.
         target: (n,) 0-based target (reflector) of each row; None: target 0 for every row.
         side: (n, 6) a backlash's side per pose; None: the sign of ``tau``.
+        payload_kg: (n,) [kg] or None: the payload of a column or base compliance's moment.
     """
 
     temperature_C: np.ndarray | None = None
@@ -119,6 +120,7 @@ class Conditions:
     tau: np.ndarray | None = None
     target: np.ndarray | None = None
     side: np.ndarray | None = None
+    payload_kg: np.ndarray | None = None
 
     def subset(self, idx) -> Conditions:
         """The poses ``idx``."""
@@ -127,7 +129,12 @@ class Conditions:
             return None if x is None else x[idx]
 
         return Conditions(
-            pick(self.temperature_C), pick(self.time_s), pick(self.tau), pick(self.target), pick(self.side)
+            pick(self.temperature_C),
+            pick(self.time_s),
+            pick(self.tau),
+            pick(self.target),
+            pick(self.side),
+            pick(self.payload_kg),
         )
 
 
@@ -136,7 +143,7 @@ def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
     commanded angles with the payload at ``p_FP`` [mm] (held fixed during a fit, so that the
     residual function is the same for every parameter value)."""
     tau = fx.gravity_torques(robot, data.q, payload_kg=data.payload_kg, p_FP=p_FP)
-    return Conditions(data.temperature_C, data.time_s, tau, data.target)
+    return Conditions(data.temperature_C, data.time_s, tau, data.target, payload_kg=data.payload_kg)
 
 
 def rms(r) -> float:
@@ -158,6 +165,7 @@ def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bo
         tau=conditions.tau,
         target=conditions.target,
         side=conditions.side,
+        compliance_payload_kg=conditions.payload_kg,
     )
 
 

@@ -97,6 +97,8 @@ class Robot:
         gauge: the parameters held at nominal (None: SPEC's gauge of the six-joint tables; a
             chain robot's is chosen by :func:`kpioed_drake.chain.auto_gauge`).
         urdf: for a URDF robot, what :mod:`kpioed_drake.plant` needs to parse it (None otherwise).
+        compliant_base: the model file says the base or floor is compliant (``compliant_base:
+            true``): ``base_compliance`` is a diagnosis candidate.
     """
 
     name: str
@@ -121,6 +123,7 @@ class Robot:
     gauge: tuple[str, ...] | None = None
     urdf: object | None = None
     targets: np.ndarray | None = None
+    compliant_base: bool = False
 
     @property
     def n_targets(self) -> int:
@@ -373,6 +376,7 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         joint_map=joint_map_from_spec(spec.joint_map, where),
         extra_gauge=tuple(spec.extra_gauge),
         targets=targets,
+        compliant_base=bool(spec.compliant_base),
     )
 
 

@@ -74,6 +74,8 @@ class RobotSpec:
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
     """Optional: parameters held at nominal besides SPEC's gauge (e.g. ``theta5, alpha5`` when the
     reflector lies on joint 6's axis and joint 6 cannot move it)."""
+    compliant_base: bool = False
+    """Optional: the base or floor is compliant (``base_compliance`` becomes a diagnosis candidate)."""
 
 
 @dataclasses.dataclass

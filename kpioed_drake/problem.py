@@ -29,6 +29,7 @@ import numpy as np
 
 from kpioed_drake import covariance
 from kpioed_drake.effects import (
+    COMPLIANCE_FAMILIES,
     JOINT_FAMILIES,
     effect_kpi_columns,
     extension_columns,
@@ -364,11 +365,11 @@ def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
     out = []
     for e in extend:
         eff = parse_effect(e, model=model) if isinstance(e, str) else e
-        if eff.family not in JOINT_FAMILIES:
+        if eff.family not in JOINT_FAMILIES + COMPLIANCE_FAMILIES:
             raise InputError(
-                f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) can extend a "
-                "design or an evaluation (thermal_expansion, tracker_drift and tracker_scale need per-pose "
-                "temperature and time)"
+                f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) and "
+                f"compliances ({', '.join(COMPLIANCE_FAMILIES)}) can extend a design or an evaluation "
+                "(thermal_expansion, tracker_drift and tracker_scale need per-pose temperature and time)"
             )
         if any(o.key == eff.key for o in out):
             raise InputError(f"--extend {eff.name} is given twice")

@@ -92,6 +92,8 @@ class SidecarSpec:
     gauge: list[str] = dataclasses.field(default_factory=list)
     """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
     nominal robot's: its small errors make the exact dependencies only nearly exact)."""
+    compliant_base: bool = False
+    """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
     notes: str = ""
 
 
@@ -355,6 +357,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         chain=chain,
         gauge=gauge,
         urdf=source,
+        compliant_base=bool(side.compliant_base),
     )
 
 

@@ -10,7 +10,10 @@ collision-free poses). Kinds:
 - ``clean``: no effect (false alarms);
 - ``single:joint_elasticity:spec``: elasticity at SPEC's sizes (0.1-1 mm at the tool), not near
   the threshold: where masses unlike the file's matter (the gravity basis);
-- ``single`` (old harness, ``--families``): one effect of any of the families.
+- ``single`` (old harness, ``--families``): one effect of any of the families;
+- ``single:column_compliance``, ``single:base_compliance`` (not in the default kinds): a robot on
+  a lift (``--robot lift7 --kinds single:column_compliance,clean``), the column's joint drawn among
+  the robot's lifting columns.
 
 The harder harness (default on; ``--easy`` switches it off, as in the first rates table): the true
 link masses and centres of mass are +-30 % off the model file's (``--mass-spread``), every other
@@ -47,6 +50,8 @@ import numpy as np
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
+from kpioed_drake.effects.compliance import vertical_columns
+from kpioed_drake.models import load_robot
 from kpioed_drake.outputs import atomic_write_json
 
 DETECTABLE = 25.0
@@ -72,6 +77,8 @@ def run_case(job) -> dict:
     base, _, fam = kind.partition(":")
     fam, _, variant = fam.partition(":")
     families = (fam,) if fam else tuple(opts["families"])
+    if fam == "column_compliance":  # the robot's lifting column(s)
+        families = tuple(f"{fam}:{j}" for j in vertical_columns(load_robot(opts["robot"])))
     hard = not opts["easy"]
     rec = D.run_synthetic_case(
         base,
@@ -115,6 +122,10 @@ def summarise(records: list[dict]) -> dict:
             s["exact_detectable"] = _rate(r["exact"] for r in det)
             s["explained_detectable"] = _rate(r.get("explained", r["exact"]) for r in det)
             s["named_with_gravity_basis"] = sum(any("basis" in x for x in r.get("named_raw", [])) for r in rs)
+            if kind == "pair":  # each effect detectable beside the other hidden one too
+                both = [r for r in det if min(r.get("lambda_given_others", [0.0])) >= DETECTABLE]
+                s["detectable_given_others"] = len(both)
+                s["explained_detectable_given_others"] = _rate(r["explained"] for r in both)
         out[kind] = s
     return out
 
@@ -183,7 +194,11 @@ def main(argv=None) -> int:
     for k in kinds:
         base, _, fam = k.partition(":")
         fam, _, variant = fam.partition(":")
-        if base not in D.CASE_KINDS or (fam and fam not in FAMILIES) or variant not in ("", "spec"):
+        if (
+            base not in D.CASE_KINDS
+            or (fam and fam not in FAMILIES + fx.COMPLIANCE_FAMILIES)
+            or variant not in ("", "spec")
+        ):
             ap.error(f"unknown kind {k!r}; expected one of {', '.join(KINDS)} or single/pair/clean")
     cases, poses = (1, 60) if a.quick else (a.cases, a.poses)
     out = Path(a.out)

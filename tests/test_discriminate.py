@@ -237,7 +237,6 @@ def test_cli_writes_the_record_and_the_api_agrees(kr16, tmp_path, capsys):
         ("joint_scale:2|joint_scale:2=200", "the same effect"),
         ("joint_elasticity:1|gear_cyclic:2:1", "joint 1 turns about the vertical axis"),
         ("joint_scale:7|gear_cyclic:2:1", "joint must be 1..6"),
-        ("thermal_expansion|tracker_scale", "cannot be told apart by poses alone"),
     ],
 )
 def test_bad_pairs_exit_2_naming_the_option_and_write_nothing(tmp_path, capsys, pair, pattern):

@@ -30,6 +30,7 @@ from kpioed_drake.design import (
     discrimination_lines,
     format_summary,
 )
+from kpioed_drake.design.plan import plan_lines
 from kpioed_drake.errors import EXIT_SOLVER, InputError
 from kpioed_drake.problem import KPI_AGGREGATES
 
@@ -100,7 +101,16 @@ def register(sub) -> None:
         metavar="A|B",
         help="poses that tell two explanations apart (e.g. 'joint_scale:2=300|gear_cyclic:2:1'; values "
         "optional, default: the smallest realistic size), instead of --criterion; --given: the first data "
-        "set",
+        "set; a pair with thermal_expansion, tracker_scale or tracker_drift gets a measurement plan (each "
+        "pose in two blocks, the CSV's block and temperature_offset_K / time_offset_s columns)",
+    )
+    p.add_argument(
+        "--condition-span",
+        default=None,
+        metavar="SPAN",
+        help="with --discriminate and a temperature or time effect: the change of temperature or time "
+        "between the plan's two blocks, e.g. 3K, 600s, 10min, 3K,600s (default: the span for power 0.8, "
+        "rounded up; 0 forbids it)",
     )
     p.set_defaults(func=run)
 
@@ -154,6 +164,7 @@ def run(args) -> int:
             args.robot,
             criterion=args.criterion or "kpi",
             discriminate=args.discriminate,
+            condition_span=args.condition_span,
             n=args.n,
             collision=not args.no_collision,
             solver=args.solver,
@@ -182,7 +193,7 @@ def run(args) -> int:
         return EXIT_SOLVER
     print(format_summary(res))
     if getattr(res, "discrimination", None) is not None:
-        print("\n".join(discrimination_lines(res.discrimination)))
+        print("\n".join(discrimination_lines(res.discrimination) + plan_lines(res.discrimination)))
     if not (res.success and res.feasible):
         print(
             "kpioed: warning: the design failed or is infeasible (written because of --allow-infeasible)",

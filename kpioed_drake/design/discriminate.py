@@ -32,9 +32,11 @@ derivative to follow: the criterion uses ``tanh(tau_i / tau0)`` instead
 (:data:`BACKLASH_SMOOTHING`); the reported non-centralities use the sign.
 
 Effects that need per-pose conditions (temperature: ``thermal_expansion``, ``tracker_scale``;
-time: ``tracker_drift``) cannot be told apart by poses alone:
-:func:`~kpioed_drake.design.explanations.condition_spread` gives the span of the condition the new
-data needs (non-centrality grows as the span squared). Texts, sizes, non-centralities and powers:
+time: ``tracker_drift``) cannot be told apart by poses alone: :func:`discrimination_design` refuses
+them with the span an even ramp of the condition would need
+(:func:`~kpioed_drake.design.explanations.condition_spread`); ``kpioed design`` gives them a
+measurement plan instead, poses and their conditions (:mod:`~kpioed_drake.design.conditions`,
+:func:`~kpioed_drake.design.plan.plan_design`). Texts, sizes, non-centralities and powers:
 :mod:`kpioed_drake.design.explanations`.
 """
 
@@ -88,7 +90,11 @@ class DiscriminationProblem(Problem):
         return self.rows
 
     def F1(self, q, *, with_dq: bool = False, frames=None):
-        out = super().F1(q, with_dq=with_dq, frames=frames)
+        return self.smoothed(q, super().F1(q, with_dq=with_dq, frames=frames), with_dq=with_dq, frames=frames)
+
+    def smoothed(self, q, out, *, with_dq: bool = False, frames=None):
+        """``out`` (F1 (3n, k), with ``with_dq`` also dF1 (n, 6, 3, k)) of the poses ``q`` with each
+        backlash column replaced by its smoothed signature (:attr:`backlash_tau0`)."""
         if not self.backlash_tau0:
             return out
         F1, dF1 = (out[0].copy(), out[1].copy()) if with_dq else (out.copy(), None)
@@ -154,8 +160,14 @@ def discrimination_problem(base: Problem, pair) -> DiscriminationProblem:
 def assessment(base: Problem, pair, q, *, alpha: float = DEFAULT_ALPHA) -> dict:
     """Non-centrality and power of both tests for the poses ``q`` (n, 6) [rad]."""
     F1 = base.F1(np.atleast_2d(q))
-    lam = noncentralities(F1, explanation_indices(base, pair), pair)
-    out = {"n_poses": int(len(np.atleast_2d(q)))}
+    return tests_record(
+        pair, noncentralities(F1, explanation_indices(base, pair), pair), len(np.atleast_2d(q)), alpha
+    )
+
+
+def tests_record(pair, lam, n: int, alpha: float) -> dict:
+    """``n_poses`` and per explanation its test, ``lambda`` (of ``lam`` (2,)), ``df`` and ``power``."""
+    out = {"n_poses": int(n)}
     for h, other, x in zip(pair, pair[::-1], lam, strict=True):
         out[h.effect.name] = {
             "test": f"{h.effect.name} true: needed on top of the geometry and {other.effect.name}",
@@ -206,6 +218,40 @@ def _kpi_values(base: Problem, q) -> dict:
         return {"kpi_avg_var_mm2": float("nan"), "param_crit": float("nan")}
 
 
+def checked_pair(problem: Problem, pair_text: str, alpha: float):
+    """The two explanations of ``pair_text`` (:func:`parse_pair`), neither also an extension of
+    ``problem``, and ``alpha`` in (0, 1); else :class:`~kpioed_drake.errors.InputError`."""
+    pair = parse_pair(pair_text, problem.model)
+    names = {e.key for e in problem.extensions}
+    for h in pair:
+        if h.effect.key in names:
+            raise InputError(f"{OPTION}: {h.effect.name} is also given to --extend")
+    if not 0 < alpha < 1:
+        raise InputError(f"alpha must be in (0, 1), got {alpha!r}")
+    return pair
+
+
+def heuristic_start(options: dict) -> str:
+    """The optimiser's start of a discrimination design, popped from ``options``: the heuristic
+    (the approximate design is one of the KPI at a working pose)."""
+    start = options.pop("start", None) or "heuristic"
+    if start != "heuristic":
+        raise InputError(f"{OPTION}: the optimiser starts from the heuristic design (got start {start!r})")
+    return start
+
+
+def optimize_discrimination(dprob: Problem, *, n: int, given, **options) -> DesignResult:
+    """:func:`~kpioed_drake.design.optimize.optimize_design` of ``dprob``'s worst case from the
+    heuristic start; a failure is reported as the discriminate design's."""
+    start = heuristic_start(options)
+    try:
+        return optimize_design(dprob, criterion="kpi", n=n, given=given, start=start, **options)
+    except DesignError as exc:
+        if exc.result is not None:
+            exc.result.criterion = "discriminate"
+        raise DesignError(str(exc).replace("the kpi design", "the discriminate design"), exc.result) from None
+
+
 def discrimination_design(
     problem: Problem,
     pair_text: str,
@@ -235,13 +281,7 @@ def discrimination_design(
         InputError: a bad pair (:func:`parse_pair`), an effect that needs per-pose conditions (with
             the span of temperature or time the data needs), other bad arguments.
     """
-    pair = parse_pair(pair_text, problem.model)
-    names = {e.key for e in problem.extensions}
-    for h in pair:
-        if h.effect.key in names:
-            raise InputError(f"{OPTION}: {h.effect.name} is also given to --extend")
-    if not 0 < alpha < 1:
-        raise InputError(f"alpha must be in (0, 1), got {alpha!r}")
+    pair = checked_pair(problem, pair_text, alpha)
     seed, collision = int(options.get("seed", 0)), options.get("collision", True)
     if any(h.effect.family in CONDITION_FAMILIES for h in pair):
         n_q = max(n, problem.min_poses())
@@ -261,36 +301,46 @@ def discrimination_design(
     q_before = given if given is not None else heuristic_design(base, n=n, seed=seed, collision=collision)
     before = assessment(base, pair, q_before, alpha=alpha)
     before["poses"] = "given" if given is not None else "heuristic"
-    start = options.pop("start", None) or "heuristic"
-    if start != "heuristic":
-        raise InputError(f"{OPTION}: the optimiser starts from the heuristic design (got start {start!r})")
-    try:
-        res = optimize_design(dprob, criterion="kpi", n=n, given=given, start=start, **options)
-    except DesignError as exc:
-        if exc.result is not None:
-            exc.result.criterion = "discriminate"
-        raise DesignError(str(exc).replace("the kpi design", "the discriminate design"), exc.result) from None
+    res = optimize_discrimination(dprob, n=n, given=given, **options)
     q_all = res.q if given is None else np.concatenate([given, res.q])
     after = assessment(base, pair, q_all, alpha=alpha)
     after["poses"] = "given + design" if given is not None else "design"
     crit = _kpi_values(base, q_all)
+    fields = result_fields(res, crit, None if given is None else _kpi_values(base, given))
+    criterion = (
+        "the larger of v_A, v_B; 1/v_h <= lambda_h, a backlash's signature smoothed "
+        "(kpioed_drake.design.discriminate)"
+    )
+    record = discrimination_record(pair, alpha, criterion, res, before, after)
+    return DiscriminationResult(**fields, discrimination=record), base
+
+
+def result_fields(res: DesignResult, crit: dict, alone: dict | None) -> dict:
+    """The fields of a discrimination result from the optimiser's ``res``: criterion
+    ``discriminate``, the KPI values ``crit`` of the extended model (combined design) and, with
+    given poses, their own (``alone``), not the criterion's."""
     fields = {f.name: getattr(res, f.name) for f in dataclasses.fields(DesignResult)}
     fields.update(criterion="discriminate", kpi_vars_mm2=None, **crit)
-    if res.given is not None:  # the given poses' own KPI in the extended model, not the criterion
-        alone = _kpi_values(base, given)
+    if res.given is not None:
         fields["given"] = {
             **res.given,
             "given_kpi_avg_var_mm2": alone["kpi_avg_var_mm2"],
             "given_param_crit": alone["param_crit"],
         }
-    record = {
+    return fields
+
+
+def discrimination_record(
+    pair, alpha: float, criterion: str, res: DesignResult, before: dict, after: dict
+) -> dict:
+    """The ``discrimination`` record: pair, assumed sizes, level, criterion, ``1/v_h`` of the
+    optimiser's ``res``, and both tests ``before`` and ``after``."""
+    return {
         "pair": [h.effect.name for h in pair],
         "assumed": [h.to_dict() for h in pair],
         "alpha": alpha,
-        "criterion": "the larger of v_A, v_B; 1/v_h <= lambda_h, a backlash's signature smoothed "
-        "(kpioed_drake.design.discriminate)",
+        "criterion": criterion,
         "criterion_inverse_v": [1.0 / v for v in (res.kpi_vars_mm2 or [float("nan")] * 2)],
         "before": before,
         "after": after,
     }
-    return DiscriminationResult(**fields, discrimination=record), base

@@ -41,12 +41,14 @@ DEFAULT_SIZES = {
     "thermal_expansion": 11.7e-6,
     "tracker_scale": -0.93,
     "tracker_drift": 0.005,
+    "column_compliance": 0.1,
+    "base_compliance": 0.1,
 }
 """Assumed size of an explanation given without a value: the smallest of SPEC's realistic sizes
-(the lower bounds of the sizes the synthetic harness draws), in display units: elasticity as the
-largest tool displacement [mm] (turned into c for the robot), gear amplitude ``sqrt(a^2 + b^2)``
-[deg], scale and coupling [ppm], backlash [deg], thermal [1/K] (steel), tracker scale [ppm/K]
-(air), drift speed [mm/min]."""
+(the lower bounds of the sizes the synthetic harness draws), in display units: elasticity and the
+column and base compliances as the largest tool displacement [mm] (turned into c for the robot),
+gear amplitude ``sqrt(a^2 + b^2)`` [deg], scale and coupling [ppm], backlash [deg], thermal [1/K]
+(steel), tracker scale [ppm/K] (air), drift speed [mm/min]."""
 CONDITION_FAMILIES = ("thermal_expansion", "tracker_drift", "tracker_scale")
 """Families whose signature needs per-pose temperature or time (not poses alone)."""
 _CONDITION = {
@@ -89,7 +91,7 @@ class Explanation:
 def _default(effect: Effect, model) -> Effect:
     """``effect`` with the assumed size of :data:`DEFAULT_SIZES`."""
     size = DEFAULT_SIZES[effect.family]
-    if effect.family == "joint_elasticity":
+    if effect.family in ("joint_elasticity", "column_compliance", "base_compliance"):
         return resolve(dataclasses.replace(effect, tool_mm=size), model)
     if effect.family == "gear_cyclic":
         return effect.with_values(np.deg2rad([size, size]) / np.sqrt(2.0))

@@ -20,8 +20,9 @@ from kpioed_drake import designio
 from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed, require
 from kpioed_drake.design import certificate
 from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS, method_label
-from kpioed_drake.design.discriminate import discrimination_design
+from kpioed_drake.design.conditions import read_given_conditions
 from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.plan import plan_design
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
 from kpioed_drake.design.target import design_for_target
@@ -94,6 +95,7 @@ def run_design(
     start: str | None = None,
     certify: bool | None = None,
     discriminate: str | None = None,
+    condition_span: str | None = None,
 ) -> DesignResult:
     """Compute a design for a robot in the default cell and write its files (what ``kpioed design`` runs).
 
@@ -137,7 +139,13 @@ def run_design(
             ``"joint_scale:2=300|gear_cyclic:2:1"``): poses that tell them apart
             (:func:`~kpioed_drake.design.discriminate.discrimination_design`; instead of
             ``criterion``; ``given`` is the first data set). The JSON record's ``discrimination``
-            has the assumed sizes and each test's non-centrality and power before and after.
+            has the assumed sizes and each test's non-centrality and power before and after. A
+            pair that needs temperature or time gets a measurement plan
+            (:func:`~kpioed_drake.design.plan.plan_design`: each pose in two blocks; the CSV's
+            ``block`` and ``temperature_offset_K`` / ``time_offset_s``; the record's ``plan``).
+        condition_span: with ``discriminate``, the span of block 2 from block 1 (``"3K"``,
+            ``"600s"``, ``"10min"``, ``"3K,600s"``; None: the span for power 0.8, rounded up;
+            ``given``'s ``temperature_C`` / ``time_s`` columns, if any, are the first data's).
 
     Returns:
         :class:`DesignResult`.
@@ -148,6 +156,7 @@ def run_design(
     if discriminate is not None:
         require(criterion == "kpi", f"--discriminate replaces --criterion (got criterion {criterion!r})")
         require(target_var_mm2 is None and not certify, "--discriminate takes no --target-var or --certify")
+    require(discriminate is not None or condition_span is None, "--condition-span goes with --discriminate")
     require(
         criterion in DESIGN_METHODS,
         f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {criterion!r}",
@@ -176,8 +185,16 @@ def run_design(
     try:
         if discriminate is not None:
             options = {k: v for k, v in common.items() if k != "criterion"}
-            res, problem = discrimination_design(
-                problem, discriminate, n=n, given=q_given, allow_infeasible=allow_infeasible, **options
+            conds = read_given_conditions(given, len(q_given)) if given is not None else None
+            res, problem = plan_design(
+                problem,
+                discriminate,
+                n=n,
+                given=q_given,
+                given_conditions=conds,
+                condition_span=condition_span,
+                allow_infeasible=allow_infeasible,
+                **options,
             )
             criterion = res.criterion
         elif target_var_mm2 is None:
@@ -195,6 +212,7 @@ def run_design(
             extra = {
                 "incidence_deg": np.array([r["incidence_deg"] for r in res.reports]),
                 "min_clearance_mm": np.array([r["min_clearance_mm"] for r in res.reports]),
+                **(getattr(res, "plan_columns", None) or {}),  # a measurement plan's block and condition
             }
             staged.add_text(out, designio.design_csv_text(res.q, extra, robot=problem.robot))
         if json_path is not None:

@@ -15,6 +15,15 @@ by the penalised likelihood (``LR - k ln(3 n)``) and the held-out RMS, and B's v
 plausible (:mod:`.physical`), :func:`settle` swaps B in for A (recorded as a step with ``swapped``)
 and looks again, at most ``MAX_EFFECTS`` swaps.
 
+A *nested* alternative (``evidence.nested``) explains less than A alone (``LR_B < LR_A - c``) but is
+significant alone and lies within A's signature: beside every cause, no direction of its weighted
+columns keeps more than ``NESTED_REMAINING`` (10 %) outside the span of the causes and the geometry
+(``remaining_given_causes``), and at most ``NESTED_SHARE`` (1/3) of what it keeps beside the
+other causes alone (it is A that holds B).
+The data cannot tell whether B is present as well as A (e.g. a gear-ratio error of joint 2 within a
+first-harmonic gear error of joint 2 when joint 2 turns over part of a circle): B's own
+non-centrality beside A is at most 1 % of its signal.
+
 Evidence of each alternative: ``lr_stat`` (``LR_B``), ``lr_stat_cause`` (``LR_A``), ``dof``,
 ``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B), and
 ``canonical_correlation`` (largest canonical correlation between A's and B's columns after projecting
@@ -26,11 +35,28 @@ from __future__ import annotations
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS
+from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.physical import plausibility
 from kpioed_drake.diagnosis.selection import Selection, columns, identifiability, projected_basis
 from kpioed_drake.estimation import rms
+
+
+def _outside(Q: np.ndarray, C: np.ndarray) -> float:
+    """Largest fraction of the columns C (m, k) outside the span of the orthonormal Q: the largest
+    singular value of C's orthonormal basis after projecting out Q (0: all of C inside)."""
+    Qc, _ = np.linalg.qr(C / np.linalg.norm(C, axis=0))
+    return float(np.linalg.svd(Qc - Q @ (Q.T @ Qc), compute_uv=False).max())
+
+
+def _nested(Q0: np.ndarray, C0: np.ndarray, Qx: np.ndarray, Cx: np.ndarray) -> bool:
+    """Whether B lies within A's signature: beside every cause (``Qx``, B's columns ``Cx`` at the
+    extended fit) no direction of B keeps more than ``NESTED_REMAINING`` outside, and at most
+    ``NESTED_SHARE`` of what it keeps beside the other causes alone (``Q0``, ``C0`` at their fit):
+    it is A that holds B (B's non-centrality beside A is at most ``NESTED_SHARE^2`` of its
+    non-centrality beside the others)."""
+    outside = _outside(Qx, Cx)
+    return outside < NESTED_REMAINING and outside <= NESTED_SHARE * _outside(Q0, C0)
 
 
 def competing(
@@ -62,18 +88,28 @@ def competing(
     r = (f0.residuals / prob.sigma).reshape(-1)
     U_a = projected_basis(Q, cols[0])
     ln_n = np.log(3 * prob.data.n)
+    Jx, cols_x = columns(prob, ext, others)  # B beside every cause: how much of it A leaves outside
+    Qx, _ = np.linalg.qr(Jx)
     found = []
-    for b, C in zip(others, cols[1:], strict=True):
+    for b, C, Cx in zip(others, cols[1:], cols_x, strict=True):
         U_b = projected_basis(Q, C)
         if U_b.shape[1] == 0:
             continue
         proj = U_b.T @ r
-        if float(proj @ proj) < lr_a - c - max(c, 0.2 * lr_a):
-            continue
+        score = float(proj @ proj)
+        nested = False
+        if score < lr_a - c - max(c, 0.2 * lr_a):
+            if score < 0.5 * scipy.stats.chi2.isf(alpha, b.n_params):
+                continue
+            nested = _nested(Q, C, Qx, Cx)
+            if not nested:
+                continue
         f = prob.fit(list(f0.effects) + [b], start=f0)
         lr_b = max(f0.cost - f.cost, 0.0)
         p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
-        if lr_b < lr_a - c or p_b >= alpha:
+        if lr_b < lr_a - c and not nested:
+            nested = _nested(Q, C, Qx, Cx)
+        if p_b >= alpha or (lr_b < lr_a - c and not nested):
             continue
         corr = np.linalg.svd(U_a.T @ U_b, compute_uv=False) if U_a.shape[1] else np.zeros(1)
         ev = {
@@ -84,6 +120,9 @@ def competing(
             "delta_bic": lr_b - b.n_params * ln_n,
             "canonical_correlation": float(min(1.0, corr.max())),
         }
+        if lr_b < lr_a - c:  # B explains less than A, but all of it lies within A's signature
+            ev["nested"] = True
+            ev["remaining_given_causes"] = _outside(Qx, Cx)
         found.append((f.effects[-1], f, ev))
     found.sort(key=lambda t: -t[2]["lr_stat"])
     found = found[:MAX_ALTERNATIVES]

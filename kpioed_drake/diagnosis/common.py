@@ -16,6 +16,11 @@ fails the goodness-of-fit test is a stand-in for an unexplained error, not a cau
 MIN_EXCESS_SHARE = 0.10
 """Likewise a candidate that removes less than this share of the held-out mean square above the
 noise (``holdout_rms^2 - sigma^2``) while the model with it still fails the goodness-of-fit test."""
+NESTED_REMAINING = 0.1
+"""A significant candidate of which no direction keeps more than this fraction outside the span of the
+named causes and the geometry is reported as a nested alternative of the cause that holds it ..."""
+NESTED_SHARE = 1.0 / 3.0
+"""... and at most this share of what it keeps outside the span of the other causes (the cause holds it)."""
 MAX_ALTERNATIVES = 3
 """Most competing explanations listed per cause."""
 COUPLING_PAIRS = ((3, 2), (5, 4), (6, 4), (6, 5))

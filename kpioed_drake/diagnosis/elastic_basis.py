@@ -45,10 +45,20 @@ def _bic(fit) -> float:
     return fit.cost + fit.k * np.log(fit.residuals.size)
 
 
+def _upgradable(prob: FitProblem, e) -> bool:
+    """A named elasticity, or a named backlash of a joint gravity loads (a large elasticity whose
+    torque the file's masses get wrong can pass for a backlash with a side chosen from the mass
+    prior, :mod:`~kpioed_drake.diagnosis.sides`)."""
+    if e.family == "joint_elasticity":
+        return True
+    return e.family == "backlash" and gb.joint_basis(prob.robot, e.joint).rank > 0
+
+
 def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int):
     """Replace named elasticities by their gravity basis where the data demand it (in place).
 
-    For each named ``joint_elasticity:j``: the basis in its place, then the backward step (effects
+    For each named ``joint_elasticity:j`` (and ``backlash:j``, :func:`_upgradable`): the basis in its
+    place, then the backward step (effects
     that were stand-ins for the mass mismatch, e.g. a gear error of joint j, go). Accepted if the
     result has a lower BIC (``chi2 + k ln(3 n)``) and a lower held-out RMS than the current model.
 
@@ -61,7 +71,7 @@ def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_fold
     """
     notes, alternatives = [], {}
     ln_n = np.log(3 * prob.data.n)
-    for e in [x for x in sel.fit.effects if x.family == "joint_elasticity"]:
+    for e in [x for x in sel.fit.effects if _upgradable(prob, x)]:
         b = basis_for(prob, e.joint)
         f = prob.fit([b if x.key == e.key else x for x in sel.fit.effects], start=sel.fit)
         dof = b.n_params - e.n_params
@@ -101,13 +111,19 @@ def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_fold
             "removed": removed,
             "holdout_rms_mm_before": before,
             "holdout_rms_mm_after": after,
-            "compliance_file_masses": float(e.value_array()[0]),
             **{f"basis_{k}": v for k, v in comp.items()},
         }
+        if e.family == "joint_elasticity":
+            ev["basis_upgrade"]["compliance_file_masses"] = float(e.value_array()[0])
         trial.evidence[b.key] = ev
         sel.fit, sel.holdout, sel.evidence = trial.fit, trial.holdout, trial.evidence
+        why = (
+            "the model file's masses do not explain the deflection"
+            if e.family == "joint_elasticity"
+            else "a deflection with the gravity torque of other link masses explains the data better"
+        )
         notes.append(
-            f"{e.name}: the model file's masses do not explain the deflection (LR {lr:.1f} on {dof} dof); "
+            f"{e.name}: {why} (LR {lr:.1f} on {dof} dof); "
             f"named with the gravity basis {b.name} ({b.n_params} moments), compliance against the "
             f"file's torques {comp['compliance']:.3g} rad/(N m)"
             + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")

@@ -30,6 +30,9 @@ class FitProblem:
         conditions: per-pose inputs of the effects over all poses; the gravity torques hold the
             payload at the nominal reflector point (fixed during the fit, so that the residual
             function stays the same for every parameter value).
+        side_patterns: ``{joint: (K, n)}`` candidate sides of a backlash whose side the file's masses
+            leave uncertain (:func:`kpioed_drake.diagnosis.sides.side_patterns`); empty: the side of
+            ``conditions`` only.
     """
 
     def __init__(self, robot: Robot, data: Measurements, sigma: float, *, cell=None):
@@ -37,6 +40,7 @@ class FitProblem:
         self.cell = load_cell(robot=robot) if cell is None else cell
         self.nominal = nominal_model(robot, self.cell)
         self.conditions = estimation.data_conditions(robot, data, p_FP=self.nominal.p_FQ)
+        self.side_patterns = {}
 
     @property
     def tau(self) -> np.ndarray:

@@ -20,7 +20,8 @@ estimate (a value the data do not pin down is not called implausible). Bounds (d
   <= ``DRIFT_MAX_MM`` (a tracker that moved more was bumped or its stand sank: re-reference it);
 - ``tracker_scale``: |k| <= ``TRACKER_SCALE_MAX_PPM_PER_K`` (uncompensated air refraction is
   -0.93 ppm/K);
-- ``backlash``: |b| <= ``BACKLASH_MAX_DEG``.
+- ``backlash``: |b| <= ``BACKLASH_MAX_DEG``;
+- ``column_compliance``, ``base_compliance``: c >= 0 (a negative c bends against gravity).
 """
 
 from __future__ import annotations
@@ -117,4 +118,9 @@ def plausibility(
         b, sb = np.rad2deg(float(v[0])), np.rad2deg(float(s[0]))
         if _beyond(abs(b), sb, 0.0, BACKLASH_MAX_DEG):
             return False, f"{name}: {b:.3g} deg above {BACKLASH_MAX_DEG:g} deg"
+    elif fam in fx.COMPLIANCE_FAMILIES and _beyond(float(v[0]), float(s[0]), 0.0, np.inf):
+        return False, (
+            f"{name}: negative compliance {v[0]:.3g} +- {s[0]:.2g} {fx.UNITS[fam]}: the column or base would "
+            "lean against its load; the signature is something else that follows the gravity moment"
+        )
     return True, None

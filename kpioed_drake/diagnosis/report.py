@@ -168,6 +168,14 @@ def _alternative_lines(c: dict) -> list[str]:
         if "lr_stat" not in ev:  # an alternative of another kind (e.g. the gravity-torque basis)
             out.append(f"    alternative {a['name']}: {ev.get('explains', 'explains the data as well')}")
             continue
+        if ev.get("nested"):
+            out.append(
+                f"    alternative {a['name']}: significant alone (LR {ev['lr_stat']:.1f} vs "
+                f"{ev['lr_stat_cause']:.1f}) and "
+                f"{100 * (1 - ev['remaining_given_causes'] ** 2):.1f} % of its signature lies within "
+                f"{c['name']}'s and the geometry's: the data cannot tell whether it is present as well"
+            )
+            continue
         out.append(
             f"    alternative {a['name']}: LR {ev['lr_stat']:.1f} vs {ev['lr_stat_cause']:.1f}, held-out RMS "
             f"{ev['holdout_rms_mm']:.4f} mm, canonical correlation {ev['canonical_correlation']:.3f}"

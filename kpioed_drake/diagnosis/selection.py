@@ -11,9 +11,11 @@
 - :func:`score_tests`: the residual structure, ``r^T P r / sigma^2`` per candidate with P the
   projector on the part of its columns the model cannot absorb (chi^2 under "no effect").
 - :func:`select_effects`: forward selection with the likelihood ratio against the known noise
-  (``LR = chi^2_before - chi^2_after`` ~ chi^2(k), Bonferroni-corrected over the candidates tested
-  in a step), BIC (``LR > k ln(3 n)``) and K-fold held-out error; after each addition every chosen
-  effect is re-tested for removal (stepwise).
+  (``LR = chi^2_before - chi^2_after`` ~ chi^2(k), its family-wise p-value over the candidates of a
+  step by the min-p method, :mod:`~kpioed_drake.diagnosis.multiplicity`; a backlash scored with
+  every side its joint's torque may take under the mass prior, :mod:`~kpioed_drake.diagnosis.sides`),
+  BIC (``LR > k ln(3 n)``) and K-fold held-out error; after each addition every chosen effect is
+  re-tested for removal (stepwise).
 """
 
 from __future__ import annotations
@@ -32,8 +34,12 @@ from kpioed_drake.diagnosis.common import (
     MIN_REMAINING,
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.multiplicity import adjusted_p, critical_p, min_p_null
+from kpioed_drake.diagnosis.sides import set_side, side_penalty, unit_columns
+from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation import rms
 from kpioed_drake.measurements import Measurements
+from kpioed_drake.models import Robot
 
 _VARIABLE = {
     "joint_elasticity": "gravity torque tau_{joint}",
@@ -44,10 +50,14 @@ _VARIABLE = {
     "joint_coupling": "q_{coupled} (on joint {joint})",
     "tracker_scale": "temperature x tracker distance",
     "backlash": "sign of tau_{joint}",
+    "column_compliance": "carriage height x gravity moment above joint {joint}",
+    "base_compliance": "gravity moment about the base",
 }
 
 
-def candidate_effects(data: Measurements, tau: np.ndarray | None = None) -> tuple[list, list[str]]:
+def candidate_effects(
+    data: Measurements, tau: np.ndarray | None = None, *, robot: Robot | None = None
+) -> tuple[list, list[str]]:
     """The candidate extensions for this data and notes on the ones left out.
 
     Args:
@@ -57,6 +67,9 @@ def candidate_effects(data: Measurements, tau: np.ndarray | None = None) -> tupl
             joint with a vertical axis has none, e.g. joint 1 of a floor-mounted robot; a robot
             mounted sideways has one). None: joint 1 is taken for vertical (the floor-mounted
             six-joint robots) and no backlash is a candidate.
+        robot: the robot; with it, the compliance of a lifting column (a prismatic joint within 30
+            deg of gravity that moves in the data) and of the base (a robot with such a column or
+            ``compliant_base: true``) are candidates (:func:`~kpioed_drake.effects.compliance.candidates`).
     """
     notes = []
     nj = data.q.shape[1]
@@ -102,6 +115,10 @@ def candidate_effects(data: Measurements, tau: np.ndarray | None = None) -> tupl
         cands.append(fx.Effect("tracker_drift"))
     else:
         notes.append("tracker_drift is not a candidate: no time_s column or a constant time")
+    if robot is not None:
+        pairs, more = compliance_candidates(robot, data.q)
+        cands += [fx.Effect(f, j) for f, j in pairs]
+        notes += more
     return cands, notes
 
 
@@ -236,20 +253,42 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
     Jm, cols = columns(prob, current, pool)
     Q, _ = np.linalg.qr(Jm)
     r = (current.residuals / prob.sigma).reshape(-1)
-    rows, tested = [], []
+    units = unit_columns(
+        prob, current, [e.joint for e in pool if e.family == "backlash" and e.joint in prob.side_patterns]
+    )
+    rows, tested, bases = [], [], []
     for e, Jc in zip(pool, cols, strict=True):
         row = {"candidate": e.name, **identifiability(Jm, Jc)}
         rows.append(row)
         if row["remaining"] < MIN_REMAINING:
             row["status"] = "absorbed by the model's parameters (not identifiable from these poses)"
-        else:
-            proj = projected_basis(Q, Jc).T @ r
-            row["score"] = float(proj @ proj)
-            tested.append((e, row))
-    m = max(len(tested), 1)
+            continue
+        U = [projected_basis(Q, Jc)]
+        if e.family == "backlash" and e.joint in units:  # every side the mass prior allows
+            pats = prob.side_patterns[e.joint]
+            g = units[e.joint].reshape(-1, 3)
+            U = [projected_basis(Q, (g * s[:, None]).reshape(-1, 1)) for s in pats]
+        scores = [float(np.sum((u.T @ r) ** 2)) for u in U]
+        i = int(np.argmax(scores))
+        row["score"] = scores[i]
+        if len(U) > 1:
+            row["_side"] = pats[i]
+            row["side_patterns"] = len(U)
+            row["_side_bases"] = U
+        tested.append((e, row))
+        bases += [u for u in U if u.shape[1]]
+    m = max(len(bases), 1)
+    # the min-p law only where a candidate can be significant (its family-wise p-value is never below
+    # its marginal one; the refitted LR is within 2e-4 (1 + LR) of the score): else Bonferroni's
+    p_min = min((float(scipy.stats.chi2.sf(row["score"], e.n_params)) for e, row in tested), default=1.0)
+    null = min_p_null(bases) if bases and p_min < 2 * alpha else None
     best = None
-    for e, row in _screen(tested, alpha / m, ln_n):
+    saved_side = prob.conditions.side
+    for e, row in _screen(tested, alpha / m if null is None else critical_p(alpha, null, m), ln_n):
+        if "_side" in row:
+            set_side(prob, e.joint, row["_side"])
         f = prob.fit(list(current.effects) + [e], start=current)
+        prob.conditions = dataclasses.replace(prob.conditions, side=saved_side)
         lr = max(current.cost - f.cost, 0.0)
         p = float(scipy.stats.chi2.sf(lr, e.n_params))
         row.update(
@@ -257,10 +296,13 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
                 "lr_stat": lr,
                 "dof": e.n_params,
                 "p_value": p,
-                "p_value_corrected": min(1.0, p * m),
+                "p_value_corrected": min(1.0, p * m) if null is None else adjusted_p(p, null, m),
                 "delta_bic": lr - e.n_params * ln_n,
             }
         )
+        if "_side_bases" in row:  # the best of several sides: ranked as one test (2 ln of their number)
+            row["side_penalty"] = side_penalty(row["_side_bases"])
+            row["delta_bic"] -= row["side_penalty"]
         if row["p_value_corrected"] < alpha and row["delta_bic"] > 0:
             row["_fit"] = f
             if best is None or row["delta_bic"] > best[1]["delta_bic"]:
@@ -268,6 +310,8 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
     # held-out error of the best significant candidate only: the one the step may add (the others'
     # held-out errors would not change the decision, and they are the expensive part)
     if best is not None:
+        if "_side" in best[1]:  # its backlash's side from now on
+            set_side(prob, best[0].joint, best[1]["_side"])
         best[1]["_hold"] = prob.holdout(best[1]["_fit"], k=k_folds)
         best[1]["holdout_rms_mm"] = rms(best[1]["_hold"])
     return rows, best

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -118,20 +119,53 @@ def synthetic_case(
 def perturbed_masses(robot: Robot, rng: np.random.Generator, spread: float = 0.3) -> Robot:
     """``robot`` with other link masses and centres of mass: each mass times ``U(1 - spread, 1 + spread)``,
     each centre-of-mass coordinate shifted by ``U(-spread, spread)`` times the link's centre-of-mass
-    distance (for a link whose centre of mass is at its frame origin: times 100 mm)."""
+    distance (for a link whose centre of mass is at its frame origin: times 100 mm). A URDF robot's
+    Drake plant (its gravity torques) gets the same masses (:func:`_urdf_masses`)."""
     m = robot.masses * rng.uniform(1 - spread, 1 + spread, size=robot.masses.shape)
     r = np.linalg.norm(robot.coms, axis=1, keepdims=True)
     r = np.where(r > 0, r, 100.0)
     c = robot.coms + rng.uniform(-spread, spread, size=robot.coms.shape) * r
-    return dataclasses.replace(robot, masses=m, coms=c)
+    urdf = robot.urdf if robot.urdf is None else _urdf_masses(robot, m, c)
+    return dataclasses.replace(robot, masses=m, coms=c, urdf=urdf)
+
+
+def _urdf_masses(robot: Robot, masses: np.ndarray, coms: np.ndarray):
+    """The robot's URDF source with links 1..n of masses (n+1,) [kg] and centres of mass (n+1, 3)
+    [mm, link frame] (the child link of each movable joint takes the change; links welded to it keep
+    theirs; inertia tensors scaled with the mass)."""
+    root = ET.fromstring(robot.urdf.text)
+    links = {lk.get("name"): lk for lk in root.findall("link")}
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    for i, name in enumerate(robot.urdf.joints, start=1):
+        inertial = links[joints[name].find("child").get("link")].find("inertial")
+        if inertial is None or inertial.find("mass") is None:
+            continue  # massless in the file: nothing to perturb
+        origin = inertial.find("origin")
+        origin = ET.SubElement(inertial, "origin") if origin is None else origin
+        m_p = float(inertial.find("mass").get("value"))
+        c_p = np.array([float(x) for x in origin.get("xyz", "0 0 0").split()]) * 1e3
+        m_w = robot.masses[i] - m_p  # welded to it
+        mc_w = robot.masses[i] * robot.coms[i] - m_p * c_p
+        m_new = masses[i] - m_w
+        if m_new <= 0:
+            raise ValueError(f"{robot.source}: link {i}'s welded parts outweigh its perturbed mass")
+        inertial.find("mass").set("value", repr(float(m_new)))
+        origin.set("xyz", " ".join(repr(float(x) * 1e-3) for x in (masses[i] * coms[i] - mc_w) / m_new))
+        tensor = inertial.find("inertia")
+        for key in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz") if tensor is not None else ():
+            tensor.set(key, repr(float(float(tensor.get(key, "0")) * m_new / m_p)))
+    return dataclasses.replace(robot.urdf, text=ET.tostring(root, encoding="unicode"))
 
 
 def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES) -> str:
     """A random effect (family, joint, harmonic uniform; a coupling among the diagnosis's
-    :data:`~kpioed_drake.diagnosis.common.COUPLING_PAIRS`), without a value."""
+    :data:`~kpioed_drake.diagnosis.common.COUPLING_PAIRS`), without a value. A family given with
+    its joint (``column_compliance:1``: a robot's lift) is taken as it is."""
     while True:
         fam = families[rng.integers(len(families))]
-        if fam == "joint_elasticity":
+        if ":" in fam:
+            text = fam
+        elif fam == "joint_elasticity":
             text = f"{fam}:{rng.integers(2, 7)}"
         elif fam == "gear_cyclic":
             text = f"{fam}:{rng.integers(1, 7)}:{rng.integers(1, 3)}"
@@ -146,19 +180,24 @@ def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES)
             return text
 
 
-def detectability(case: SyntheticCase) -> list[float]:
+def detectability(case: SyntheticCase, *, given_others: bool = False) -> list[float]:
     """Non-centrality ``|P s|^2 / sigma^2`` of each hidden effect's signal s after projecting out the
     span of the free geometric columns (at the truth). Under 'no effect' the likelihood-ratio statistic
     is chi^2(k); with the effect its mean is about ``k + lambda``: below ~25 no test at a corrected
-    1 % level finds the effect reliably."""
+    1 % level finds the effect reliably. ``given_others``: the span of the other hidden effects'
+    columns is projected out too (what a test of this effect beside the others can see; the same for
+    a single effect)."""
     prob = FitProblem(case.model_true.robot, case.data, case.sigma)
     _, H, E = prob.response(case.model_true, case.effects, np.arange(case.data.n))
     free = case.model_true.layout.free
-    Q, _ = np.linalg.qr(H[:, :, free].reshape(-1, free.size))
+    G = H[:, :, free].reshape(-1, free.size)
     out, c = [], 0
     for e in case.effects:
-        s = (E[:, :, c : c + e.n_params] @ e.value_array()).reshape(-1)
+        cols = E[:, :, c : c + e.n_params]
+        s = (cols @ e.value_array()).reshape(-1)
+        others = np.concatenate([E[:, :, :c], E[:, :, c + e.n_params :]], axis=2).reshape(G.shape[0], -1)
         c += e.n_params
+        Q, _ = np.linalg.qr(np.concatenate([G, others], axis=1) if given_others else G)
         s = s - Q @ (Q.T @ s)
         out.append(float(s @ s) / case.sigma**2)
     return out
@@ -257,6 +296,7 @@ def run_synthetic_case(
         "truth": [e.text() for e in case.effects],
         "truth_names": sorted(_key_name(k) for k in truth),
         "lambda": detectability(case),
+        "lambda_given_others": detectability(case, given_others=True),
         "named": sorted(_key_name(k) for k in named),
         "named_raw": [c.get("name", c["effect"]) for c in rep.causes],
         "alternatives": [sorted(_key_name(k) for k in ks) for ks in explain],

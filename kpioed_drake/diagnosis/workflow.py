@@ -37,6 +37,7 @@ from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.rest import unexplained_rest
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
+from kpioed_drake.diagnosis.sides import side_patterns
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import covariance
 from kpioed_drake.measurements import Measurements, as_measurements
@@ -109,7 +110,7 @@ def diagnose(
     prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
     use_expected_sides(prob)  # a backlash's side where the file's masses leave it uncertain
     if candidates is None:
-        cands, notes = candidate_effects(data, prob.tau)
+        cands, notes = candidate_effects(data, prob.tau, robot=robot)
     else:
         cands = [
             fx.parse_effect(c, model=prob.nominal)
@@ -119,6 +120,7 @@ def diagnose(
         ]
         notes = []
     notes = warnings + notes
+    prob.side_patterns = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
 
     base = prob.fit([])
     try:  # as strict as calibrate: the geometric fit alone must be determined by the poses

@@ -18,6 +18,10 @@ family (``parse_effect``)     model                                         para
 ``joint_elasticity_basis:i``  joint i deflects by ``Y_i(q) . theta``        theta (r_i) [rad]
                               (gravity basis: any link masses; see          (+ c_i of a varying
                               :mod:`.gravity_basis`)                        payload)
+``column_compliance:k[=c]``   lift column (prismatic k) bends: all above    c = 1/EI
+                              turns by ``c h M_perp`` about ``C - a h/2``   [1/(N m^2)]
+``base_compliance[=c]``       soft floor/mount: the robot turns by          c [rad/(N m)]
+                              ``c M_B`` about the base origin
 ============================  ============================================  ====================
 
 The first four (:data:`FAMILIES`) are SPEC's; the next four (:data:`EXTRA_FAMILIES`) are further
@@ -32,6 +36,12 @@ approach direction); its derivative w.r.t. q is zero almost everywhere. The trac
 parameter, its temperature part: a constant scale about the tracker is a scale of every length and
 of the tracker position, which the geometric parameters absorb (as for a constant temperature of
 thermal expansion), so it is not a parameter; it multiplies the whole measurement (all columns).
+The compliances (:data:`COMPLIANCE_FAMILIES`, :mod:`.compliance`) are rigid rotations of what the
+column or base carries, driven by the gravity moment of the links above it (model file masses,
+payload included): ``M`` about the carriage point C, perpendicular to the column axis a, h the
+carriage height above the column's foot; ``M_B`` about the base origin. The top leans towards the
+load (c > 0). Simulation, ``--extend`` (calibrate and design) and diagnosis candidates for robots on
+a lift or with ``compliant_base: true``.
 
 Conventions (the choices SPEC leaves open, kept here in one place):
 
@@ -79,11 +89,14 @@ Realistic sizes (SPEC), used when ``parse_effect`` draws a value with a random g
 - thermal: k = 11.7e-6 /K (steel), not drawn (without ``rng``: unknown, like the others);
 - drift: speed uniform in 0.005-0.05 mm/min, direction uniform on the sphere;
 - joint scale and coupling: 100-1000 ppm (``SCALE_PPM``), random sign; backlash: 0.003-0.02 deg
-  (``BACKLASH_DEG``), positive; tracker scale: -0.93 ppm/K (``AIR_PPM_PER_K``, not drawn).
+  (``BACKLASH_DEG``), positive; tracker scale: -0.93 ppm/K (``AIR_PPM_PER_K``, not drawn);
+- column and base compliance: the largest reflector displacement over the joint box drawn in
+  0.1-1 mm (``COMPLIANCE_TOOL_MM``, as ``tool_mm``), c positive (:func:`resolve`).
 
 Modules: :mod:`.model` (:class:`Effect`, the text syntax, sizes), :mod:`.gravity` (gravity and
 payload torques, the elastic lever), :mod:`.gravity_basis` (the gravity torque as a combination of
-identifiable mass moments: elasticity without trusting the model file's masses), :mod:`.response`
+identifiable mass moments: elasticity without trusting the model file's masses), :mod:`.compliance`
+(column and base compliance: the rotation, its pivot and their derivatives), :mod:`.response`
 (the measurement model with effects, its
 Jacobian, the effects' design and KPI columns).
 """
@@ -99,6 +112,8 @@ from kpioed_drake.effects.model import (
     AIR_PPM_PER_K,
     ALL_FAMILIES,
     BACKLASH_DEG,
+    COMPLIANCE_FAMILIES,
+    COMPLIANCE_TOOL_MM,
     DRIFT_MM_PER_MIN,
     ELASTIC_TOOL_MM,
     EXTRA_FAMILIES,
@@ -130,6 +145,8 @@ __all__ = [
     "AIR_PPM_PER_K",
     "ALL_FAMILIES",
     "BACKLASH_DEG",
+    "COMPLIANCE_FAMILIES",
+    "COMPLIANCE_TOOL_MM",
     "DRIFT_MM_PER_MIN",
     "ELASTIC_TOOL_MM",
     "EXTRA_FAMILIES",

@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 
+from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects.gravity import elastic_lever
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_basis
@@ -21,7 +22,10 @@ FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_dri
 EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", BASIS_FAMILY)
 """Further families for simulation and ``--extend``; the first four are diagnosis candidates too, the
 gravity basis enters the diagnosis through :mod:`kpioed_drake.diagnosis.elastic_basis`."""
-ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES
+COMPLIANCE_FAMILIES = cp.FAMILIES
+"""A column or the base that bends under the robot's weight (:mod:`.compliance`): simulation, ``--extend``,
+and diagnosis candidates for robots on a lift (or with ``compliant_base: true``)."""
+ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES + COMPLIANCE_FAMILIES
 JOINT_FAMILIES = (
     "joint_elasticity",
     "gear_cyclic",
@@ -41,6 +45,8 @@ N_PARAMS = {
     "joint_coupling": 1,
     "tracker_scale": 1,
     "backlash": 1,
+    cp.COLUMN: 1,
+    cp.BASE: 1,
     BASIS_FAMILY: None,  # robot-dependent: Effect.n_basis (gravity_basis.resolve_basis)
 }
 UNITS = {
@@ -53,6 +59,7 @@ UNITS = {
     "tracker_scale": "ppm/K",
     "backlash": "deg",
     BASIS_FAMILY: "rad",
+    **cp.UNITS,
 }
 """Units of the *displayed* values (text syntax, reports); inside the code see :class:`Effect`."""
 
@@ -73,6 +80,9 @@ _DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expa
 _DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
 _DISPLAY.update(joint_scale=1e-6, joint_coupling=1e-6, tracker_scale=1e-6, backlash=np.pi / 180.0)
 _DISPLAY[BASIS_FAMILY] = 1.0
+_DISPLAY.update({cp.COLUMN: 1.0, cp.BASE: 1.0})
+COMPLIANCE_TOOL_MM = (0.1, 1.0)
+"""Largest reflector displacement [mm] over the joint box of a drawn column or base compliance."""
 _DRAW = {
     "joint_scale": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
     "joint_coupling": lambda rng: rng.uniform(*SCALE_PPM) * rng.choice([-1.0, 1.0]) * 1e-6,
@@ -147,6 +157,8 @@ class Effect:
             "joint_coupling": ["c"],
             "tracker_scale": ["k"],
             "backlash": ["b"],
+            cp.COLUMN: ["c"],
+            cp.BASE: ["c"],
         }[self.family]
         return [f"{self.name}.{s}" for s in sub]
 
@@ -194,7 +206,8 @@ class Effect:
 _SYNTAX = (
     "joint_elasticity:JOINT[=c rad/(N m)], gear_cyclic:JOINT:N[=a,b deg], thermal_expansion[=k 1/K], "
     "tracker_drift[=vx,vy,vz mm/min], joint_scale:JOINT[=eps ppm], joint_coupling:JOINT:JOINT[=c ppm], "
-    "tracker_scale[=k ppm/K], backlash:JOINT[=b deg]"
+    "tracker_scale[=k ppm/K], backlash:JOINT[=b deg], column_compliance:JOINT[=c 1/(N m^2)], "
+    "base_compliance[=c rad/(N m)]"
 )
 
 
@@ -275,6 +288,9 @@ def parse_effect(
             return Effect(family, joint, n)
         ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
         return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+    if family in COMPLIANCE_FAMILIES:
+        eff = _parse_compliance(family, parts, given, rng, spec, model)
+        return resolve(eff, model) if model is not None else eff
     if family in EXTRA_FAMILIES:
         eff = _parse_extra(family, parts, given, rng, spec, nj)
         return resolve(eff, model) if model is not None and family == BASIS_FAMILY else eff
@@ -333,6 +349,28 @@ def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int =
     return Effect(family, values=(float(_DRAW[family](rng)),), **kw)
 
 
+def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, model) -> Effect:
+    """``column_compliance:JOINT[=c]`` (c = 1/EI [1/(N m^2)]) or ``base_compliance[=c]`` (c [rad/(N m)]);
+    with a model the column joint is checked (prismatic, only prismatic joints below it)."""
+    nj = 7 if model is None else model.robot.n_joints  # a lift robot has one joint more than six
+    if family == cp.COLUMN:
+        if len(parts) != 2:
+            raise InputError(f"effect {spec!r}: expected {cp.COLUMN}:JOINT[=c 1/(N m^2)], e.g. {cp.COLUMN}:1")
+        joint = _joint(parts[1], spec, nj)
+        if model is not None:
+            cp.check_column(model.robot, joint, spec)
+    elif len(parts) != 1:
+        raise InputError(f"effect {spec!r}: {family} takes no joint (expected {family}[=c rad/(N m)])")
+    else:
+        joint = None
+    if given is not None:
+        (c,) = _numbers(given, 1, spec)
+        return Effect(family, joint, values=(float(c),))
+    if rng is None:
+        return Effect(family, joint)
+    return Effect(family, joint, tool_mm=float(rng.uniform(*COMPLIANCE_TOOL_MM)))
+
+
 def parse_effects(texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None):
     """Parse several effects (a list, or one comma-free text per effect); duplicates are an error."""
     effects = [parse_effect(t, rng, model=model) for t in texts]
@@ -344,11 +382,21 @@ def parse_effects(texts, rng: np.random.Generator | None = None, *, model: Track
 
 
 def resolve(effect: Effect, model: TrackerModel) -> Effect:
-    """An effect with concrete values: an elasticity drawn by ``tool_mm`` gets its c for this robot;
-    a ``joint_elasticity_basis`` without ``n_basis`` gets its parameter count (no payload column)."""
+    """An effect with concrete values: an elasticity or a compliance drawn by ``tool_mm`` gets its c
+    for this robot (a column's joint is checked); a ``joint_elasticity_basis`` without ``n_basis``
+    gets its parameter count (no payload column)."""
     if effect.family == BASIS_FAMILY:
         return resolve_basis(effect, model, n_given=effect.n_basis)
-    if effect.values is not None or effect.family != "joint_elasticity" or effect.tool_mm is None:
+    if effect.family == cp.COLUMN:
+        cp.check_column(model.robot, effect.joint)
+    if effect.values is not None or effect.tool_mm is None:
+        return effect
+    if effect.family in COMPLIANCE_FAMILIES:
+        size = cp.lever(model.robot, effect.family, effect.joint, model.p_FQ)
+        if size <= 0:
+            raise InputError(f"effect {effect.name}: gravity does not bend it on this robot (zero moment)")
+        return dataclasses.replace(effect, values=(effect.tool_mm / size,))
+    if effect.family != "joint_elasticity":
         return effect
     lever = elastic_lever(model, effect.joint)
     if lever <= 0:

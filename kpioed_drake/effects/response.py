@@ -1,18 +1,21 @@
 """The measurement model with effects, its Jacobian, and the effects' columns for design and KPI.
 
-``h = s_T R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)``; see :mod:`kpioed_drake.effects`.
+``h = s_T R_TW (s * p_WQ(p, q_cmd + delta) - p_WT - v t)``; see :mod:`kpioed_drake.effects`. A column
+or base compliance (:mod:`.compliance`) turns the reflector point about its pivot first:
+``p_WQ -> p_WQ + sum_e c_e m_e(q_cmd) x (p_WQ - o_e(q_cmd))``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
 from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import flange_point, point_jacobian
+from kpioed_drake.kinematics import cross, flange_point, point_jacobian
 from kpioed_drake.measurement import TrackerModel, tracker_jacobian
 from kpioed_drake.measurements import per_pose
 
@@ -120,6 +123,28 @@ def _scale_and_drift(effects, n: int, temperature_C, time_s):
     return s, drift, temp, tvec, s_T
 
 
+def _rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False) -> dict:
+    """{index in effects: :class:`~.compliance.Rotation`} of the compliance effects (payload at p_FQ)."""
+    return {
+        i: cp.rotation(
+            model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=payload_kg, with_dq=with_dq
+        )
+        for i, e in enumerate(effects)
+        if e.family in cp.FAMILIES
+    }
+
+
+def _turned(effects, rots: dict, p_W: np.ndarray):
+    """``p_W`` (n, 3) turned by the compliance effects at their values, and their rotation vector (n, 3)."""
+    w = np.zeros_like(p_W)
+    shift = np.zeros_like(p_W)
+    for i, r in rots.items():
+        v = effects[i].value_array()[0]
+        w += v * r.m
+        shift += v * r.displacement(p_W)
+    return p_W + shift, w
+
+
 def augmented_response(
     model: TrackerModel,
     q_cmd,
@@ -131,6 +156,7 @@ def augmented_response(
     tau=None,
     target=None,
     side=None,
+    compliance_payload_kg=None,
 ) -> np.ndarray:
     """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
 
@@ -140,6 +166,8 @@ def augmented_response(
     effects = list(effects)
     delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau, side=side)
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target))
+    pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
+    p_WQ, _ = _turned(effects, _rotations(model, q, effects, pay_c), p_WQ)
     s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
@@ -156,6 +184,7 @@ def augmented_jacobian(
     tau=None,
     target=None,
     side=None,
+    compliance_payload_kg=None,
 ):
     """Response of the measurement model with effects and its Jacobian.
 
@@ -171,6 +200,12 @@ def augmented_jacobian(
         tau: (n, 6) precomputed gravity torques (payload included) to skip Drake.
         target: (n,) 0-based target of each row (None: target 0); a payload sits at target 0.
         side: (n, 6) a backlash's side per pose (None: ``sign(tau)``, :func:`joint_deltas`).
+        compliance_payload_kg: the payload of the compliances' moments when ``payload_kg`` is None
+            (a fit's conditions: its joint torques ``tau`` hold the payload already).
+
+    Compliances (:mod:`.compliance`): ``H`` is exact for their rotation at its value (the rotated
+    geometric columns and the payload point's moment); the other effects' columns and ``dE`` take
+    the rotation to first order (exact at c = 0, a design's linearisation point).
 
     Returns:
         h (n, 3) [mm]; H (n, 3, n_full) dh/dp; E (n, 3, k) dh/d(effect parameters), effects in order,
@@ -185,8 +220,21 @@ def augmented_jacobian(
     frames = model.frames(q_act)
     out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
-    s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
     lay = model.layout
+    pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
+    rots = _rotations(model, q, effects, pay_c, with_dq=with_dq)
+    p_raw, theta_raw = p_WQ, JW[:, :, lay.joint_angles]
+    if rots:  # the compliances turn the reflector and its columns: (I + [w]x)
+        p_WQ, w = _turned(effects, rots, p_raw)
+        JW = JW + cross(w[:, None, :], JW.transpose(0, 2, 1)).transpose(0, 2, 1)
+        if with_dq:
+            dJW = out[2]
+            out = (
+                p_WQ,
+                JW,
+                dJW + cross(w[:, None, None, :], dJW.transpose(0, 1, 3, 2)).transpose(0, 1, 3, 2),
+            )
+    s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
     R_TW = model.R_WT.T
     h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift, target=target)
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
@@ -201,6 +249,11 @@ def augmented_jacobian(
             dq_dp = c_el[None, :, None] * dtau_dp  # (n,6,3) d q_act / d p_FQ
             dh_dq = s[:, None, None] * np.einsum("ab,nbj->naj", R_TW, theta)  # (n,3,6)
             H[:, :, lay.target(0)] += np.einsum("naj,njd->nad", dh_dq, dq_dp)
+    for i, r in rots.items():  # a payload's moment moves with the reflector point p_FQ
+        if r.dm_dp is not None:
+            v = effects[i].value_array()[0]
+            dp = v * cross(r.dm_dp.transpose(0, 2, 1), (p_raw - r.pivot)[:, None, :])  # (n, 3 d, 3)
+            H[:, :, lay.target(0)] += s[:, None, None] * np.einsum("ab,ndb->nad", R_TW, dp)
     k = sum(e.n_params for e in effects)
     E = np.zeros((n, 3, k))
     if with_dq:
@@ -208,8 +261,9 @@ def augmented_jacobian(
         A = np.eye(model.robot.n_joints)[None] + jd[2]  # d q_act / d q_cmd
         dE = np.zeros((n, model.robot.n_joints, 3, k))
         dp_dq = np.einsum("nal,nlj->nja", theta, A)  # (n,6,3)
+        dp_raw = np.einsum("nal,nlj->nja", theta_raw, A)
     col = 0
-    for e, f, *rest in zip(effects, factors, *(jd[3:4] if with_dq else ()), strict=True):
+    for idx, (e, f, *rest) in enumerate(zip(effects, factors, *(jd[3:4] if with_dq else ()), strict=True)):
         m = e.n_params
         if f is not None:  # a joint-angle error of joint e.joint
             c = lay.joint_angle(e.joint)
@@ -221,6 +275,12 @@ def augmented_jacobian(
                 dE[:, :, :, col : col + m] = (
                     dG[..., None] * f[:, None, None, :] + G[:, None, :, None] * df[:, :, None, :]
                 )
+        elif e.family in cp.FAMILIES:
+            r = rots[idx]
+            E[:, :, col] = s[:, None] * (r.displacement(p_raw) @ R_TW.T)
+            if with_dq:
+                d = cross(r.dm, (p_raw - r.pivot)[:, None, :]) + cross(r.m[:, None, :], dp_raw - r.dpivot)
+                dE[:, :, :, col] = s[:, None, None] * (d @ R_TW.T)
         elif e.family == "thermal_expansion":
             E[:, :, col] = (p_WQ @ R_TW.T) * temp[:, None]
             if with_dq:
@@ -341,16 +401,20 @@ def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0
     """(3, k) derivative of the TCP in W at ``q_work`` w.r.t. the effect parameters.
 
     KPI conditions: no payload, temperature ``T_REF_C`` (thermal column 0), tracker irrelevant
-    (drift columns 0). Joint effects move the TCP by ``dp/dq_i * factor(q_work)``.
+    (drift columns 0). Joint effects move the TCP by ``dp/dq_i * factor(q_work)``, a compliance by
+    ``m(q_work) x (p_TCP - pivot)`` (the robot's own weight).
     """
     q = np.asarray(q_work, dtype=float)[None, :]
     effects = list(effects)
     _, factors = joint_deltas(model, q, effects)
     frames = model.frames(q)
-    _, J = point_jacobian(frames, model.p_FQ + np.asarray(tool_offset, dtype=float))
+    p, J = point_jacobian(frames, model.p_FQ + np.asarray(tool_offset, dtype=float))
+    rots = _rotations(model, q, effects, None)
     cols = []
-    for e, f in zip(effects, factors, strict=True):
-        if f is None:
+    for i, (e, f) in enumerate(zip(effects, factors, strict=True)):
+        if i in rots:
+            cols.append(rots[i].displacement(p)[0][:, None])
+        elif f is None:
             cols.append(np.zeros((3, e.n_params)))
         else:
             cols.append(J[0, :, model.layout.joint_angle(e.joint)][:, None] * f[0][None, :])
@@ -360,6 +424,8 @@ def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0
 def effect_tcp_shift(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
     """(3,) TCP displacement in W at ``q_work`` caused by the effects at their values (KPI conditions)."""
     q = np.asarray(q_work, dtype=float)[None, :]
-    delta, _ = joint_deltas(model, q, list(effects))
+    effects = list(effects)
+    delta, _ = joint_deltas(model, q, effects)
     off = model.p_FQ + np.asarray(tool_offset, dtype=float)
-    return flange_point(model.frames(q + delta), off)[0] - flange_point(model.frames(q), off)[0]
+    p, _ = _turned(effects, _rotations(model, q, effects, None), flange_point(model.frames(q + delta), off))
+    return p[0] - flange_point(model.frames(q), off)[0]
