@@ -78,8 +78,7 @@ def check_identifiability(
     target = None if T == 1 else np.tile(np.arange(T), n_poses)
     _, H = measurement_jacobian(model, q if T == 1 else np.repeat(q, T, axis=0), target=target)
     cols = np.arange(H.shape[2]) if all_params else model.layout.free
-    F = H[:, :, cols].reshape(3 * T * n_poses, -1)
-    F = F / np.maximum(np.linalg.norm(F, axis=0), 1e-300)
+    F = unit_columns(H[:, :, cols].reshape(3 * T * n_poses, -1))
     _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > rtol * d[0]))
@@ -92,6 +91,21 @@ def check_identifiability(
         unidentifiable=[names[i] for i in piv[rank:]],
         names=names,
     )
+
+
+ZERO_COLUMN_RTOL = 1e-9
+"""A column whose norm is below this fraction of the largest column norm is zero up to rounding (a
+parameter the measurement does not depend on): :func:`unit_columns` leaves it zero rather than
+scaling it to unit length, so it counts as undetermined."""
+
+
+def unit_columns(J: np.ndarray) -> np.ndarray:
+    """``J`` (m, k) with unit columns, columns that are zero up to rounding (norm at most
+    :data:`ZERO_COLUMN_RTOL` times the largest) set to zero (scaled to unit length they would count as
+    independent directions of rounding noise)."""
+    norms = np.linalg.norm(J, axis=0)
+    live = norms > ZERO_COLUMN_RTOL * max(float(norms.max(initial=0.0)), 1e-300)
+    return np.where(live, J / np.where(live, norms, 1.0), 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,7 +158,7 @@ def undetermined_parameters(
     Returns:
         :class:`Undetermined` (empty when every parameter is determined).
     """
-    F = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    F = unit_columns(J)
     _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     rank = int(np.argmax(d <= rtol * d[0])) if np.any(d <= rtol * d[0]) else d.size
