@@ -49,13 +49,12 @@ def _outside(Q: np.ndarray, C: np.ndarray) -> float:
     return float(np.linalg.svd(Qc - Q @ (Q.T @ Qc), compute_uv=False).max())
 
 
-def _nested(Q0: np.ndarray, C0: np.ndarray, Qx: np.ndarray, Cx: np.ndarray) -> bool:
-    """Whether B lies within A's signature: beside every cause (``Qx``, B's columns ``Cx`` at the
-    extended fit) no direction of B keeps more than ``NESTED_REMAINING`` outside, and at most
-    ``NESTED_SHARE`` of what it keeps beside the other causes alone (``Q0``, ``C0`` at their fit):
-    it is A that holds B (B's non-centrality beside A is at most ``NESTED_SHARE^2`` of its
-    non-centrality beside the others)."""
-    outside = _outside(Qx, Cx)
+def _nested(outside: float, Q0: np.ndarray, C0: np.ndarray) -> bool:
+    """Whether B lies within A's signature: beside every cause no direction of B keeps more than
+    ``NESTED_REMAINING`` outside (``outside``, :func:`_outside` at the extended fit), and at most
+    ``NESTED_SHARE`` of what it keeps beside the other causes alone (``Q0``, B's columns ``C0`` at
+    their fit): it is A that holds B (B's non-centrality beside A is at most ``NESTED_SHARE^2`` of
+    its non-centrality beside the others)."""
     return outside < NESTED_REMAINING and outside <= NESTED_SHARE * _outside(Q0, C0)
 
 
@@ -88,10 +87,18 @@ def competing(
     r = (f0.residuals / prob.sigma).reshape(-1)
     U_a = projected_basis(Q, cols[0])
     ln_n = np.log(3 * prob.data.n)
-    Jx, cols_x = columns(prob, ext, others)  # B beside every cause: how much of it A leaves outside
-    Qx, _ = np.linalg.qr(Jx)
+    beside: dict = {}  # B's columns beside every cause, built at the first nested check
+
+    def outside_causes(b) -> float:
+        """How much of B stays outside the causes' and the geometry's span (:func:`_outside`)."""
+        if not beside:
+            Jx, cols_x = columns(prob, ext, others)
+            Qx, _ = np.linalg.qr(Jx)
+            beside.update({e.key: _outside(Qx, Cx) for e, Cx in zip(others, cols_x, strict=True)})
+        return beside[b.key]
+
     found = []
-    for b, C, Cx in zip(others, cols[1:], cols_x, strict=True):
+    for b, C in zip(others, cols[1:], strict=True):
         U_b = projected_basis(Q, C)
         if U_b.shape[1] == 0:
             continue
@@ -101,14 +108,14 @@ def competing(
         if score < lr_a - c - max(c, 0.2 * lr_a):
             if score < 0.5 * scipy.stats.chi2.isf(alpha, b.n_params):
                 continue
-            nested = _nested(Q, C, Qx, Cx)
+            nested = _nested(outside_causes(b), Q, C)
             if not nested:
                 continue
         f = prob.fit(list(f0.effects) + [b], start=f0)
         lr_b = max(f0.cost - f.cost, 0.0)
         p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
         if lr_b < lr_a - c and not nested:
-            nested = _nested(Q, C, Qx, Cx)
+            nested = _nested(outside_causes(b), Q, C)
         if p_b >= alpha or (lr_b < lr_a - c and not nested):
             continue
         corr = np.linalg.svd(U_a.T @ U_b, compute_uv=False) if U_a.shape[1] else np.zeros(1)
@@ -122,7 +129,7 @@ def competing(
         }
         if lr_b < lr_a - c:  # B explains less than A, but all of it lies within A's signature
             ev["nested"] = True
-            ev["remaining_given_causes"] = _outside(Qx, Cx)
+            ev["remaining_given_causes"] = outside_causes(b)
         found.append((f.effects[-1], f, ev))
     found.sort(key=lambda t: -t[2]["lr_stat"])
     found = found[:MAX_ALTERNATIVES]

@@ -49,8 +49,7 @@ def prior_moments(
     """(n, 4 (N - j + 1)) first moments ``m_k, m_k c_k`` of links j..N drawn from the mass prior."""
     ks = np.arange(joint, robot.n_joints + 1)
     m0, c0 = robot.masses[ks], robot.coms[ks]
-    r = np.linalg.norm(c0, axis=1, keepdims=True)
-    r = np.where(r > 0, r, 100.0)
+    r = gb.com_scales(c0)[:, None]
     m = m0[None, :] * rng.uniform(1 - spread, 1 + spread, size=(n, ks.size))
     c = c0[None] + rng.uniform(-spread, spread, size=(n, ks.size, 3)) * r[None]
     return np.concatenate([m[..., None], m[..., None] * c], axis=2).reshape(n, -1)

@@ -19,6 +19,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import COUPLING_PAIRS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.workflow import diagnose
+from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.measurement import TrackerModel, kpi_jacobian, nominal_model
@@ -122,8 +123,7 @@ def perturbed_masses(robot: Robot, rng: np.random.Generator, spread: float = 0.3
     distance (for a link whose centre of mass is at its frame origin: times 100 mm). A URDF robot's
     Drake plant (its gravity torques) gets the same masses (:func:`_urdf_masses`)."""
     m = robot.masses * rng.uniform(1 - spread, 1 + spread, size=robot.masses.shape)
-    r = np.linalg.norm(robot.coms, axis=1, keepdims=True)
-    r = np.where(r > 0, r, 100.0)
+    r = gb.com_scales(robot.coms)[:, None]
     c = robot.coms + rng.uniform(-spread, spread, size=robot.coms.shape) * r
     urdf = robot.urdf if robot.urdf is None else _urdf_masses(robot, m, c)
     return dataclasses.replace(robot, masses=m, coms=c, urdf=urdf)
@@ -191,13 +191,14 @@ def detectability(case: SyntheticCase, *, given_others: bool = False) -> list[fl
     _, H, E = prob.response(case.model_true, case.effects, np.arange(case.data.n))
     free = case.model_true.layout.free
     G = H[:, :, free].reshape(-1, free.size)
+    Q, _ = np.linalg.qr(G)
     out, c = [], 0
     for e in case.effects:
-        cols = E[:, :, c : c + e.n_params]
-        s = (cols @ e.value_array()).reshape(-1)
-        others = np.concatenate([E[:, :, :c], E[:, :, c + e.n_params :]], axis=2).reshape(G.shape[0], -1)
+        s = (E[:, :, c : c + e.n_params] @ e.value_array()).reshape(-1)
+        if given_others:
+            others = np.concatenate([E[:, :, :c], E[:, :, c + e.n_params :]], axis=2).reshape(G.shape[0], -1)
+            Q, _ = np.linalg.qr(np.concatenate([G, others], axis=1))
         c += e.n_params
-        Q, _ = np.linalg.qr(np.concatenate([G, others], axis=1) if given_others else G)
         s = s - Q @ (Q.T @ s)
         out.append(float(s @ s) / case.sigma**2)
     return out

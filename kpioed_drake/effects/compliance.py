@@ -133,9 +133,10 @@ def vertical_columns(robot: Robot, max_deg: float = VERTICAL_DEG) -> list[int]:
     return out
 
 
-def _motion(fr, p: np.ndarray) -> np.ndarray:
-    """(n, nj, 3) ``v_j(p)`` of points p (n, 3) for every joint (unmasked)."""
-    return fr.joint_motion(p)
+def _carriage_motion(fr, C: np.ndarray, k: int) -> np.ndarray:
+    """(n, nj, 3) ``v_j(C)`` of the carriage point C (n, 3) for the joints below the column (j <= k),
+    0 for the others: what a column's moment arm loses when those joints move the carriage."""
+    return np.where((np.arange(fr.n_joints) < k)[None, :, None], fr.joint_motion(C), 0.0)
 
 
 def rotation(
@@ -195,30 +196,28 @@ def rotation(
         return Rotation(m, pivot, dm_dp=dm_dp)
     dM = _moment_dq(fr, p_l, w_l, links, C, k, g)
     if pay is not None:
-        v = _motion(fr, p_pay)  # every joint moves the payload
+        v = fr.joint_motion(p_pay)  # every joint moves the payload
         if k:
-            v = v - np.where((np.arange(nj) < k)[None, :, None], _motion(fr, C), 0.0)
+            v = v - _carriage_motion(fr, C, k)
         dM = dM + 1e-3 * pay[:, None, None] * cross(v, g[None, None, :])
     dm = scale[:, None, None] * np.einsum("nab,njb->nja", P, dM)
     dpivot = np.zeros((n, nj, 3))
     if family == COLUMN:
         dm[:, k - 1] += 1e-3 * np.einsum("nab,nb->na", P, M)  # dh/dq_k = 1 mm/mm
-        dpivot[:, :k] = _motion(fr, C)[:, :k]
+        dpivot[:, :k] = fr.joint_motion(C)[:, :k]
         dpivot[:, k - 1] -= 0.5 * a
     return Rotation(m, pivot, dm, dpivot, dm_dp)
 
 
 def _moment_dq(fr, p_l, w_l, links, C, k: int, g) -> np.ndarray:
     """(n, nj, 3) ``dM/dq_j`` of the links' moment about C [N m per rad or mm] (module docstring)."""
-    n, nj = p_l.shape[0], fr.n_joints
-    v = _motion(fr, p_l)  # (n, L, nj, 3)
+    nj = fr.n_joints
+    v = fr.joint_motion(p_l)  # (n, L, nj, 3)
     moved = links[:, None] >= np.arange(1, nj + 1)[None, :]  # (L, nj): joint j moves link l
     v = np.where(moved[None, :, :, None], v, 0.0)
     if k:
-        vC = np.where((np.arange(nj) < k)[None, :, None], _motion(fr, C), 0.0)  # (n, nj, 3)
-        v = v - vC[:, None]
-    out = 1e-3 * np.einsum("l,nlja->nja", w_l, cross(v, g[None, None, None, :]))
-    return out.reshape(n, nj, 3)
+        v = v - _carriage_motion(fr, C, k)[:, None]
+    return 1e-3 * np.einsum("l,nlja->nja", w_l, cross(v, g[None, None, None, :]))
 
 
 def lever(robot: Robot, family: str, joint, p_FQ) -> float:

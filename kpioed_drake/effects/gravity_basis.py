@@ -57,6 +57,15 @@ MASS_PRIOR_SPREAD = 0.3
 """Assumed uncertainty of the model file's link masses and centres of mass (issue 13: each
 +-30 %, uniform): mass ``m (1 + a)``, centre of mass shifted by ``d`` times its distance from the
 link frame (100 mm when the file puts it at the origin), ``a, d ~ U(-s, s)``."""
+COM_SCALE_AT_ORIGIN_MM = 100.0
+"""The centre-of-mass shift scale of a link whose file centre of mass is at its frame origin [mm]."""
+
+
+def com_scales(coms: np.ndarray) -> np.ndarray:
+    """(L,) the scale of each link's centre-of-mass uncertainty under the mass prior [mm]: its
+    distance from the link frame's origin, :data:`COM_SCALE_AT_ORIGIN_MM` where that is 0."""
+    r = np.linalg.norm(np.atleast_2d(coms), axis=1)
+    return np.where(r > 0, r, COM_SCALE_AT_ORIGIN_MM)
 
 
 def link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
@@ -310,9 +319,9 @@ def torque_std(robot: Robot, q, joint: int, *, spread: float = MASS_PRIOR_SPREAD
     Y = link_regressor(robot, q, joint)
     v = spread**2 / 3.0
     u2 = np.zeros(Y.shape[0])
+    scales = com_scales(robot.coms)
     for col, k in zip(range(0, Y.shape[1], 4), range(joint, robot.n_joints + 1), strict=True):
-        m, c = robot.masses[k], robot.coms[k]
-        r = float(np.linalg.norm(c)) or 100.0
+        m, c, r = robot.masses[k], robot.coms[k], float(scales[k])
         p = np.concatenate([[m], m * c])  # d pi / d a
         S = v * np.outer(p, p) + v * (m * r) ** 2 * np.diag([0.0, 1.0, 1.0, 1.0])
         Yk = Y[:, col : col + 4]
