@@ -3,14 +3,18 @@
 For a cause A of the extended model (the other named causes R): ``f0`` is the fit of R alone, and
 for every candidate B not in the model ``LR_B = chi2(R) - chi2(R + B)`` against
 ``LR_A = chi2(R) - chi2(R + A)`` (both refitted jointly with the geometry). B is an *alternative* to
-A when ``LR_B >= LR_A - c`` with ``c = chi2.isf(alpha, 1)`` (the 1-dof critical value at the test
-level: 6.63 at 1 %): a likelihood-ratio test of A against B cannot reject B at that level, the data
-cannot tell them apart; and B itself is significant (``p(LR_B) < alpha``, uncorrected). Only B
+A when ``LR_B >= LR_A - c`` with ``c = chi2.isf(alpha, k_A)`` (the critical value at the test level
+with A's number of parameters: 6.63 for one, 9.21 for two at 1 %): if B is the truth,
+``LR_A - LR_B`` is at most ``LR(A | B) ~ chi2(k_A)``, so a likelihood-ratio test of A against B
+cannot reject B at that level, the data cannot tell them apart; and B itself is significant
+(``p(LR_B) < alpha``, uncorrected). (Until 2026-12-01 23:59 ``c`` had one degree of freedom for
+every A, which rejects a true B beside a two-parameter cause 3.6 % of the time, not 1 %.) Only B
 whose score statistic (the linearised ``LR_B`` at ``f0``, cheap) comes within
 ``c + max(c, 20 % of LR_A)`` of ``LR_A`` are refitted.
 
 The stepwise search adds causes one at a time, so with the other causes in the model a candidate
-may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > c`` and B also wins
+may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > chi2.isf(alpha,
+k_B)`` (if A is the truth, ``LR_B - LR_A <= LR(B | A) ~ chi2(k_B)``) and B also wins
 by the penalised likelihood (``LR - k ln(3 n)``) and the held-out RMS, and B's value is physically
 plausible (:mod:`.physical`), :func:`settle` swaps B in for A (recorded as a step with ``swapped``)
 and looks again, at most ``MAX_EFFECTS`` swaps.
@@ -77,7 +81,8 @@ def competing(
     """
     a = ext.effects[i]
     lr_a = max(f0.cost - ext.cost, 0.0)
-    c = float(scipy.stats.chi2.isf(alpha, 1))
+    # if B is the truth, LR_A - LR_B <= LR(A | B) ~ chi2(k_A): the margin has A's degrees of freedom
+    c = float(scipy.stats.chi2.isf(alpha, a.n_params))
     in_model = {e.key for e in ext.effects}
     others = [b for b in pool if b.key not in in_model]
     if not others:
@@ -165,7 +170,6 @@ def settle(prob: FitProblem, sel: Selection, pool, *, alpha: float, k_folds: int
     """Swap causes for competing candidates that explain the data significantly better given the
     other causes (in place on ``sel``), then return, per final cause key, ``(f0, alternatives)``:
     the fit without the cause and :func:`competing`'s list."""
-    c = float(scipy.stats.chi2.isf(alpha, 1))
     ln_n = np.log(3 * prob.data.n)
     for _ in range(MAX_EFFECTS + 1):
         ext, out, swap = sel.fit, {}, None
@@ -175,6 +179,7 @@ def settle(prob: FitProblem, sel: Selection, pool, *, alpha: float, k_folds: int
             lr_a = max(f0.cost - ext.cost, 0.0)
             if found and len(sel.swaps) < MAX_EFFECTS:
                 ev = found[0][2]
+                c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))  # if A is the truth: LR(B | A) ~ chi2(k_B)
                 better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
                 if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
                     swap = (a, f0, *found[0])

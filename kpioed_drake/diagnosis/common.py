@@ -29,3 +29,10 @@ its drive train crosses (joint 3's drive through joint 2 on parallelogram arms; 
 joints 5 and 6 through joint 4, and of joint 6 through joint 5)."""
 BACKLASH_MIN_SIDE = 3
 """Poses a backlash candidate needs on each side of the gravity torque (as ``calibrate --extend``)."""
+PAIR_CORRELATION = 0.5
+"""Two candidates whose projected columns have a canonical correlation of at least this can cancel
+each other; when no single candidate qualifies they are tested together (:mod:`.pairs`)."""
+PAIR_ALPHA_SHARE = 0.1
+"""The pair step's family-wise level is this share of ``alpha``: it runs once per diagnosis, after the
+last single step, and spends a tenth of the level the single steps have (a false alarm on clean data
+needs the goodness-of-fit test, a single step or the pair step: at most 2.1 alpha)."""

@@ -32,9 +32,11 @@ from kpioed_drake.diagnosis.common import (
     MIN_EXCESS_SHARE,
     MIN_HOLDOUT_GAIN,
     MIN_REMAINING,
+    PAIR_ALPHA_SHARE,
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.multiplicity import adjusted_p, critical_p, min_p_null
+from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.sides import set_side, side_penalty, unit_columns
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation import rms
@@ -271,6 +273,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
         scores = [float(np.sum((u.T @ r) ** 2)) for u in U]
         i = int(np.argmax(scores))
         row["score"] = scores[i]
+        row["_basis"] = U[0]  # the pair step's: the current (expected) side, not one the residuals chose
         if len(U) > 1:
             row["_side"] = pats[i]
             row["side_patterns"] = len(U)
@@ -357,6 +360,47 @@ def _stand_in(row: dict, before: float, sigma: float, alpha: float) -> str | Non
     )
 
 
+def _pair(
+    prob: FitProblem, sel: Selection, pool, rows, rec: dict, *, alpha: float, ln_n: float, k_folds: int
+):
+    """After a step that added nothing: the joint test of correlated pairs (:func:`.pairs.pair_step`).
+    Adds the accepted pair to ``sel`` (with ``rec``, the step's record, and the backward step) and
+    returns it, else records the pairs in ``rec`` and returns None."""
+    tested = [
+        (e, row["_basis"], prob.side_patterns[e.joint][0] if "_side" in row else None)
+        for e, row in zip(pool, rows, strict=True)
+        if "_basis" in row
+    ]
+    r = (sel.fit.residuals / prob.sigma).reshape(-1)
+    level = alpha * PAIR_ALPHA_SHARE
+    pair_rows, best = pair_step(prob, sel.fit, tested, r, alpha=level, ln_n=ln_n, k_folds=k_folds)
+    if pair_rows:
+        rec["pairs"] = [_public(x) for x in pair_rows]
+    if best is None:
+        return None
+    (a, b), row = best
+    before = rms(sel.holdout)
+    gain = 1.0 - row["holdout_rms_mm"] / before
+    why = _stand_in(row, before, prob.sigma, alpha)
+    if gain <= 0 or why:
+        row["status"] = f"stand-in: {why}" if why else "significant but does not lower the held-out error"
+        rec["pairs"][0] = _public(row)
+        return None
+    rec["added"] = f"{a.name} + {b.name}"
+    rec["pair"] = [a.name, b.name]
+    ev = {k: v for k, v in _public(row).items() if k != "pair"}
+    ev.update({"holdout_rms_mm_with": ev.pop("holdout_rms_mm"), "holdout_rms_mm_without": before})
+    ev["step"] = rec["step"]
+    for e, other in ((a, b), (b, a)):
+        sel.evidence[e.key] = {**ev, "added_with": other.name}
+    sel.fit, sel.holdout = row["_fit"], row["_hold"]
+    removed = backward_step(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    if removed:
+        rec["removed"] = removed
+    sel.steps.append(rec)
+    return best
+
+
 def select_effects(
     prob: FitProblem, base: Fit, base_holdout, cands, *, alpha: float, k_folds: int, max_effects: int
 ) -> Selection:
@@ -389,6 +433,10 @@ def select_effects(
             "chi2_before": sel.fit.cost,
             "candidates": [_public(r) for r in rows],
         }
+        if accepted is None and len(sel.fit.effects) + 2 <= max_effects:
+            accepted = _pair(prob, sel, pool, rows, rec, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+            if accepted is not None:
+                continue
         if accepted is None:
             rec["added"] = None
             sel.steps.append(rec)
