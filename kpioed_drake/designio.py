@@ -29,6 +29,8 @@ __all__ = [
     "q_columns",
     "q_from_file",
     "q_to_file",
+    "OFFSET_COLUMNS",
+    "read_condition_offsets",
     "read_csv_table",
     "read_design",
     "row_numbers",
@@ -37,6 +39,9 @@ __all__ = [
 
 Q_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
 """Joint columns of the six-joint (revolute) robots."""
+OFFSET_COLUMNS = {"temperature_C": "temperature_offset_K", "time_s": "time_offset_s"}
+"""Columns of a measurement plan's design CSV (``kpioed design --discriminate`` for a temperature
+or time pair): each row's planned condition relative to block 1's, per measurement condition."""
 
 
 def q_columns(robot: Robot | None) -> tuple[str, ...]:
@@ -224,6 +229,24 @@ def read_design(path: str | Path, robot: Robot, *, check_limits: bool = True) ->
     if check_limits:
         check_joint_angles(path, q_deg, robot, rows=row_numbers(data))
     return q_from_file(robot, q_deg)
+
+
+def read_condition_offsets(path: str | Path) -> dict[str, np.ndarray]:
+    """A measurement plan's condition offsets in a design CSV (:data:`OFFSET_COLUMNS`).
+
+    Returns:
+        ``{"temperature_C": (n,) [K], "time_s": (n,) [s]}``, only the columns the file has (``{}``
+        for a design without a plan).
+
+    Raises:
+        InputError: a cell of such a column that is not a finite number (file, row and column named).
+    """
+    header, data = read_csv_table(path, ())
+    return {
+        cond: parse_float_column(path, header, data, col)
+        for cond, col in OFFSET_COLUMNS.items()
+        if col in header
+    }
 
 
 def design_csv_text(

@@ -11,7 +11,10 @@ discrepancy") plus the truth.
 
 Defaults for the environment columns (always written): ``time_s`` = 30 s per pose from 0;
 ``temperature_C`` = 20 C drifting linearly from 18 to 22 C over the run (plus 0.05 C jitter).
-``payload_kg`` is written when a payload is given.
+``payload_kg`` is written when a payload is given. A design CSV with a measurement plan (``kpioed
+design --discriminate`` for a temperature or time pair) has ``temperature_offset_K`` /
+``time_offset_s`` per row: :func:`simulate_file` adds them to these columns (block 2 measured after
+the planned temperature change or pause).
 
 Several targets (SMRs): every pose measures the first ``n_targets`` targets of the robot model
 file (``targets_mm``; default all of them), one row per target, pose-major, with a ``target``
@@ -30,7 +33,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.arguments import check_paths, check_positive, check_seed
-from kpioed_drake.designio import q_columns, q_from_file, q_to_file, read_design
+from kpioed_drake.designio import q_columns, q_from_file, q_to_file, read_condition_offsets, read_design
 from kpioed_drake.effects import parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, measure, nominal_model
@@ -112,6 +115,7 @@ def simulate(
     payload_kg=0.0,
     temperature_C=None,
     time_s=None,
+    condition_offsets: dict | None = None,
     cell_path=None,
     n_targets: int | None = None,
 ) -> tuple[pd.DataFrame, dict]:
@@ -127,6 +131,9 @@ def simulate(
         geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
         payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
         temperature_C, time_s: per pose; defaults see the module docstring.
+        condition_offsets: a measurement plan's offsets per pose added to them,
+            ``{"temperature_C": [K], "time_s": [s]}`` (either; a design CSV's ``temperature_offset_K``
+            / ``time_offset_s``, :func:`~kpioed_drake.designio.read_condition_offsets`).
         n_targets: targets measured at every pose, the first ones of the model file's
             ``targets_mm`` (default: all; 1 for a model with one reflector).
 
@@ -163,6 +170,14 @@ def simulate(
         temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
     else:
         temp = per_pose(temperature_C, n, "temperature_C")
+    offsets = condition_offsets or {}
+    unknown = set(offsets) - {"temperature_C", "time_s"}
+    if unknown:
+        raise InputError(f"simulate: condition offsets for {sorted(unknown)}; expected temperature_C, time_s")
+    if "time_s" in offsets:  # after the defaults, so a plan leaves every seeded draw as it was
+        t = t + per_pose(offsets["time_s"], n, "time_offset_s")
+    if "temperature_C" in offsets:
+        temp = temp + per_pose(offsets["temperature_C"], n, "temperature_offset_K")
     payload = per_pose(payload_kg, n, "payload_kg")
     # one row per (pose, target), pose-major; one target: the rows are the poses
     target = None if n_t == 1 else np.tile(np.arange(n_t), n)
@@ -207,6 +222,7 @@ def simulate(
         "seed": int(seed),
         "geometric_errors": bool(geometric_errors),
         "n_targets": int(n_t),
+        "condition_offsets": sorted(offsets),
     }
     return table, truth
 
@@ -289,6 +305,7 @@ def simulate_file(
         effects=effects,
         geometric_errors=geometric_errors,
         payload_kg=payload_kg,
+        condition_offsets=read_condition_offsets(design),
         cell_path=cell_path,
         n_targets=n_targets,
     )

@@ -15,6 +15,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from fd import central_fd
 from numpy.testing import assert_allclose
@@ -27,6 +28,7 @@ from kpioed_drake.design.discriminate import discrimination_problem, explanation
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.plan import plan_design
+from kpioed_drake.designio import design_csv_text
 from kpioed_drake.diagnosis.synthetic import random_poses
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
@@ -297,3 +299,31 @@ def test_documented_cases_40_first_poses_20_planned(kr16, tmp_path, pair, truth,
     assert rec["before"][effect]["power"] < 0.05 and rec["after"][effect]["power"] > ex.TARGET_POWER
     assert effect not in _named(first)
     assert {c["name"] for c in both.causes} == {effect} and both.causes[0]["alternatives"] == []
+
+
+def test_simulate_adds_the_plans_condition_offsets(kr16, tmp_path, capsys):
+    """A plan's design CSV (block 2 after +3 K or a 600 s pause): ``kpioed simulate`` adds each row's
+    offset to the simulated temperature and time; every seeded draw is the same as without a plan."""
+    q = np.tile(random_poses(kr16.robot, 6, np.random.default_rng(3)), (2, 1))
+    offsets = {"temperature_offset_K": np.repeat([0.0, 3.0], 6), "time_offset_s": np.repeat([0.0, 600.0], 6)}
+    plan, plain = tmp_path / "plan.csv", tmp_path / "plain.csv"
+    plan.write_text(design_csv_text(q, {"block": np.repeat([1, 2], 6), **offsets}))
+    plain.write_text(design_csv_text(q))
+    argv = ["simulate", "--robot", "kr16", "--seed", "4", "--effect", "thermal_expansion"]
+    assert main([*argv, "--design", str(plan), "--out", str(tmp_path / "a.csv")]) == 0
+    assert "measurement plan: the design's temperature_offset_K and time_offset_s" in capsys.readouterr().out
+    assert main([*argv, "--design", str(plain), "--out", str(tmp_path / "b.csv")]) == 0
+    a, b = pd.read_csv(tmp_path / "a.csv"), pd.read_csv(tmp_path / "b.csv")
+    assert_allclose(a["temperature_C"] - b["temperature_C"], offsets["temperature_offset_K"], atol=2e-5)
+    assert_allclose(a["time_s"] - b["time_s"], offsets["time_offset_s"], atol=1e-9)
+    # the thermal expansion follows the planned temperature: block 2 moves, block 1 does not
+    d = np.linalg.norm((a[["x_mm", "y_mm", "z_mm"]] - b[["x_mm", "y_mm", "z_mm"]]).to_numpy(), axis=1)
+    assert np.all(d[:6] < 1e-5) and np.all(d[6:] > 1e-4)
+    lines = plan.read_text().splitlines()
+    lines[-1] = lines[-1].rsplit(",", 1)[0] + ",soon"  # the last row's time_offset_s
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    assert main(["simulate", "--robot", "kr16", "--design", str(bad), "--out", str(tmp_path / "c.csv")]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: row 13, column 'time_offset_s': 'soon' is not a number" in err and "Traceback" not in err
+    assert not (tmp_path / "c.csv").exists()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kpioed_drake import api
+from kpioed_drake import api, designio
 from kpioed_drake.cli.common import add_robot
 
 
@@ -59,6 +59,9 @@ def run(args) -> int:
         f"seed {truth['seed']}, "
         f"geometric errors {'on' if truth['geometric_errors'] else 'off'}, effects: {eff}"
     )
+    if truth.get("condition_offsets"):
+        cols = " and ".join(designio.OFFSET_COLUMNS[c] for c in truth["condition_offsets"])
+        print(f"  measurement plan: the design's {cols} added to the simulated conditions")
     p = truth["p_WT_mm"]
     print(f"  true tracker position in W: ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm (random orientation)")
     print(f"  written to {args.out}" + (f"; truth to {args.truth}" if args.truth else ""))

@@ -61,7 +61,7 @@ CONDITIONS = {
 """The condition each condition family needs."""
 UNITS = {"temperature_C": "K", "time_s": "s"}
 """Unit of each condition's span."""
-PLAN_COLUMNS = {"temperature_C": "temperature_offset_K", "time_s": "time_offset_s"}
+PLAN_COLUMNS = designio.OFFSET_COLUMNS
 """Column of the design CSV with each row's planned condition, from block 1's."""
 _SPAN_UNITS = {
     "k": ("temperature_C", 1.0),
