@@ -51,12 +51,13 @@ import scipy.stats
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES
 from kpioed_drake.effects.compliance import vertical_columns
 from kpioed_drake.models import load_robot
 from kpioed_drake.outputs import atomic_write_json
 
 DETECTABLE = 25.0
-FAMILIES = fx.FAMILIES + ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
+FAMILIES = RATE_FAMILIES
 """The families of the rate study (SPEC's four and the further four)."""
 KINDS = tuple(f"single:{f}" for f in FAMILIES) + ("pair", "clean", "single:joint_elasticity:spec")
 QUICK_KINDS = ("single:joint_scale", "pair", "clean")

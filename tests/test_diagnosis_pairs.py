@@ -7,19 +7,8 @@ import scipy.stats
 
 from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis import pairs as pr
+from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
 from kpioed_drake.diagnosis.synthetic import run_synthetic_case
-
-FAMILIES = (
-    "joint_elasticity",
-    "gear_cyclic",
-    "thermal_expansion",
-    "tracker_drift",
-    "joint_scale",
-    "joint_coupling",
-    "tracker_scale",
-    "backlash",
-)
-"""The families of the rate study (studies/diagnosis_rates.py)."""
 
 
 def _unit(v):

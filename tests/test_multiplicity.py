@@ -11,20 +11,9 @@ from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis.elastic_basis import use_expected_sides
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.sides import prior_moments, side_patterns
+from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
 from kpioed_drake.diagnosis.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 from kpioed_drake.effects import gravity_basis as gb
-
-FAMILIES = (
-    "joint_elasticity",
-    "gear_cyclic",
-    "thermal_expansion",
-    "tracker_drift",
-    "joint_scale",
-    "joint_coupling",
-    "tracker_scale",
-    "backlash",
-)
-"""The families of the rate study (studies/diagnosis_rates.py)."""
 
 
 def _orthonormal(m, k, seed):

@@ -388,17 +388,24 @@ def _pair(
         return None
     rec["added"] = f"{a.name} + {b.name}"
     rec["pair"] = [a.name, b.name]
-    ev = {k: v for k, v in _public(row).items() if k != "pair"}
-    ev.update({"holdout_rms_mm_with": ev.pop("holdout_rms_mm"), "holdout_rms_mm_without": before})
-    ev["step"] = rec["step"]
-    for e, other in ((a, b), (b, a)):
-        sel.evidence[e.key] = {**ev, "added_with": other.name}
+    _accept(prob, sel, rec, row, (a, b), before, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    return best
+
+
+def _accept(prob: FitProblem, sel: Selection, rec: dict, row: dict, effects, before: float, **kw) -> None:
+    """Add ``effects`` (one candidate, or a pair) to ``sel`` with the step's ``row``: their evidence
+    (a pair member's says ``added_with``), the fit, the backward step and the step's record ``rec``."""
+    ev = {k: v for k, v in _public(row).items() if k not in ("candidate", "pair")}
+    ev["holdout_rms_mm_with"] = ev.pop("holdout_rms_mm")
+    ev.update({"step": rec["step"], "holdout_rms_mm_without": before})
+    for e in effects:
+        with_ = [x.name for x in effects if x.key != e.key]
+        sel.evidence[e.key] = {**ev, "added_with": with_[0]} if with_ else ev
     sel.fit, sel.holdout = row["_fit"], row["_hold"]
-    removed = backward_step(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    removed = backward_step(prob, sel, effects[-1], **kw)
     if removed:
         rec["removed"] = removed
     sel.steps.append(rec)
-    return best
 
 
 def select_effects(
@@ -443,14 +450,5 @@ def select_effects(
             break
         e, row = accepted
         rec["added"] = e.name
-        ev = {k: v for k, v in _public(row).items() if k != "candidate"}
-        ev["holdout_rms_mm_with"] = ev.pop("holdout_rms_mm")
-        ev["step"] = step
-        ev["holdout_rms_mm_without"] = before
-        sel.evidence[e.key] = ev
-        sel.fit, sel.holdout = row["_fit"], row["_hold"]
-        removed = backward_step(prob, sel, e, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-        if removed:
-            rec["removed"] = removed
-        sel.steps.append(rec)
+        _accept(prob, sel, rec, row, (e,), before, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
     return sel

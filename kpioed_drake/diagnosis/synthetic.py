@@ -215,6 +215,8 @@ def kpi_error(case: SyntheticCase, fit: Fit) -> float | None:
 
 
 CASE_KINDS = ("single", "pair", "clean")
+RATE_FAMILIES = fx.FAMILIES + ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
+"""The families of the rate study (SPEC's four and the further four of issue 13)."""
 NEAR_THRESHOLD = (15.0, 150.0)
 """Range of the hidden signal's non-centrality lambda (log-uniform) in ``near_threshold`` cases."""
 PAYLOAD_KG = (2.0, 15.0)
