@@ -2,13 +2,17 @@
 form, the pair bases, the family-wise level of the pair test under "no effect" (Monte Carlo), and the
 harness case whose two effects cancel (KR 16 pair seed 124: thermal expansion and tracker drift)."""
 
+import json
+
 import numpy as np
 import scipy.stats
 
 from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis import pairs as pr
+from kpioed_drake.diagnosis import synthetic
 from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
 from kpioed_drake.diagnosis.synthetic import run_synthetic_case
+from kpioed_drake.diagnosis.workflow import diagnose
 
 
 def _unit(v):
@@ -65,9 +69,17 @@ def test_pair_test_holds_its_level_under_no_effect():
     assert abs(hits / n - level) < 3 * np.sqrt(level * (1 - level) / n), hits / n
 
 
-def test_cancelling_pair_is_named():
+def test_cancelling_pair_is_named(monkeypatch):
     """KR 16 harness pair 124: thermal expansion and tracker drift cancel (LR 6.1 and 9.8 alone on
-    the geometric fit, 31.8 together); the forward steps name nothing, the pair step names both."""
+    the geometric fit, 31.8 together); the forward steps name nothing, the pair step names both,
+    and the JSON report says so (the step's pairs, each cause ``added_with`` the other)."""
+    reports = []
+
+    def keep(*args, **kwargs):
+        reports.append(diagnose(*args, **kwargs))
+        return reports[-1]
+
+    monkeypatch.setattr(synthetic, "diagnose", keep)
     r = run_synthetic_case(
         "pair",
         124,
@@ -81,3 +93,10 @@ def test_cancelling_pair_is_named():
     assert min(r["lambda_given_others"]) >= 25  # each is detectable beside the other
     assert r["named"] == r["truth_names"] and r["explained"]
     assert r["holdout_ext_over_sigma"] < 1.3
+    js = json.loads(json.dumps(reports[0].to_json()))
+    (step,) = [st for st in js["steps"] if st.get("pair")]
+    assert (
+        step["added"] == "thermal_expansion + tracker_drift" and step["pairs"][0]["p_value_corrected"] < 1e-3
+    )
+    with_ = {c["name"]: c["evidence"]["added_with"] for c in js["causes"]}
+    assert with_ == {"thermal_expansion": "tracker_drift", "tracker_drift": "thermal_expansion"}
