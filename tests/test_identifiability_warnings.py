@@ -21,7 +21,9 @@ from kpioed_drake import api, calibration, estimation, identifiability, measurem
 from kpioed_drake.cli import main
 from kpioed_drake.dataformats import read_data
 from kpioed_drake.designio import write_design
+from kpioed_drake.diagnosis import synthetic
 from kpioed_drake.diagnosis.synthetic import run_synthetic_case
+from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurements import Measurements
 
@@ -228,11 +230,19 @@ def test_columns_zero_up_to_rounding_count_as_undetermined():
         assert rep.rank == 25, (name, rep.rank)
 
 
-def test_tracker_parameter_that_only_correlates_is_estimated_not_held_at_registration():
+def test_tracker_parameter_that_only_correlates_is_estimated_not_held_at_registration(monkeypatch):
     """lift7, base compliance, seed 91: the poses barely separate tracker_ry from tracker_z
     (correlation -0.9992). Held at the rigid registration (biased 8 mm by the robot's own errors)
     the geometric fit stayed at chi2/dof 39 and nothing was named; estimated with the others, the
-    geometric fit is near the noise and the hidden compliance is named."""
+    geometric fit is near the noise and the hidden compliance is named. ``calibrate`` on the same
+    data holds tracker_ry at the solution at its estimate and says so (not "at nominal")."""
+    seen = {}
+
+    def keep(robot, data, **kwargs):
+        seen.update(robot=robot, data=data)
+        return diagnose(robot, data, **kwargs)
+
+    monkeypatch.setattr(synthetic, "diagnose", keep)
     r = run_synthetic_case(
         "single",
         91,
@@ -245,3 +255,10 @@ def test_tracker_parameter_that_only_correlates_is_estimated_not_held_at_registr
     )
     assert r["named"] == ["base_compliance"], r
     assert r["holdout_base_over_sigma"] < 2.0 and r["holdout_ext_over_sigma"] < 1.3
+    rep = calibration.calibrate(seen["robot"], seen["data"], sigma_mm=SIGMA)
+    assert rep.chi2_per_dof < 1.5
+    assert rep.held_at_nominal == [] and rep.held_at_estimate == ["tracker_ry"]
+    assert rep.to_dict()["held_at_estimate"] == ["tracker_ry"]
+    assert any("barely separate tracker_ry" in w for w in rep.warnings)
+    assert any("tracker_ry" in w and "held at the estimate" in w for w in rep.warnings)
+    assert not any("tracker_ry" in w and "held at nominal" in w for w in rep.warnings)

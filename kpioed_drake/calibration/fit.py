@@ -94,9 +94,12 @@ def hold_undetermined(
     return _hold(nominal, found, f"these {data.n} poses do not determine", data, strict, warnings)
 
 
-def _hold(model: TrackerModel, found, what: str, data: Measurements, strict: bool, warnings) -> TrackerModel:
+def _hold(
+    model: TrackerModel, found, what: str, data: Measurements, strict: bool, warnings, *, at_estimate=()
+) -> TrackerModel:
     """``model`` with the parameters ``found`` (:class:`~kpioed_drake.identifiability.Undetermined`)
-    no longer estimated, with a warning; InputError with ``strict`` or too many."""
+    no longer estimated, with a warning (``at_estimate``: those of them held at ``model``'s value, an
+    estimate, not at nominal); InputError with ``strict`` or too many."""
     if not found.names:
         return model
     lay = model.layout
@@ -111,9 +114,15 @@ def _hold(model: TrackerModel, found, what: str, data: Measurements, strict: boo
             f"{data.path}: {what}; use more varied poses (a reflector on joint 6's axis leaves wrist "
             "parameters undetermined); without --strict they are held at nominal"
         )
-    warnings.append(
-        f"{what}: held at nominal (not estimated); the values written for them are the nominal ones"
-    )
+    kept = [n for n in found.names if n in at_estimate]
+    nominal = [n for n in found.names if n not in at_estimate]
+    if nominal:
+        warnings.append(
+            f"{what}: held at nominal (not estimated); the values written for them are the nominal ones"
+            + (f" ({', '.join(kept)} keeps its estimate)" if kept else "")
+        )
+    else:
+        warnings.append(f"{what}: held at the estimate (the tracker pose's value from the first fit)")
     held = tuple(n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist()))
     layout = parameter_layout(model.robot, fixed=held + found.names, n_targets=lay.n_targets)
     return dataclasses.replace(model, layout=layout)
@@ -141,7 +150,7 @@ def hold_at_solution(
     if not found.names:
         return None, ()
     what = f"at the estimated parameters these {res.n_used} poses do not determine"
-    model = _hold(res.model, found, what, data, strict, warnings)
+    model = _hold(res.model, found, what, data, strict, warnings, at_estimate=set(lay.names[lay.tracker]))
     tracker = set(range(lay.size)[lay.tracker_position]) | set(range(lay.size)[lay.tracker_rotation])
     idx = [i for i in (lay.names.index(n) for n in found.names) if i not in tracker]
     p = model.p.copy()
