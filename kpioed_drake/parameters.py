@@ -108,6 +108,11 @@ class ParameterLayout:
         return slice(self.tracker_position.start, self.tracker_rotation.stop)
 
     @property
+    def tracker_names(self) -> frozenset[str]:
+        """Names of the tracker pose's six entries."""
+        return frozenset(self.names[self.tracker])
+
+    @property
     def targets(self) -> slice:
         """All target offsets (3 per target) [mm]."""
         j = self.tracker_rotation.stop

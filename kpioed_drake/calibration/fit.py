@@ -81,8 +81,7 @@ def hold_undetermined(
     registered = registered_model(nominal, data.q, data.eta, data.target)
     _, H = measurement_jacobian(registered, data.q, target=data.target)
     found = undetermined_parameters(H[:, :, lay.free].reshape(3 * data.n, -1), lay.free_names)
-    tracker = set(lay.names[lay.tracker])
-    loose = [c for c in found.correlated if c[0] in tracker]
+    loose = [c for c in found.correlated if c[0] in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
         warnings.append(
@@ -150,9 +149,8 @@ def hold_at_solution(
     if not found.names:
         return None, ()
     what = f"at the estimated parameters these {res.n_used} poses do not determine"
-    model = _hold(res.model, found, what, data, strict, warnings, at_estimate=set(lay.names[lay.tracker]))
-    tracker = set(range(lay.size)[lay.tracker_position]) | set(range(lay.size)[lay.tracker_rotation])
-    idx = [i for i in (lay.names.index(n) for n in found.names) if i not in tracker]
+    model = _hold(res.model, found, what, data, strict, warnings, at_estimate=lay.tracker_names)
+    idx = [lay.names.index(n) for n in found.names if n not in lay.tracker_names]
     p = model.p.copy()
     p[idx] = nominal.p[idx]
     return dataclasses.replace(model, p=p), found.names

@@ -76,20 +76,16 @@ class CalibrationReport:
         """Parameters the robot's layout estimates but this fit held at nominal (the poses do not
         determine them: :func:`kpioed_drake.identifiability.undetermined_parameters`); a tracker-pose
         coordinate held at the solution keeps its estimate and is in :attr:`held_at_estimate`."""
-        return [n for n in self._held() if n not in self._tracker_names()]
+        return [n for n in self._held() if n not in self.model.layout.tracker_names]
 
     @property
     def held_at_estimate(self) -> list[str]:
         """Tracker-pose coordinates the solution does not determine, held at their first fit's value."""
-        return [n for n in self._held() if n in self._tracker_names()]
+        return [n for n in self._held() if n in self.model.layout.tracker_names]
 
     def _held(self) -> list[str]:
         estimated = set(self.model.layout.free_names)
         return [n for n in parameter_layout(self.robot).free_names if n not in estimated]
-
-    def _tracker_names(self) -> set[str]:
-        lay = self.model.layout
-        return set(lay.names[lay.tracker])
 
     @property
     def used(self) -> np.ndarray:

@@ -49,19 +49,24 @@ def min_p_null(bases, *, n_draws: int = N_DRAWS, seed: int = SEED) -> np.ndarray
     return np.sort(np.exp(np.min(logp, axis=0)))
 
 
-def adjusted_p(p: float, null_min_p: np.ndarray, m: int) -> float:
+def adjusted_p(p: float, null_min_p: np.ndarray | None, m: int) -> float:
     """Family-wise p-value of a candidate with marginal p-value ``p``: the share of null minima at or
     below it (:func:`min_p_null`, sorted), at least ``p`` and at most Bonferroni's ``p * m``; below
     the draws' resolution ``p`` times the effective number of tests (``0.01 / q``, ``q`` the 1 %
-    quantile of the null minima)."""
+    quantile of the null minima). ``null_min_p`` None (no draws: no candidate near the level):
+    Bonferroni's ``min(1, p m)``."""
+    if null_min_p is None:
+        return float(min(1.0, p * m))
     share = np.searchsorted(null_min_p, p, side="right") / null_min_p.size
     if share == 0:  # below the draws' resolution: p times the effective number of tests at 1 %
         share = p * max(1.0, 0.01 / float(np.quantile(null_min_p, 0.01)))
     return float(min(1.0, p * m, max(share, p)))
 
 
-def critical_p(alpha: float, null_min_p: np.ndarray, m: int) -> float:
+def critical_p(alpha: float, null_min_p: np.ndarray | None, m: int) -> float:
     """The marginal p-value a candidate needs for a family-wise p-value below ``alpha`` (at least
-    Bonferroni's ``alpha / m``)."""
+    Bonferroni's ``alpha / m``, which it is when ``null_min_p`` is None)."""
+    if null_min_p is None:
+        return alpha / m
     q = float(np.quantile(null_min_p, alpha))
     return max(alpha / m, q)

@@ -104,7 +104,7 @@ def pair_step(
                 "score": float(stat[k]),
                 "dof": int(dof[k]),
                 "p_value": float(p[k]),
-                "p_value_corrected": min(1.0, float(p[k]) * m) if null is None else adjusted_p(p[k], null, m),
+                "p_value_corrected": adjusted_p(float(p[k]), null, m),
             }
         )
     row = rows[0]
@@ -128,9 +128,7 @@ def pair_step(
         }
     )
     p_given = [float(scipy.stats.chi2.sf(g, e.n_params)) for g, e in zip(given, (a, b), strict=True)]
-    row["p_value_corrected"] = (
-        min(1.0, row["p_value"] * m) if null is None else adjusted_p(row["p_value"], null, m)
-    )
+    row["p_value_corrected"] = adjusted_p(row["p_value"], null, m)
     if row["p_value_corrected"] >= alpha or row["delta_bic"] <= 0 or max(p_given) >= alpha:
         prob.conditions = dataclasses.replace(prob.conditions, side=saved)
         row["status"] = "not added: not significant once refitted, no BIC gain, or a member not needed"

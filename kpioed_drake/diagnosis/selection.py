@@ -287,7 +287,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
     null = min_p_null(bases) if bases and p_min < 2 * alpha else None
     best = None
     saved_side = prob.conditions.side
-    for e, row in _screen(tested, alpha / m if null is None else critical_p(alpha, null, m), ln_n):
+    for e, row in _screen(tested, critical_p(alpha, null, m), ln_n):
         if "_side" in row:
             set_side(prob, e.joint, row["_side"])
         f = prob.fit(list(current.effects) + [e], start=current)
@@ -299,7 +299,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
                 "lr_stat": lr,
                 "dof": e.n_params,
                 "p_value": p,
-                "p_value_corrected": min(1.0, p * m) if null is None else adjusted_p(p, null, m),
+                "p_value_corrected": adjusted_p(p, null, m),
                 "delta_bic": lr - e.n_params * ln_n,
             }
         )
