@@ -33,7 +33,14 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.arguments import check_paths, check_positive, check_seed
-from kpioed_drake.designio import q_columns, q_from_file, q_to_file, read_condition_offsets, read_design
+from kpioed_drake.designio import (
+    OFFSET_COLUMNS,
+    q_columns,
+    q_from_file,
+    q_to_file,
+    read_condition_offsets,
+    read_design,
+)
 from kpioed_drake.effects import parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import TrackerModel, measure, nominal_model
@@ -171,13 +178,15 @@ def simulate(
     else:
         temp = per_pose(temperature_C, n, "temperature_C")
     offsets = condition_offsets or {}
-    unknown = set(offsets) - {"temperature_C", "time_s"}
+    unknown = set(offsets) - set(OFFSET_COLUMNS)
     if unknown:
-        raise InputError(f"simulate: condition offsets for {sorted(unknown)}; expected temperature_C, time_s")
+        raise InputError(
+            f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
+        )
     if "time_s" in offsets:  # after the defaults, so a plan leaves every seeded draw as it was
-        t = t + per_pose(offsets["time_s"], n, "time_offset_s")
+        t = t + per_pose(offsets["time_s"], n, OFFSET_COLUMNS["time_s"])
     if "temperature_C" in offsets:
-        temp = temp + per_pose(offsets["temperature_C"], n, "temperature_offset_K")
+        temp = temp + per_pose(offsets["temperature_C"], n, OFFSET_COLUMNS["temperature_C"])
     payload = per_pose(payload_kg, n, "payload_kg")
     # one row per (pose, target), pose-major; one target: the rows are the poses
     target = None if n_t == 1 else np.tile(np.arange(n_t), n)
