@@ -39,9 +39,14 @@ __all__ = [
 
 Q_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
 """Joint columns of the six-joint (revolute) robots."""
-OFFSET_COLUMNS = {"temperature_C": "temperature_offset_K", "time_s": "time_offset_s"}
-"""Columns of a measurement plan's design CSV (``kpioed design --discriminate`` for a temperature
-or time pair): each row's planned condition relative to block 1's, per measurement condition."""
+OFFSET_COLUMNS = {
+    "temperature_C": "temperature_offset_K",
+    "time_s": "time_offset_s",
+    "payload_kg": "payload_offset_kg",
+}
+"""Columns of a measurement plan's design CSV (``kpioed design --discriminate`` for a temperature,
+time or payload plan): each row's planned condition relative to block 1's, per measurement
+condition (the payload: the mass added at the reflector point)."""
 
 
 def q_columns(robot: Robot | None) -> tuple[str, ...]:
@@ -235,7 +240,8 @@ def read_condition_offsets(path: str | Path) -> dict[str, np.ndarray]:
     """A measurement plan's condition offsets in a design CSV (:data:`OFFSET_COLUMNS`).
 
     Returns:
-        ``{"temperature_C": (n,) [K], "time_s": (n,) [s]}``, only the columns the file has (``{}``
+        ``{"temperature_C": (n,) [K], "time_s": (n,) [s], "payload_kg": (n,) [kg]}``, only the
+        columns the file has (``{}``
         for a design without a plan).
 
     Raises:

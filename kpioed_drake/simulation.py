@@ -139,8 +139,9 @@ def simulate(
         payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
         temperature_C, time_s: per pose; defaults see the module docstring.
         condition_offsets: a measurement plan's offsets per pose added to them,
-            ``{"temperature_C": [K], "time_s": [s]}`` (either; a design CSV's ``temperature_offset_K``
-            / ``time_offset_s``, :func:`~kpioed_drake.designio.read_condition_offsets`).
+            ``{"temperature_C": [K], "time_s": [s], "payload_kg": [kg]}`` (any of them; a design
+            CSV's ``temperature_offset_K`` / ``time_offset_s`` / ``payload_offset_kg``,
+            :func:`~kpioed_drake.designio.read_condition_offsets`).
         n_targets: targets measured at every pose, the first ones of the model file's
             ``targets_mm`` (default: all; 1 for a model with one reflector).
 
@@ -188,6 +189,14 @@ def simulate(
     if "temperature_C" in offsets:
         temp = temp + per_pose(offsets["temperature_C"], n, OFFSET_COLUMNS["temperature_C"])
     payload = per_pose(payload_kg, n, "payload_kg")
+    if "payload_kg" in offsets:  # the mass a plan adds at the reflector in its block 2
+        payload = payload + per_pose(offsets["payload_kg"], n, OFFSET_COLUMNS["payload_kg"])
+        bad = np.flatnonzero(payload < 0)
+        if bad.size:
+            raise InputError(
+                f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
+                f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
+            )
     # one row per (pose, target), pose-major; one target: the rows are the poses
     target = None if n_t == 1 else np.tile(np.arange(n_t), n)
     q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))

@@ -46,7 +46,8 @@ from kpioed_drake.design.explanations import (
     lambda_for_power,
     noncentralities,
 )
-from kpioed_drake.effects import T_REF_C, extension_columns
+from kpioed_drake.effects import COMPLIANCE_FAMILIES, T_REF_C, extension_columns
+from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.errors import InputError
 from kpioed_drake.measurement import measurement_jacobian
 from kpioed_drake.problem import Problem
@@ -59,7 +60,12 @@ CONDITIONS = {
     "tracker_drift": "time_s",
 }
 """The condition each condition family needs."""
-UNITS = {"temperature_C": "K", "time_s": "s"}
+PAYLOAD = "payload_kg"
+PAYLOAD_FAMILIES = ("joint_elasticity", BASIS_FAMILY, "backlash", *COMPLIANCE_FAMILIES)
+"""Families that act through the gravity torque: a payload in block 2 changes their signature and
+not the pose's, so it can separate them from a joint effect that looks alike over the reachable
+poses (opt-in: ``--condition-span 10kg``)."""
+UNITS = {"temperature_C": "K", "time_s": "s", PAYLOAD: "kg"}
 """Unit of each condition's span."""
 PLAN_COLUMNS = designio.OFFSET_COLUMNS
 """Column of the design CSV with each row's planned condition, from block 1's."""
@@ -68,9 +74,20 @@ _SPAN_UNITS = {
     "s": ("time_s", 1.0),
     "min": ("time_s", 60.0),
     "h": ("time_s", 3600.0),
+    "kg": (PAYLOAD, 1.0),
 }
-_MAX_SPAN = {"temperature_C": 1e3, "time_s": 1e7}
-"""Largest span searched for [K, s]: beyond, no plan can help."""
+_MAX_SPAN = {"temperature_C": 1e3, "time_s": 1e7, PAYLOAD: 1e4}
+"""Largest span searched for [K, s, kg]: beyond, no plan can help."""
+_START_SPAN = {"temperature_C": 1.0, "time_s": 60.0, PAYLOAD: 1.0}
+"""First span tried when sizing one [K, s, kg]."""
+
+
+def condition_of(effect) -> str | None:
+    """The condition that changes ``effect``'s signature at a fixed pose: ``temperature_C`` or
+    ``time_s`` (which it needs), ``payload_kg`` (a gravity-torque effect), or None."""
+    if effect.family in PAYLOAD_FAMILIES:
+        return PAYLOAD
+    return CONDITIONS.get(effect.family)
 
 
 def needed_conditions(pair) -> list[str]:
@@ -83,9 +100,18 @@ def needed_conditions(pair) -> list[str]:
     return out
 
 
+def plan_conditions(pair, spans: dict) -> list[str]:
+    """The conditions of a plan for ``pair``: those it needs, then ``payload_kg`` if a span for it
+    is given (``spans``, :func:`parse_condition_span`) and an explanation acts through the torque."""
+    out = needed_conditions(pair)
+    if PAYLOAD in spans and any(condition_of(h.effect) == PAYLOAD for h in pair):
+        out.append(PAYLOAD)
+    return out
+
+
 def parse_condition_span(text, pair) -> dict[str, float]:
-    """The spans of ``--condition-span`` (``"3K"``, ``"600s"``, ``"10min"``, ``"2h"``, ``"3K,600s"``)
-    as ``{condition: span}`` [K or s]; None: ``{}`` (the default spans).
+    """The spans of ``--condition-span`` (``"3K"``, ``"600s"``, ``"10min"``, ``"2h"``, ``"3K,600s"``,
+    ``"10kg"``) as ``{condition: span}`` [K, s or kg]; None: ``{}`` (the default spans).
 
     Raises:
         InputError: naming the option: no unit or an unknown one, not a finite number >= 0, a
@@ -94,9 +120,12 @@ def parse_condition_span(text, pair) -> dict[str, float]:
     if text is None:
         return {}
     needed = needed_conditions(pair)
+    if any(condition_of(h.effect) == PAYLOAD for h in pair):
+        needed = [*needed, PAYLOAD]
     if not needed:
         raise InputError(
             f"{SPAN_OPTION}: only for a --discriminate pair with {', '.join(CONDITION_FAMILIES)} "
+            f"(a temperature or time span) or with {', '.join(PAYLOAD_FAMILIES)} (a payload) "
             f"(got {' and '.join(h.effect.name for h in pair)})"
         )
     out: dict[str, float] = {}
@@ -105,8 +134,8 @@ def parse_condition_span(text, pair) -> dict[str, float]:
         unit = m.group(2).lower() if m else ""
         if m is None or unit not in _SPAN_UNITS:
             raise InputError(
-                f"{SPAN_OPTION}: expected a number with a unit, K (temperature) or s, min, h (time), e.g. "
-                f"'3K', '600s' or '3K,600s', got {part.strip()!r}"
+                f"{SPAN_OPTION}: expected a number with a unit, K (temperature), s, min, h (time) or kg "
+                f"(payload), e.g. '3K', '600s', '3K,600s' or '10kg', got {part.strip()!r}"
             )
         try:
             value = float(m.group(1))
@@ -200,7 +229,8 @@ class PlanProblem(DiscriminationProblem):
     """((condition, (m,) values), ...) of the given poses (missing: the base value)."""
 
     def conditions(self, block: int, n: int) -> dict[str, np.ndarray]:
-        """``temperature_C`` and ``time_s`` (n,) of block 1 or 2."""
+        """``temperature_C``, ``time_s`` and ``payload_kg`` (n,) of block 1 or 2 (block 1 without a
+        payload)."""
         span = dict(self.spans) if block == 2 else {}
         base = dict(self.base)
         return {c: np.full(n, base.get(c, 0.0) + span.get(c, 0.0)) for c in UNITS}
@@ -215,14 +245,16 @@ class PlanProblem(DiscriminationProblem):
         return F.reshape(len(q), 3, -1), dF
 
     def given_rows_conditions(self) -> dict[str, np.ndarray]:
-        """``temperature_C`` and ``time_s`` (m,) of the given poses (the base value where unknown)."""
+        """``temperature_C``, ``time_s`` (and ``payload_kg`` where the file has it) (m,) of the given
+        poses (the base value where unknown)."""
         m = 0 if self.given_q is None else len(self.given_q)
         cond = {c: np.full(m, v) for c, v in self.base}
         cond.update({c: np.asarray(v, dtype=float) for c, v in self.given_conditions})
         return cond
 
     def sequence_conditions(self, n: int) -> dict[str, np.ndarray]:
-        """``temperature_C`` and ``time_s`` (2n,) of n poses measured as planned (block 1, block 2)."""
+        """``temperature_C``, ``time_s`` and ``payload_kg`` (2n,) of n poses measured as planned
+        (block 1, block 2)."""
         one, two = self.conditions(1, n), self.conditions(2, n)
         return {c: np.concatenate([one[c], two[c]]) for c in UNITS}
 
@@ -255,6 +287,7 @@ def plan_problem(
     base = {
         "temperature_C": float(np.mean(gc["temperature_C"])) if "temperature_C" in gc else T_REF_C,
         "time_s": float(np.max(gc["time_s"])) if "time_s" in gc else 0.0,
+        PAYLOAD: 0.0,
     }
     fields = {f.name: getattr(dprob, f.name) for f in dataclasses.fields(DiscriminationProblem)}
     return PlanProblem(
@@ -295,7 +328,7 @@ def _span_for(plan, base, pair, q_all, k: int, cond: str, need: float) -> float:
     lo, lam_lo = 0.0, lam(0.0)
     if lam_lo >= need:
         return 0.0
-    hi = 1.0 if cond == "temperature_C" else 60.0
+    hi = _START_SPAN[cond]
     while (lam_hi := lam(hi)) < need:
         if hi > _MAX_SPAN[cond] or not np.isfinite(lam_hi):
             return float("inf")
@@ -310,17 +343,19 @@ def required_spans(
     q_all,
     *,
     fixed=(),
+    conditions=None,
     alpha: float = DEFAULT_ALPHA,
     target: float = TARGET_POWER,
 ) -> dict[str, float]:
-    """Per condition the span [K, s] at which every explanation that needs it reaches power
-    ``target`` with the poses ``q_all`` under the plan (the largest over them); the spans of
-    ``fixed`` conditions stay as in ``plan``, the others start at 1 K / 60 s and are found in
-    turn (twice when the pair needs both conditions)."""
+    """Per condition the span [K, s, kg] at which every explanation that acts through it reaches
+    power ``target`` with the poses ``q_all`` under the plan (the largest over them); the spans of
+    ``fixed`` conditions stay as in ``plan``, the others start at 1 K / 60 s / 1 kg and are found
+    in turn (twice when there are two). ``conditions``: those to size (default: the ones the pair
+    needs, :func:`needed_conditions`); a payload's span is 0 where the poses alone reach the power."""
     spans = dict(plan.spans)
-    free = [c for c in needed_conditions(pair) if c not in fixed]
+    free = [c for c in (needed_conditions(pair) if conditions is None else conditions) if c not in fixed]
     for c in free:
-        spans.setdefault(c, 1.0 if c == "temperature_C" else 60.0)
+        spans.setdefault(c, _START_SPAN[c])
     for _ in range(2 if len(free) > 1 else 1):
         for c in free:
             need = [
@@ -334,7 +369,7 @@ def required_spans(
                     lambda_for_power(target, h.effect.n_params, alpha),
                 )
                 for k, h in enumerate(pair)
-                if CONDITIONS.get(h.effect.family) == c
+                if condition_of(h.effect) == c
             ]
             spans[c] = max(need)
     return {c: spans[c] for c in free}

@@ -23,14 +23,15 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.design.conditions import (
+    PAYLOAD,
     PLAN_COLUMNS,
     SPAN_OPTION,
     UNITS,
     PlanProblem,
-    needed_conditions,
     nice_ceil,
     parse_condition_span,
     plan_assessment,
+    plan_conditions,
     plan_problem,
     required_spans,
     sequence_problem,
@@ -153,7 +154,10 @@ def plan_design(
     """
     pair = checked_pair(problem, pair_text, alpha)
     spans_user = parse_condition_span(condition_span, pair)
-    if not needed_conditions(pair):
+    if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
+        del spans_user[PAYLOAD]
+    conds = plan_conditions(pair, spans_user)
+    if not conds:
         return discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
     if problem.n_targets > 1:
         raise InputError(f"{OPTION}: a measurement plan for {pair_text!r} takes one target per pose")
@@ -193,8 +197,8 @@ def plan_design(
         before = plan_assessment(plan, base, pair, q_start, alpha=alpha)
         before["poses"] = "heuristic, same plan"
     heuristic = plan_assessment(plan, base, pair, np.concatenate([g, q_start]), alpha=alpha)
-    need_after = required_spans(plan, base, pair, q_all, alpha=alpha)
-    need_final = required_spans(plan, base, pair, np.concatenate([g, q_start]), alpha=alpha)
+    need_after = required_spans(plan, base, pair, q_all, conditions=conds, alpha=alpha)
+    need_final = required_spans(plan, base, pair, np.concatenate([g, q_start]), conditions=conds, alpha=alpha)
     criterion = (
         "the larger of v_A, v_B over the planned rows (each pose in block 1 and block 2); 1/v_h <= "
         "lambda_h (kpioed_drake.design.conditions)"
@@ -202,7 +206,8 @@ def plan_design(
     record = discrimination_record(pair, alpha, criterion, res, before, after)
     record["plan"] = {
         "model": "each designed pose measured twice: block 1 at the first data's condition (mean "
-        "temperature, after its last time), block 2 after the span",
+        "temperature, after its last time, no payload), block 2 after the span (warmer, later, or "
+        "with the payload at the reflector)",
         "n_distinct_poses": int(res.n),
         "n_measurements": 2 * int(res.n),
         "block1": {c: v for c, v in plan.base if c in spans},
@@ -216,7 +221,7 @@ def plan_design(
                 "required_start": need_final[c],
                 "required": need_after[c],
             }
-            for c in needed_conditions(pair)
+            for c in conds
         ],
         "target_power": TARGET_POWER,
         "heuristic": {h.effect.name: heuristic[h.effect.name] for h in pair},
