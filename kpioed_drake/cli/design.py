@@ -102,7 +102,8 @@ def register(sub) -> None:
         help="poses that tell two explanations apart (e.g. 'joint_scale:2=300|gear_cyclic:2:1'; values "
         "optional, default: the smallest realistic size), instead of --criterion; --given: the first data "
         "set; a pair with thermal_expansion, tracker_scale or tracker_drift gets a measurement plan (each "
-        "pose in two blocks, the CSV's block and temperature_offset_K / time_offset_s columns)",
+        "pose in two blocks, the CSV's block and temperature_offset_K / time_offset_s columns), and so does "
+        "a pair with a gravity-torque effect given a payload span (payload_offset_kg)",
     )
     p.add_argument(
         "--condition-span",
@@ -110,7 +111,8 @@ def register(sub) -> None:
         metavar="SPAN",
         help="with --discriminate and a temperature or time effect: the change of temperature or time "
         "between the plan's two blocks, e.g. 3K, 600s, 10min, 3K,600s (default: the span for power 0.8, "
-        "rounded up; 0 forbids it)",
+        "rounded up; 0 forbids it); with joint_elasticity, backlash or a compliance: the payload at the "
+        "reflector in block 2, e.g. 10kg (opt-in; default: the poses alone)",
     )
     p.set_defaults(func=run)
 

@@ -1,4 +1,5 @@
-"""Measurement plans for explanations that need temperature or time: two blocks of the same poses.
+"""Measurement plans for explanations that need temperature or time (or gain from a payload): two
+blocks of the same poses.
 
 ``thermal_expansion`` and ``tracker_scale`` act through the temperature, ``tracker_drift`` through
 the time of each measurement (:mod:`kpioed_drake.effects`): poses alone cannot tell them apart from
@@ -20,6 +21,11 @@ rows, with the same collision avoidance and solver; the reported non-centralitie
 (with its own conditions) and the plan together (:func:`plan_assessment`). :class:`SequenceProblem`
 is the same model for measurements listed one by one with their conditions (the plan's 2n rows in
 order), for the KPI values and pictures of a plan.
+
+A payload plan (opt-in, ``--condition-span 10kg``) is the same two blocks for a pair with an effect
+that acts through the gravity torque (:data:`PAYLOAD_FAMILIES`): block 1 without a payload, block 2
+with the given mass at the reflector point, which changes the torque effect's signature at a fixed
+pose and not a joint effect's (:func:`plan_conditions`; the design CSV's ``payload_offset_kg``).
 
 The span of each condition is the user's (``--condition-span 3K``, ``600s``, ``10min``,
 ``2h``, or both ``3K,600s``) or, by default, the span at which each condition explanation's test

@@ -3,7 +3,8 @@
 :func:`plan_design` is what ``kpioed design --discriminate "A|B"`` runs (through
 :func:`~kpioed_drake.design.workflow.run_design`): a pair of joint effects goes to
 :func:`~kpioed_drake.design.discriminate.discrimination_design` (poses only); a pair with
-``thermal_expansion``, ``tracker_scale`` or ``tracker_drift`` gets a measurement plan of
+``thermal_expansion``, ``tracker_scale`` or ``tracker_drift`` (or a gravity-torque effect with a
+payload span, ``--condition-span 10kg``) gets a measurement plan of
 :mod:`~kpioed_drake.design.conditions`: ``n`` poses, each measured in block 1 and again in block 2
 after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
 the first data and the plan together. The result's rows are the measurements in order (block 1,
@@ -137,7 +138,7 @@ def plan_design(
         given_conditions: {``temperature_C``: (m,), ``time_s``: (m,)} of the given poses, where
             known (:func:`~kpioed_drake.design.conditions.read_given_conditions`); missing: one
             constant condition.
-        condition_span: ``--condition-span`` text (``"3K"``, ``"600s"``, ``"3K,600s"``) or None
+        condition_span: ``--condition-span`` text (``"3K"``, ``"600s"``, ``"3K,600s"``, ``"10kg"``) or None
             (the span for power :data:`TARGET_POWER` on the start poses, rounded up).
         alpha: level of the tests.
         options: ``collision``, ``solver``, ``seed``, ``starts``, ``allow_infeasible``, ``start``
