@@ -24,6 +24,7 @@ from numpy.testing import assert_allclose
 from kpioed_drake.cli import main
 from kpioed_drake.design import conditions as cd
 from kpioed_drake.design import explanations as ex
+from kpioed_drake.design import plan as plan_mod
 from kpioed_drake.design.discriminate import discrimination_problem, explanation_indices
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.plan import plan_design
@@ -184,3 +185,25 @@ def test_first_data_cannot_separate_elasticity_from_scale_and_the_payload_plan_d
     # the plan's data: the elasticity alone, no alternative
     assert [c["name"] for c in both.causes] == ["joint_elasticity:2"]
     assert both.causes[0]["alternatives"] == []
+
+
+def test_poses_only_design_says_what_payload_would_reach_the_power(kr16, capsys):
+    """A poses-only design of a torque pair carries the payload advice; a plan with that payload
+    reaches the target power (half the default elasticity: the poses alone do not)."""
+    c = ex.parse_pair(PAIR, kr16.model)[0].effect.values[0] / 2
+    text = f"joint_elasticity:2={c:.6g}|joint_scale:2"
+    q1 = random_poses(kr16.robot, 20, np.random.default_rng(11))
+    res, _ = plan_design(kr16, text, n=10, given=q1, seed=0)
+    rec = res.discrimination
+    assert rec["after"]["joint_elasticity:2"]["power"] < ex.TARGET_POWER
+    kg = rec["payload"]["required_kg"]
+    assert 0 < kg < 100
+    planned, _ = plan_design(kr16, text, n=10, given=q1, seed=0, condition_span=f"{kg}kg")
+    assert planned.discrimination["after"]["joint_elasticity:2"]["power"] >= ex.TARGET_POWER
+    lines = plan_mod.payload_lines(rec)
+    assert lines == [
+        f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power 0.8 "
+        f"(--condition-span {kg:g}kg)"
+    ]
+    # the default size: the repeated poses reach the power without a payload
+    assert plan_design(kr16, PAIR, n=10, given=q1, seed=0)[0].discrimination["payload"]["required_kg"] == 0.0

@@ -30,7 +30,7 @@ from kpioed_drake.design import (
     discrimination_lines,
     format_summary,
 )
-from kpioed_drake.design.plan import plan_lines
+from kpioed_drake.design.plan import payload_lines, plan_lines
 from kpioed_drake.errors import EXIT_SOLVER, InputError
 from kpioed_drake.problem import KPI_AGGREGATES
 
@@ -195,7 +195,8 @@ def run(args) -> int:
         return EXIT_SOLVER
     print(format_summary(res))
     if getattr(res, "discrimination", None) is not None:
-        print("\n".join(discrimination_lines(res.discrimination) + plan_lines(res.discrimination)))
+        rec = res.discrimination
+        print("\n".join(discrimination_lines(rec) + plan_lines(rec) + payload_lines(rec)))
     if not (res.success and res.feasible):
         print(
             "kpioed: warning: the design failed or is infeasible (written because of --allow-infeasible)",

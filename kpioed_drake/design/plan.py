@@ -29,6 +29,7 @@ from kpioed_drake.design.conditions import (
     SPAN_OPTION,
     UNITS,
     PlanProblem,
+    condition_of,
     nice_ceil,
     parse_condition_span,
     plan_assessment,
@@ -110,6 +111,43 @@ def plan_lines(rec: dict) -> list[str]:
     return lines
 
 
+def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPHA) -> dict:
+    """What a payload would add to a poses-only design of a pair with a gravity-torque effect: the
+    payload [kg] at which every torque explanation's test reaches power :data:`TARGET_POWER` when
+    the designed poses ``q`` (n, 6) are measured again with it at the reflector (block 2 of a payload
+    plan; ``given`` (m, 6) or None before them). 0: the repeated poses reach the power without one;
+    None: no payload up to 10 t does."""
+    plan = plan_problem(discrimination_problem(base, pair), {}, given=given)
+    g = np.zeros((0, base.robot.n_joints)) if given is None else given
+    need = required_spans(plan, base, pair, np.concatenate([g, q]), conditions=[PAYLOAD], alpha=alpha)
+    kg = need[PAYLOAD]
+    return {
+        "model": "the designed poses measured again with the payload at the reflector (--condition-span)",
+        "target_power": TARGET_POWER,
+        "required_kg": nice_ceil(kg) if np.isfinite(kg) and kg > 0 else (0.0 if kg == 0 else None),
+    }
+
+
+def payload_lines(rec: dict) -> list[str]:
+    """Printed line of a poses-only record's ``payload`` advice (none without one)."""
+    adv = rec.get("payload")
+    if not adv:
+        return []
+    kg = adv["required_kg"]
+    if kg is None:
+        return [
+            f"  payload: no payload up to 10 t makes the repeated poses reach power {adv['target_power']:g}"
+        ]
+    if kg == 0:
+        return [
+            f"  payload: not needed (the designed poses measured twice reach power {adv['target_power']:g})"
+        ]
+    return [
+        f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power "
+        f"{adv['target_power']:g} (--condition-span {kg:g}kg)"
+    ]
+
+
 def _no_plan(problem: Problem, pair, q, alpha: float, why: str) -> InputError:
     """The exit-2 error where no plan can help: ``why`` and the spans an even ramp would need."""
     spans = condition_spread(problem, pair, q, alpha=alpha)
@@ -159,7 +197,10 @@ def plan_design(
         del spans_user[PAYLOAD]
     conds = plan_conditions(pair, spans_user)
     if not conds:
-        return discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
+        res, base = discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
+        if any(condition_of(h.effect) == PAYLOAD for h in pair):
+            res.discrimination["payload"] = payload_advice(base, pair, given, res.q, alpha=alpha)
+        return res, base
     if problem.n_targets > 1:
         raise InputError(f"{OPTION}: a measurement plan for {pair_text!r} takes one target per pose")
     start = heuristic_start(options)
