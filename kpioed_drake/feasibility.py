@@ -26,7 +26,12 @@ from kpioed_drake.models import Cell, Robot
 from kpioed_drake.plant import MM, Scene, build_scene
 
 TOL_MM = 1e-3
-TOL_DEG = 1e-6
+"""A clearance counts as a collision below ``-TOL_MM`` [mm]."""
+TOL_DEG = 1e-4
+"""An angle counts as beyond its limit by more than this [deg]. Not tighter than the solver: SNOPT's
+feasibility tolerance 1e-7 on the incidence row ``cos(beta) - cos(beta_max)`` allows 1.1e-5 deg at
+beta_max = 30 deg (until 2026-12-02 the check took 1e-6 deg and failed a SNOPT-optimal design of
+``--discriminate "joint_elasticity:2|joint_scale:2" --n 12`` by 7.2e-6 deg, exit 3)."""
 
 
 @dataclasses.dataclass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -24,7 +25,7 @@ from kpioed_drake.design import (
 from kpioed_drake.design import solve as design_solve
 from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import FeasibilityChecker
+from kpioed_drake.feasibility import TOL_DEG, FeasibilityChecker
 from kpioed_drake.measurement import incidence_cosine
 from kpioed_drake.problem import make_problem
 
@@ -434,3 +435,16 @@ def test_block_sweeps_keep_the_design_feasible_and_reach_a_value_like_one_solve(
         optimize_design(kr16, max_block=0, **kw)
     with pytest.raises(InputError, match="sweep_block"):
         optimize_design(kr16, sweep_block=0, **kw)
+
+
+def test_check_accepts_what_the_solver_tolerance_allows_and_no_more(kr16):
+    """The independent check's angle tolerance is not tighter than SNOPT's: an incidence 5e-6 deg
+    beyond the limit (1e-7 on the cos row allows 1.1e-5 deg at 30 deg) is feasible, 1e-3 deg is not."""
+    q = _random_poses(kr16, 1, 3)[0]
+    inc = FeasibilityChecker(kr16.robot, kr16.cell).incidence_deg(q)
+    solver_slack_deg = np.rad2deg(1e-7 / np.sin(kr16.cell.max_incidence))
+    assert solver_slack_deg < TOL_DEG
+    for beyond, ok in [(5e-6, True), (1e-3, False)]:
+        cell = dataclasses.replace(kr16.cell, max_incidence=np.deg2rad(inc - beyond))
+        rep = FeasibilityChecker(kr16.robot, cell).check_pose(q, collision=False)
+        assert rep.feasible is ok

@@ -203,7 +203,7 @@ def test_poses_only_design_says_what_payload_would_reach_the_power(kr16, capsys)
     lines = plan_mod.payload_lines(rec)
     assert lines == [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power 0.8 "
-        f"(--condition-span {kg:g}kg)"
+        f"(--condition-span {kg:g}kg, if the robot carries it; else more poses)"
     ]
     # the default size: the repeated poses reach the power without a payload
     assert plan_design(kr16, PAIR, n=10, given=q1, seed=0)[0].discrimination["payload"]["required_kg"] == 0.0

@@ -144,7 +144,7 @@ def payload_lines(rec: dict) -> list[str]:
         ]
     return [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power "
-        f"{adv['target_power']:g} (--condition-span {kg:g}kg)"
+        f"{adv['target_power']:g} (--condition-span {kg:g}kg, if the robot carries it; else more poses)"
     ]
 
 
