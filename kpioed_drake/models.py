@@ -33,6 +33,7 @@ from kpioed_drake.modelspec import (  # noqa: F401 (the file schemas, re-exporte
     LinkSpec,
     ObstacleSpec,
     RobotSpec,
+    rated_payload,
 )
 from kpioed_drake.urdf import read_urdf_robot
 
@@ -99,6 +100,7 @@ class Robot:
         urdf: for a URDF robot, what :mod:`kpioed_drake.plant` needs to parse it (None otherwise).
         compliant_base: the model file says the base or floor is compliant (``compliant_base:
             true``): ``base_compliance`` is a diagnosis candidate.
+        rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
     """
 
     name: str
@@ -124,6 +126,7 @@ class Robot:
     urdf: object | None = None
     targets: np.ndarray | None = None
     compliant_base: bool = False
+    rated_payload_kg: float | None = None
 
     @property
     def n_targets(self) -> int:
@@ -377,6 +380,7 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         extra_gauge=tuple(spec.extra_gauge),
         targets=targets,
         compliant_base=bool(spec.compliant_base),
+        rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
     )
 
 

@@ -8,6 +8,9 @@ radians) the rest of the package uses. Field meanings: ``models/README.md``.
 
 import dataclasses
 
+import numpy as np
+
+from kpioed_drake.errors import InputError
 from kpioed_drake.jointmap import JointMapSpec
 
 
@@ -76,6 +79,9 @@ class RobotSpec:
     reflector lies on joint 6's axis and joint 6 cannot move it)."""
     compliant_base: bool = False
     """Optional: the base or floor is compliant (``base_compliance`` becomes a diagnosis candidate)."""
+    rated_payload_kg: float = 0.0
+    """Optional: the payload the robot may carry [kg] (0: not given); a discrimination design's payload
+    plan may not exceed it."""
 
 
 @dataclasses.dataclass
@@ -105,3 +111,18 @@ class CellSpec:
     obstacles: list[ObstacleSpec] = dataclasses.field(default_factory=list)
     work_height_above_cabin_mm: float = 100.0
     work_cabin_obstacle: str = "car_cabin"
+
+
+def rated_payload(value, where: str) -> float | None:
+    """A model file's ``rated_payload_kg``: None for 0 (not given), else a finite number > 0 [kg].
+
+    Raises:
+        InputError: ``where`` (file and field) and what was expected.
+    """
+    try:
+        kg = float(value)
+    except (TypeError, ValueError):
+        kg = float("nan")
+    if not (np.isfinite(kg) and kg >= 0):
+        raise InputError(f"{where}: expected the rated payload in kg, a number >= 0, got {value!r}")
+    return kg if kg > 0 else None

@@ -33,7 +33,7 @@ from pydrake.multibody.tree import PrismaticJoint
 from kpioed_drake.chain import Chain, auto_gauge, param_names
 from kpioed_drake.errors import InputError
 from kpioed_drake.jointmap import JointMapSpec, joint_map_from_spec
-from kpioed_drake.modelspec import CapsuleSpec
+from kpioed_drake.modelspec import CapsuleSpec, rated_payload
 
 MM = 1e-3
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -94,6 +94,8 @@ class SidecarSpec:
     nominal robot's: its small errors make the exact dependencies only nearly exact)."""
     compliant_base: bool = False
     """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
+    rated_payload_kg: float = 0.0
+    """The payload the robot may carry [kg] (0: not given)."""
     notes: str = ""
 
 
@@ -358,6 +360,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         gauge=gauge,
         urdf=source,
         compliant_base=bool(side.compliant_base),
+        rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
     )
 
 

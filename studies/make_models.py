@@ -26,18 +26,21 @@ KUKA = {
         geo=dict(d1=675, a1=260, a2=680, a3=35, d4=670, d6=158),
         limits=[(-185, 185), (-155, 35), (-130, 154), (-350, 350), (-130, 130), (-350, 350)],
         size=EnvelopeSize(220, 180, 120, 110, 90, 40, (60, 70, 45, 35, 8, 6, 2)),
+        rated_payload_kg=16.0,
     ),
     "kr300": dict(
         description="KUKA KR 300 R2500 ultra.",
         geo=dict(d1=675, a1=350, a2=1150, a3=41, d4=1000, d6=240),
         limits=[(-185, 185), (-140, -5), (-120, 155), (-350, 350), (-122.5, 122.5), (-350, 350)],
         size=EnvelopeSize(380, 320, 200, 180, 140, 40, (250, 330, 230, 200, 50, 35, 10)),
+        rated_payload_kg=300.0,
     ),
     "kr500": dict(
         description="KUKA KR 500 R2830.",
         geo=dict(d1=1045, a1=500, a2=1300, a3=55, d4=1025, d6=290),
         limits=[(-185, 185), (-130, 20), (-100, 144), (-350, 350), (-120, 120), (-350, 350)],
         size=EnvelopeSize(420, 360, 230, 200, 160, 40, (550, 700, 500, 420, 100, 70, 20)),
+        rated_payload_kg=500.0,
     ),
 }
 NOTIONAL_LIMITS = [(-82, 82), (-77, 31), (-13, 154), (-347, 347), (-87, 87), (-347, 347)]
@@ -88,6 +91,7 @@ def author(name: str, entry: dict, out: Path) -> None:
         links=links,
         self_collision_pairs=SELF_PAIRS,
         beam_links=BEAM_LINKS,
+        rated_payload_kg=entry.get("rated_payload_kg", 0.0),
     )
     shift, q = 0.0, None
     for shift in [0.0, -50.0, -100.0, -150.0, -200.0, -250.0, -300.0, 50.0, 100.0, 150.0, 200.0]:

@@ -32,11 +32,13 @@ from kpioed_drake.diagnosis.synthetic import random_poses
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError
+from kpioed_drake.models import MODELS_DIR, load_robot
 from kpioed_drake.problem import make_problem
 from kpioed_drake.simulation import simulate, table_csv_text
 
 SIGMA = 0.02
 PAIR = "joint_elasticity:2|joint_scale:2"
+ROBOTS = MODELS_DIR / "robots"
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +205,29 @@ def test_poses_only_design_says_what_payload_would_reach_the_power(kr16, capsys)
     lines = plan_mod.payload_lines(rec)
     assert lines == [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power 0.8 "
-        f"(--condition-span {kg:g}kg, if the robot carries it; else more poses)"
+        f"(--condition-span {kg:g}kg, within the rated 16 kg)"
     ]
     # the default size: the repeated poses reach the power without a payload
     assert plan_design(kr16, PAIR, n=10, given=q1, seed=0)[0].discrimination["payload"]["required_kg"] == 0.0
+
+
+def test_rated_payload_bounds_the_plan_and_the_advice(kr16, tmp_path):
+    """The model file's ``rated_payload_kg`` (kr16: 16 kg): a larger payload span exits 2 naming it;
+    advice beyond it says more poses instead; a bad value names the file and field."""
+    assert kr16.robot.rated_payload_kg == 16.0
+    with pytest.raises(InputError, match="--condition-span 20kg: more than kr16's rated payload of 16 kg"):
+        plan_design(kr16, PAIR, n=10, condition_span="20kg")
+    adv = {"required_kg": 690.0, "target_power": 0.8, "rated_payload_kg": 16.0}
+    assert plan_mod.payload_lines({"payload": adv}) == [
+        "  payload: the designed poses would need 690 kg at the reflector for power 0.8, more than the "
+        "rated 16 kg: more poses instead"
+    ]
+    text = (ROBOTS / "kr16.yaml").read_text()
+    for bad in ("-3", ".nan"):
+        path = tmp_path / "kr16bad.yaml"
+        path.write_text(text.replace("rated_payload_kg: 16.0", f"rated_payload_kg: {bad}"))
+        with pytest.raises(
+            InputError, match=r"kr16bad.yaml: rated_payload_kg: expected the rated payload in kg"
+        ):
+            load_robot(str(path))
+    assert load_robot(str(ROBOTS / "lift7.urdf")).rated_payload_kg == 16.0

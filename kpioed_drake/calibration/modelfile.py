@@ -57,6 +57,8 @@ def _spec_from_robot(robot: Robot) -> RobotSpec:
         joint_map=joint_map_spec(robot.joint_map),
         extra_gauge=list(robot.extra_gauge),
         targets_mm=[] if robot.targets is None else robot.targets.tolist(),
+        compliant_base=robot.compliant_base,
+        rated_payload_kg=robot.rated_payload_kg or 0.0,
     )
 
 

@@ -116,7 +116,7 @@ def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPH
     payload [kg] at which every torque explanation's test reaches power :data:`TARGET_POWER` when
     the designed poses ``q`` (n, 6) are measured again with it at the reflector (block 2 of a payload
     plan; ``given`` (m, 6) or None before them). 0: the repeated poses reach the power without one;
-    None: no payload up to 10 t does."""
+    None: no payload up to 10 t does. ``rated_payload_kg``: the robot's (model file), or None."""
     plan = plan_problem(discrimination_problem(base, pair), {}, given=given)
     g = np.zeros((0, base.robot.n_joints)) if given is None else given
     need = required_spans(plan, base, pair, np.concatenate([g, q]), conditions=[PAYLOAD], alpha=alpha)
@@ -125,6 +125,7 @@ def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPH
         "model": "the designed poses measured again with the payload at the reflector (--condition-span)",
         "target_power": TARGET_POWER,
         "required_kg": nice_ceil(kg) if np.isfinite(kg) and kg > 0 else (0.0 if kg == 0 else None),
+        "rated_payload_kg": base.robot.rated_payload_kg,
     }
 
 
@@ -142,9 +143,18 @@ def payload_lines(rec: dict) -> list[str]:
         return [
             f"  payload: not needed (the designed poses measured twice reach power {adv['target_power']:g})"
         ]
+    rated = adv.get("rated_payload_kg")
+    if rated is not None and kg > rated:
+        return [
+            f"  payload: the designed poses would need {kg:g} kg at the reflector for power "
+            f"{adv['target_power']:g}, more than the rated {rated:g} kg: more poses instead"
+        ]
+    carries = (
+        f"within the rated {rated:g} kg" if rated is not None else "if the robot carries it; else more poses"
+    )
     return [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power "
-        f"{adv['target_power']:g} (--condition-span {kg:g}kg, if the robot carries it; else more poses)"
+        f"{adv['target_power']:g} (--condition-span {kg:g}kg, {carries})"
     ]
 
 
@@ -195,6 +205,12 @@ def plan_design(
     spans_user = parse_condition_span(condition_span, pair)
     if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
         del spans_user[PAYLOAD]
+    rated = problem.robot.rated_payload_kg
+    if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
+        raise InputError(
+            f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
+            f"{rated:g} kg (rated_payload_kg in its model file)"
+        )
     conds = plan_conditions(pair, spans_user)
     if not conds:
         res, base = discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
