@@ -23,6 +23,8 @@ from kpioed_drake.design import (
     optimize_design,
 )
 from kpioed_drake.design import solve as design_solve
+from kpioed_drake.design.common import INCIDENCE_MARGIN_DEG
+from kpioed_drake.design.constraints import restore_incidence
 from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.feasibility import TOL_DEG, FeasibilityChecker
@@ -448,3 +450,25 @@ def test_check_accepts_what_the_solver_tolerance_allows_and_no_more(kr16):
         cell = dataclasses.replace(kr16.cell, max_incidence=np.deg2rad(inc - beyond))
         rep = FeasibilityChecker(kr16.robot, cell).check_pose(q, collision=False)
         assert rep.feasible is ok
+
+
+def test_restore_incidence_pulls_back_solver_overshoots_only(kr16):
+    """A pose beyond the incidence limit by a solver's tolerance (1e-3 deg) is moved back inside the
+    optimiser's bound; a feasible pose and one 0.1 deg beyond (a real failure) are not touched."""
+    q = _random_poses(kr16, 3, 4)
+    inc = FeasibilityChecker(kr16.robot, kr16.cell).incidence_deg(q[0])
+    problem = dataclasses.replace(
+        kr16, cell=dataclasses.replace(kr16.cell, max_incidence=np.deg2rad(inc - 1e-3))
+    )
+    checker = FeasibilityChecker(problem.robot, problem.cell)
+    assert not checker.check_pose(q[0], collision=False).feasible
+    out = restore_incidence(problem, q[:1])
+    assert checker.check_pose(out[0], collision=False).feasible
+    assert (
+        checker.incidence_deg(out[0]) <= np.rad2deg(problem.cell.max_incidence) - 0.9 * INCIDENCE_MARGIN_DEG
+    )
+    assert 0 < np.max(np.abs(out[0] - q[0])) < np.deg2rad(0.01)
+    far = dataclasses.replace(kr16, cell=dataclasses.replace(kr16.cell, max_incidence=np.deg2rad(inc - 0.1)))
+    assert np.array_equal(restore_incidence(far, q[:1]), q[:1])
+    ok = [p for p in q if checker.check_pose(p, collision=False).feasible]
+    assert ok and np.array_equal(restore_incidence(problem, np.array(ok)), np.array(ok))

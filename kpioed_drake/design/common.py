@@ -33,8 +33,10 @@ CLEARANCE_ROW_SCALE = 1e-2
 """Clearance rows are passed to the solver in units of 100 mm (incidence rows are cosines, O(1))."""
 INCIDENCE_MARGIN_DEG = 1e-4
 """The optimiser keeps the incidence angle this far inside the limit [deg], so that a pose on the
-limit still passes the independent check (tolerance 1e-6 deg) despite the solver's own feasibility
-tolerance (SNOPT's is relative to the size of the solution vector)."""
+limit still passes the independent check (tolerance :data:`~kpioed_drake.feasibility.TOL_DEG`,
+1e-4 deg) despite the solver's own feasibility tolerance (SNOPT's is relative to the size of the
+solution vector); an overshoot beyond both is pulled back by
+:func:`~kpioed_drake.design.constraints.restore_incidence`."""
 CLEARANCE_MARGIN_MM = 1e-3
 """The optimiser keeps every clearance at least this large [mm] (the check's tolerance is -1e-3)."""
 ACTIVE_ROWS_PER_POSE = 4

@@ -27,6 +27,7 @@ from kpioed_drake.design.common import (
     INCIDENCE_MARGIN_DEG,
     as_poses,
 )
+from kpioed_drake.feasibility import TOL_DEG
 from kpioed_drake.geometry import ClearanceModel
 from kpioed_drake.kinematics import Frames, cross, flange_point, forward_kinematics
 from kpioed_drake.problem import Problem
@@ -203,3 +204,36 @@ def update_active_rows(values: np.ndarray, active: np.ndarray | None, m: int) ->
     # Both masks have the same count per pose; nonzero() lists them pose by pose, in order.
     out[np.nonzero(~stays)] = best[np.nonzero(enters)]
     return out
+
+
+RESTORE_MAX_DEG = 0.01
+"""Largest incidence overshoot [deg] :func:`restore_incidence` pulls back: a solver's tolerance, not
+a design choice (SNOPT's feasibility tolerance is relative to the solution vector's size; measured
+on lift7, whose column joint is in mm: 1.8e-4 deg beyond the limit at "optimality conditions
+satisfied")."""
+
+
+def restore_incidence(problem: Problem, q) -> np.ndarray:
+    """``q`` (n, nj) with every pose whose incidence is beyond the limit by more than the independent
+    check's tolerance (:data:`~kpioed_drake.feasibility.TOL_DEG`) but at most
+    :data:`RESTORE_MAX_DEG` moved back to the optimiser's bound (the limit minus
+    :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG`) by Gauss-Newton steps along the
+    incidence row's gradient, inside the joint box. Every other pose is returned unchanged, so a
+    design that passes the check is not touched; one that is further out stays as it is."""
+    q = np.array(as_poses(q, problem.robot.n_joints), dtype=float)
+    mi = problem.cell.max_incidence
+    lb = math.cos(mi - math.radians(INCIDENCE_MARGIN_DEG)) - math.cos(mi)
+    fails = math.cos(mi + math.radians(TOL_DEG)) - math.cos(mi)
+    worst = math.cos(mi + math.radians(RESTORE_MAX_DEG)) - math.cos(mi)
+    targets = [None] if problem.n_targets == 1 else list(range(problem.n_targets))
+    for t in targets:
+        c, jac = incidence_rows(problem, q, target=t)
+        fix = (c < fails) & (c >= worst)
+        for _ in range(5):
+            if not np.any(fix):
+                break
+            step = (lb - c[fix]) / np.maximum(np.sum(jac[fix] ** 2, axis=1), 1e-300)
+            q[fix] = np.clip(q[fix] + step[:, None] * jac[fix], problem.robot.lower, problem.robot.upper)
+            c, jac = incidence_rows(problem, q, target=t)
+            fix &= c < lb
+    return q

@@ -18,6 +18,7 @@ from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
 from kpioed_drake.design.check import DesignCheck, check_design
 from kpioed_drake.design.common import MAX_SWEEPS, SWEEP_RTOL
+from kpioed_drake.design.constraints import restore_incidence
 from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.program import DesignProgram
 from kpioed_drake.errors import InputError, raise_if_interrupted
@@ -197,6 +198,9 @@ def solve_once(
     # Bounds are hard in the check: clip round-off outside the joint box (SNOPT/IPOPT may leave
     # 1e-9 rad outside); the change is far below every tolerance.
     q = np.clip(q, problem.robot.lower, problem.robot.upper)
+    # an incidence beyond the limit by the solver's own tolerance: back to the bound (poses the
+    # independent check accepts are not touched)
+    q = restore_incidence(problem, q)
     try:
         value = obj.value(q)
     except np.linalg.LinAlgError:
