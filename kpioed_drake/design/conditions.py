@@ -96,6 +96,11 @@ def condition_of(effect) -> str | None:
     return CONDITIONS.get(effect.family)
 
 
+def acts_through_torque(pair) -> bool:
+    """Whether an explanation of ``pair`` acts through the gravity torque (a payload plan can help)."""
+    return any(condition_of(h.effect) == PAYLOAD for h in pair)
+
+
 def needed_conditions(pair) -> list[str]:
     """The conditions (``temperature_C``, ``time_s``) the explanations of ``pair`` need, in order."""
     out = []
@@ -110,7 +115,7 @@ def plan_conditions(pair, spans: dict) -> list[str]:
     """The conditions of a plan for ``pair``: those it needs, then ``payload_kg`` if a span for it
     is given (``spans``, :func:`parse_condition_span`) and an explanation acts through the torque."""
     out = needed_conditions(pair)
-    if PAYLOAD in spans and any(condition_of(h.effect) == PAYLOAD for h in pair):
+    if PAYLOAD in spans and acts_through_torque(pair):
         out.append(PAYLOAD)
     return out
 
@@ -126,7 +131,7 @@ def parse_condition_span(text, pair) -> dict[str, float]:
     if text is None:
         return {}
     needed = needed_conditions(pair)
-    if any(condition_of(h.effect) == PAYLOAD for h in pair):
+    if acts_through_torque(pair):
         needed = [*needed, PAYLOAD]
     if not needed:
         raise InputError(

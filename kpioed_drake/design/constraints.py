@@ -33,6 +33,12 @@ from kpioed_drake.kinematics import Frames, cross, flange_point, forward_kinemat
 from kpioed_drake.problem import Problem
 
 
+def incidence_row_beyond(max_incidence: float, deg: float) -> float:
+    """The incidence row ``cos(beta) - cos(beta_max)`` at ``beta = beta_max + deg`` (``deg`` [deg]
+    beyond the limit; negative: inside it)."""
+    return math.cos(max_incidence + math.radians(deg)) - math.cos(max_incidence)
+
+
 def incidence_rows(problem: Problem, q, *, frames: Frames | None = None, target: int | None = None):
     """Incidence constraint ``cos(beta) - cos(beta_max)`` (>= 0 is feasible) and its gradient.
 
@@ -161,9 +167,8 @@ class DesignConstraints:
     def lower_bounds(self, r: int | None = None) -> np.ndarray:
         """(r,) lower bounds of the first ``r`` unscaled rows (default: all; small inward margins,
         :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG` and ``CLEARANCE_MARGIN_MM``)."""
-        mi = self.problem.cell.max_incidence
         lb = np.full(self.rows_per_pose if r is None else r, CLEARANCE_MARGIN_MM)
-        lb[: self.n_incidence] = math.cos(mi - math.radians(INCIDENCE_MARGIN_DEG)) - math.cos(mi)
+        lb[: self.n_incidence] = incidence_row_beyond(self.problem.cell.max_incidence, -INCIDENCE_MARGIN_DEG)
         return lb
 
 
@@ -222,9 +227,8 @@ def restore_incidence(problem: Problem, q) -> np.ndarray:
     design that passes the check is not touched; one that is further out stays as it is."""
     q = np.array(as_poses(q, problem.robot.n_joints), dtype=float)
     mi = problem.cell.max_incidence
-    lb = math.cos(mi - math.radians(INCIDENCE_MARGIN_DEG)) - math.cos(mi)
-    fails = math.cos(mi + math.radians(TOL_DEG)) - math.cos(mi)
-    worst = math.cos(mi + math.radians(RESTORE_MAX_DEG)) - math.cos(mi)
+    lb = incidence_row_beyond(mi, -INCIDENCE_MARGIN_DEG)  # the optimiser's bound (lower_bounds)
+    fails, worst = incidence_row_beyond(mi, TOL_DEG), incidence_row_beyond(mi, RESTORE_MAX_DEG)
     targets = [None] if problem.n_targets == 1 else list(range(problem.n_targets))
     for t in targets:
         c, jac = incidence_rows(problem, q, target=t)

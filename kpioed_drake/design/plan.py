@@ -29,7 +29,7 @@ from kpioed_drake.design.conditions import (
     SPAN_OPTION,
     UNITS,
     PlanProblem,
-    condition_of,
+    acts_through_torque,
     nice_ceil,
     parse_condition_span,
     plan_assessment,
@@ -214,7 +214,7 @@ def plan_design(
     conds = plan_conditions(pair, spans_user)
     if not conds:
         res, base = discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
-        if any(condition_of(h.effect) == PAYLOAD for h in pair):
+        if acts_through_torque(pair):
             res.discrimination["payload"] = payload_advice(base, pair, given, res.q, alpha=alpha)
         return res, base
     if problem.n_targets > 1:
