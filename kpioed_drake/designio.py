@@ -241,8 +241,7 @@ def read_condition_offsets(path: str | Path) -> dict[str, np.ndarray]:
 
     Returns:
         ``{"temperature_C": (n,) [K], "time_s": (n,) [s], "payload_kg": (n,) [kg]}``, only the
-        columns the file has (``{}``
-        for a design without a plan).
+        columns the file has (``{}`` for a design without a plan).
 
     Raises:
         InputError: a cell of such a column that is not a finite number (file, row and column named).

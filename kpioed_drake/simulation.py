@@ -12,9 +12,9 @@ discrepancy") plus the truth.
 Defaults for the environment columns (always written): ``time_s`` = 30 s per pose from 0;
 ``temperature_C`` = 20 C drifting linearly from 18 to 22 C over the run (plus 0.05 C jitter).
 ``payload_kg`` is written when a payload is given. A design CSV with a measurement plan (``kpioed
-design --discriminate`` for a temperature or time pair) has ``temperature_offset_K`` /
-``time_offset_s`` per row: :func:`simulate_file` adds them to these columns (block 2 measured after
-the planned temperature change or pause).
+design --discriminate`` for a temperature, time or payload pair) has ``temperature_offset_K`` /
+``time_offset_s`` / ``payload_offset_kg`` per row: :func:`simulate_file` adds them to these columns
+(block 2 measured after the planned temperature change or pause, or with the planned payload).
 
 Several targets (SMRs): every pose measures the first ``n_targets`` targets of the robot model
 file (``targets_mm``; default all of them), one row per target, pose-major, with a ``target``

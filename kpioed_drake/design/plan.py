@@ -183,9 +183,9 @@ def plan_design(
         n: new poses (each measured twice when the pair needs a condition: 2n rows).
         given: (m, 6) [rad] the first data set's poses, held fixed; None: none ("before" is then
             the heuristic start under the same plan).
-        given_conditions: {``temperature_C``: (m,), ``time_s``: (m,)} of the given poses, where
-            known (:func:`~kpioed_drake.design.conditions.read_given_conditions`); missing: one
-            constant condition.
+        given_conditions: {``temperature_C``: (m,), ``time_s``: (m,), ``payload_kg``: (m,)} of the
+            given poses, where known (:func:`~kpioed_drake.design.conditions.read_given_conditions`);
+            missing: one constant condition (no payload).
         condition_span: ``--condition-span`` text (``"3K"``, ``"600s"``, ``"3K,600s"``, ``"10kg"``) or None
             (the span for power :data:`TARGET_POWER` on the start poses, rounded up).
         alpha: level of the tests.
