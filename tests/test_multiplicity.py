@@ -10,7 +10,7 @@ import scipy.stats
 from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis.elastic_basis import use_expected_sides
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.sides import prior_moments, side_patterns
+from kpioed_drake.diagnosis.sides import prior_moments, side_patterns, side_weights
 from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
 from kpioed_drake.diagnosis.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 from kpioed_drake.effects import gravity_basis as gb
@@ -62,6 +62,53 @@ def test_min_p_null_is_deterministic_and_monte_carlo_matches_the_level():
     p_min = scipy.stats.chi2.sf(stats, 1).min(axis=1)
     assert 0.045 < np.mean(p_min <= crit) < 0.055
     assert crit > 0.05 / len(bases) * 1.5  # correlated candidates: clearly less strict than Bonferroni
+
+
+def test_weighted_min_p_holds_its_level_and_matches_weighted_sidak():
+    """Weighted min-p (weights 3, 1, 1, 1, 1, 1 over independent candidates): a candidate of weight
+    w is rejected at p <= t w with P(any) = 1 - prod(1 - t w_c), and a direct simulation of
+    correlated candidates with weights rejects at the adjusted level about alpha of the time."""
+    Q = _orthonormal(60, 6, 7)
+    bases = [Q[:, [i]] for i in range(6)]
+    raw = [3.0, 1, 1, 1, 1, 1]
+    w = mp.normalized(raw, 6)
+    np.testing.assert_allclose(w.mean(), 1.0)
+    null = mp.min_p_null(bases, weights=raw, n_draws=40000)
+    for i in (0, 3):
+        p = 2e-3
+        t = p / w[i]
+        exact = 1 - np.prod(1 - np.minimum(t * w, 1))
+        np.testing.assert_allclose(mp.adjusted_p(p, null, 10**6, weight=w[i]), exact, rtol=0.1)
+    # the heavier candidate needs a p-value three times larger than the others for the same level
+    crit = [mp.critical_p(0.05, null, 6, weight=w[i]) for i in (0, 1)]
+    np.testing.assert_allclose(crit[0] / crit[1], 3.0, rtol=1e-12)
+    rng = np.random.default_rng(8)
+    base = rng.standard_normal((50, 1))
+    corr = [np.linalg.qr(base + 0.5 * rng.standard_normal((50, 1)))[0] for _ in range(8)]
+    raw = [4.0, 1, 1, 1, 0.25, 0.25, 0.25, 0.25]
+    w = mp.normalized(raw, 8)
+    null = mp.min_p_null(corr, weights=raw)
+    eps = np.random.default_rng(9).standard_normal((20000, 50))
+    stats = np.stack([(eps @ u[:, 0]) ** 2 for u in corr], axis=1)
+    p = scipy.stats.chi2.sf(stats, 1)
+    t = mp.critical_p(0.05, null, 8, weight=1.0)  # p_c <= t w_c for some c
+    assert 0.045 < np.mean(np.any(p <= t * w, axis=1)) < 0.055
+    with pytest.raises(ValueError, match="positive"):
+        mp.normalized([1.0, 0.0], 2)
+
+
+def test_side_weights_give_the_expected_side_one_test_and_the_other_sides_one():
+    """Sides of one backlash: the expected side weight 1 like any candidate; identical other sides
+    are one test together (weight 1 each), independent ones share weight 1 by their number."""
+    u = _orthonormal(40, 6, 3)
+    assert np.array_equal(side_weights([u[:, [0]]]), [1.0])
+    same = side_weights([u[:, [0]]] + [u[:, [1]]] * 5)
+    np.testing.assert_allclose(same, [1.0] * 6, rtol=0.1)
+    indep = side_weights([u[:, [i]] for i in range(6)])
+    # Sidak's 5 independent tests at 1 %: 4.98; the 1 % quantile of 10 000 draws (100 below it)
+    # has a relative standard error of about 10 %: 2.5 of them
+    np.testing.assert_allclose(indep[0], 1.0)
+    np.testing.assert_allclose(indep[1:], 1.0 / (0.01 / (1 - 0.99 ** (1 / 5))), rtol=0.25)
 
 
 def test_prior_moments_match_the_harness_prior(kr16):

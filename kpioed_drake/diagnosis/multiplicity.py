@@ -16,6 +16,15 @@ variable; jointly, the stacked ``g = [U_1 ... U_M]^T eps`` is Gaussian with cova
 ``g = xi R`` (``xi ~ N(0, I)``, seeded: the same data give the same decision), the p-value of each
 block from its chi-square law, and their minimum; a candidate's family-wise p-value is the share of
 draws whose minimum is at most its own p-value (:func:`adjusted_p`), never more than Bonferroni's.
+
+*Weighted* min-p (Westfall, Kropf and Finos 2004, "Weighted FWE-controlling methods in
+high-dimensional situations"): with weights ``w_c`` (mean 1, :func:`normalized`) the statistic is
+the minimum of ``p_c / w_c``, and a candidate's family-wise p-value the share of null minima at or
+below its ``p_c / w_c``. The level holds exactly for any weights fixed before the residuals are
+seen; a candidate with a larger weight needs a larger p-value. A selection step gives each candidate
+effect weight 1 and splits a backlash's over the sides it is scored with
+(:func:`~kpioed_drake.diagnosis.sides.side_weights`): the sides choose the backlash's column from
+the data and cost the backlash, not the other candidates, the tests they add.
 """
 
 from __future__ import annotations
@@ -30,12 +39,15 @@ SEED = 20170601
 """Seed of the draws (fixed: a diagnosis is deterministic)."""
 
 
-def min_p_null(bases, *, n_draws: int = N_DRAWS, seed: int = SEED) -> np.ndarray:
-    """(n_draws,) sorted null minimum p-values over candidates with orthonormal bases ``bases``.
+def min_p_null(bases, *, weights=None, n_draws: int = N_DRAWS, seed: int = SEED) -> np.ndarray:
+    """(n_draws,) sorted null minima of the weighted p-values ``p_c / w_c`` over candidates with
+    orthonormal bases ``bases``.
 
     Args:
         bases: list of (m, k_c) orthonormal bases (the part of each candidate's weighted columns
             outside the model's span); k_c >= 1.
+        weights: (len(bases),) positive weights of the weighted min-p test (:func:`normalized`,
+            mean 1); None: all 1 (the unweighted min-p).
         n_draws: Monte Carlo draws.
         seed: their seed.
     """
@@ -43,30 +55,51 @@ def min_p_null(bases, *, n_draws: int = N_DRAWS, seed: int = SEED) -> np.ndarray
     R = np.linalg.qr(W, mode="r")  # W^T W = R^T R: g = xi R with xi ~ N(0, I)
     g = np.random.default_rng(seed).standard_normal((n_draws, R.shape[0])) @ R
     ks = np.array([U.shape[1] for U in bases])
+    w = normalized(weights, len(bases))
     stat = np.add.reduceat(g**2, np.concatenate([[0], np.cumsum(ks)[:-1]]), axis=1)  # |g_c|^2
-    # the smallest p-value of the candidates with k degrees of freedom is that of their largest statistic
-    logp = [scipy.stats.chi2.logsf(np.max(stat[:, ks == k], axis=1), k) for k in np.unique(ks)]
+    # the smallest p-value of candidates with k degrees of freedom and one weight is that of their
+    # largest statistic
+    groups = sorted({(int(k), float(x)) for k, x in zip(ks, w, strict=True)})
+    logp = [
+        scipy.stats.chi2.logsf(np.max(stat[:, (ks == k) & (w == x)], axis=1), k) - np.log(x)
+        for k, x in groups
+    ]
     return np.sort(np.exp(np.min(logp, axis=0)))
 
 
-def adjusted_p(p: float, null_min_p: np.ndarray | None, m: int) -> float:
-    """Family-wise p-value of a candidate with marginal p-value ``p``: the share of null minima at or
-    below it (:func:`min_p_null`, sorted), at least ``p`` and at most Bonferroni's ``p * m``; below
-    the draws' resolution ``p`` times the effective number of tests (``0.01 / q``, ``q`` the 1 %
-    quantile of the null minima). ``null_min_p`` None (no draws: no candidate near the level):
-    Bonferroni's ``min(1, p m)``."""
+def normalized(weights, n: int) -> np.ndarray:
+    """(n,) weights of a weighted min-p test scaled to mean 1 (None: all 1). Weighted Bonferroni
+    with these weights rejects candidate c when ``p_c <= alpha w_c / n``: its family-wise level is
+    ``sum_c alpha w_c / n = alpha``."""
+    if weights is None:
+        return np.ones(n)
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (n,) or not np.all(w > 0):
+        raise ValueError(f"weights must be {n} positive numbers, got shape {w.shape}")
+    return w * (n / w.sum())
+
+
+def adjusted_p(p: float, null_min_p: np.ndarray | None, m: int, *, weight: float = 1.0) -> float:
+    """Family-wise p-value of a candidate with marginal p-value ``p`` and normalized weight
+    ``weight`` (:func:`normalized`): the share of null minima (:func:`min_p_null`, sorted) at or
+    below ``p / weight``, at least ``p`` and at most weighted Bonferroni's ``p m / weight``; below
+    the draws' resolution ``p / weight`` times the effective number of tests (``0.01 / q``, ``q``
+    the 1 % quantile of the null minima). ``null_min_p`` None (no draws: no candidate near the
+    level): Bonferroni's ``min(1, p m / weight)``."""
+    pw = p / weight
     if null_min_p is None:
-        return float(min(1.0, p * m))
-    share = np.searchsorted(null_min_p, p, side="right") / null_min_p.size
+        return float(min(1.0, pw * m))
+    share = np.searchsorted(null_min_p, pw, side="right") / null_min_p.size
     if share == 0:  # below the draws' resolution: p times the effective number of tests at 1 %
-        share = p * max(1.0, 0.01 / float(np.quantile(null_min_p, 0.01)))
-    return float(min(1.0, p * m, max(share, p)))
+        share = pw * max(1.0, 0.01 / float(np.quantile(null_min_p, 0.01)))
+    return float(min(1.0, pw * m, max(share, p)))
 
 
-def critical_p(alpha: float, null_min_p: np.ndarray | None, m: int) -> float:
-    """The marginal p-value a candidate needs for a family-wise p-value below ``alpha`` (at least
-    Bonferroni's ``alpha / m``, which it is when ``null_min_p`` is None)."""
+def critical_p(alpha: float, null_min_p: np.ndarray | None, m: int, *, weight: float = 1.0) -> float:
+    """The marginal p-value a candidate of normalized weight ``weight`` needs for a family-wise
+    p-value below ``alpha`` (at least weighted Bonferroni's ``alpha weight / m``, which it is when
+    ``null_min_p`` is None)."""
     if null_min_p is None:
-        return alpha / m
+        return alpha * weight / m
     q = float(np.quantile(null_min_p, alpha))
-    return max(alpha / m, q)
+    return weight * max(alpha / m, q)

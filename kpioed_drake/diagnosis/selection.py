@@ -12,8 +12,9 @@
   projector on the part of its columns the model cannot absorb (chi^2 under "no effect").
 - :func:`select_effects`: forward selection with the likelihood ratio against the known noise
   (``LR = chi^2_before - chi^2_after`` ~ chi^2(k), its family-wise p-value over the candidates of a
-  step by the min-p method, :mod:`~kpioed_drake.diagnosis.multiplicity`; a backlash scored with
-  every side its joint's torque may take under the mass prior, :mod:`~kpioed_drake.diagnosis.sides`),
+  step by the weighted min-p method, :mod:`~kpioed_drake.diagnosis.multiplicity`; a backlash scored
+  with every side its joint's torque may take under the mass prior, its sides weighted by
+  :func:`~kpioed_drake.diagnosis.sides.side_weights`),
   BIC (``LR > k ln(3 n)``) and K-fold held-out error; after each addition every chosen effect is
   re-tested for removal (stepwise).
 """
@@ -35,9 +36,9 @@ from kpioed_drake.diagnosis.common import (
     PAIR_ALPHA_SHARE,
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.multiplicity import adjusted_p, critical_p, min_p_null
+from kpioed_drake.diagnosis.multiplicity import adjusted_p, critical_p, min_p_null, normalized
 from kpioed_drake.diagnosis.pairs import pair_step
-from kpioed_drake.diagnosis.sides import set_side, side_penalty, unit_columns
+from kpioed_drake.diagnosis.sides import set_side, side_penalty, side_weights, unit_columns
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation import rms
 from kpioed_drake.measurements import Measurements
@@ -229,10 +230,11 @@ SCREEN_MARGIN = 10.0
 """... and its penalised score is within max(this, 10 %) of the best penalised score."""
 
 
-def _screen(tested, level: float, ln_n: float):
+def _screen(tested, level, ln_n: float):
     """The candidates worth a full fit, by their score statistic (the linearised LR at the current
     fit, within 2e-4 (1 + LR) of the refitted LR on the KR 16 cases measured): those whose score
-    reaches half the corrected critical value and whose penalised score ``score - k ln(3 n)`` is
+    reaches half the corrected critical value (``level(weight)``: the marginal p-value a candidate of
+    that normalized weight needs) and whose penalised score ``score - k ln(3 n)`` is
     within ``max(SCREEN_MARGIN, 10 %)`` of the best one; the others are marked (no LR in their row)."""
     if not tested:
         return []
@@ -240,7 +242,7 @@ def _screen(tested, level: float, ln_n: float):
     top = max(pen)
     out = []
     for (e, row), p in zip(tested, pen, strict=True):
-        crit = float(scipy.stats.chi2.isf(level, e.n_params))
+        crit = float(scipy.stats.chi2.isf(level(row["_weight"]), e.n_params))
         if row["score"] >= SCREEN_FRACTION * crit and p >= top - max(SCREEN_MARGIN, 0.1 * abs(top)):
             out.append((e, row))
         else:
@@ -258,7 +260,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
     units = unit_columns(
         prob, current, [e.joint for e in pool if e.family == "backlash" and e.joint in prob.side_patterns]
     )
-    rows, tested, bases = [], [], []
+    rows, tested, bases, raw = [], [], [], []
     for e, Jc in zip(pool, cols, strict=True):
         row = {"candidate": e.name, **identifiability(Jm, Jc)}
         rows.append(row)
@@ -270,24 +272,34 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
             pats = prob.side_patterns[e.joint]
             g = units[e.joint].reshape(-1, 3)
             U = [projected_basis(Q, (g * s[:, None]).reshape(-1, 1)) for s in pats]
-        scores = [float(np.sum((u.T @ r) ** 2)) for u in U]
-        i = int(np.argmax(scores))
-        row["score"] = scores[i]
+        keep = [i for i, u in enumerate(U) if u.shape[1]]
+        if not keep:
+            continue
+        w = side_weights([U[i] for i in keep])  # a backlash: its expected side and the other sides
+        scores = [float(np.sum((U[i].T @ r) ** 2)) for i in keep]
+        best_i = int(np.argmax(scores))
+        i = keep[best_i]
+        row["score"] = scores[best_i]
         row["_basis"] = U[0]  # the pair step's: the current (expected) side, not one the residuals chose
+        row["_index"] = len(bases) + best_i  # its best side's place among the step's bases
         if len(U) > 1:
             row["_side"] = pats[i]
             row["side_patterns"] = len(U)
             row["_side_bases"] = U
         tested.append((e, row))
-        bases += [u for u in U if u.shape[1]]
+        bases += [U[i] for i in keep]
+        raw += list(w)
     m = max(len(bases), 1)
+    weights = normalized(raw, len(raw)) if raw else np.ones(0)
+    for _, row in tested:
+        row["_weight"] = float(weights[row.pop("_index")])
     # the min-p law only where a candidate can be significant (its family-wise p-value is never below
     # its marginal one; the refitted LR is within 2e-4 (1 + LR) of the score): else Bonferroni's
     p_min = min((float(scipy.stats.chi2.sf(row["score"], e.n_params)) for e, row in tested), default=1.0)
-    null = min_p_null(bases) if bases and p_min < 2 * alpha else None
+    null = min_p_null(bases, weights=weights) if bases and p_min < 2 * alpha else None
     best = None
     saved_side = prob.conditions.side
-    for e, row in _screen(tested, critical_p(alpha, null, m), ln_n):
+    for e, row in _screen(tested, lambda w: critical_p(alpha, null, m, weight=w), ln_n):
         if "_side" in row:
             set_side(prob, e.joint, row["_side"])
         f = prob.fit(list(current.effects) + [e], start=current)
@@ -299,7 +311,7 @@ def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: floa
                 "lr_stat": lr,
                 "dof": e.n_params,
                 "p_value": p,
-                "p_value_corrected": adjusted_p(p, null, m),
+                "p_value_corrected": adjusted_p(p, null, m, weight=row["_weight"]),
                 "delta_bic": lr - e.n_params * ln_n,
             }
         )

@@ -15,10 +15,13 @@ the distinct sign patterns of the torques of :data:`N_PRIOR_DRAWS` seeded draws 
 the prior (each mass times ``U(1 - s, 1 + s)``, each centre-of-mass coordinate shifted by
 ``U(-s, s)`` times the centre of mass's distance, 100 mm where it is 0). A selection step scores a
 backlash candidate with each of its joint's patterns and keeps the best; the family-wise level of
-the step then counts every pattern as a test of its own (min-p over all candidates and patterns,
-:mod:`~kpioed_drake.diagnosis.multiplicity`), so choosing the side from the data costs the test what
-the choice is worth and no more (the patterns of one joint differ at a few poses and are strongly
-correlated: 2-14 effective tests for 7-43 patterns). To rank a backlash against the other
+the step counts every pattern as a test (weighted min-p over all candidates and patterns,
+:mod:`~kpioed_drake.diagnosis.multiplicity`), with the weights of :func:`side_weights`: the
+expected side 1 like every other candidate, the other patterns 1 together, so that choosing the side
+from the data costs the backlash what the choice is worth and the other candidates one test (the
+patterns of one joint differ at a few poses and are strongly correlated: 2-14 effective tests for
+7-43 patterns; with weight 1 each they raised a step's effective number of tests from about 35 to
+51-65). To rank a backlash against the other
 candidates of a step, its likelihood ratio is lowered by :func:`side_penalty` (the choice of the side
 is worth that much under "no effect"), and a named backlash is tried against the gravity basis of its
 joint (:func:`~kpioed_drake.diagnosis.elastic_basis.upgrade_elasticity`): a large elasticity whose
@@ -109,3 +112,28 @@ def side_penalty(bases, *, level: float = 0.01) -> float:
     by K)."""
     q = float(np.quantile(min_p_null(list(bases)), level))
     return float(2.0 * np.log(max(level / q, 1.0)))
+
+
+SIDE_SEARCH_WEIGHT = 1.0
+"""Weight, in a selection step's weighted min-p test, of a backlash's sides other than the expected
+one, together (the expected side, row 0 of :func:`side_patterns`, has weight 1 like every other
+candidate): choosing the side from the data is one more test, paid by the backlash's other sides."""
+
+
+def side_weights(bases, *, level: float = 0.01) -> np.ndarray:
+    """(K,) weights of one candidate's K sides in a selection step's weighted min-p test
+    (:func:`~kpioed_drake.diagnosis.multiplicity.min_p_null`): the expected side (``bases[0]``) 1,
+    each other side :data:`SIDE_SEARCH_WEIGHT` divided by the effective number of tests of the other
+    sides (``level / q``, ``q`` the ``level`` quantile of their null minimum p-value; 1 to K - 1).
+    A single side: [1].
+
+    A backlash thus costs the other candidates two tests (its expected side and the search over the
+    others), however many sides it is scored with; a side unlike the file's masses' needs a smaller
+    p-value. The weights depend on the poses only, not on the residuals.
+    """
+    k = len(bases)
+    if k == 1:
+        return np.ones(1)
+    rest = list(bases[1:])
+    k_eff = 1.0 if k == 2 else float(np.clip(level / np.quantile(min_p_null(rest), level), 1.0, k - 1))
+    return np.concatenate([[1.0], np.full(k - 1, SIDE_SEARCH_WEIGHT / k_eff)])
