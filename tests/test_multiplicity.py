@@ -64,6 +64,13 @@ def test_min_p_null_is_deterministic_and_monte_carlo_matches_the_level():
     assert crit > 0.05 / len(bases) * 1.5  # correlated candidates: clearly less strict than Bonferroni
 
 
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+def test_chi2_sf_closed_forms_match_scipy(k):
+    """The null draws' chi-square survival function equals scipy's, also far in the tail."""
+    x = np.concatenate([np.random.default_rng(k).chisquare(k, 2000) * 3, [0.0, 1e-9, 50.0, 300.0]])
+    np.testing.assert_allclose(mp.chi2_sf(x, k), scipy.stats.chi2.sf(x, k), rtol=1e-11, atol=0)
+
+
 def test_weighted_min_p_holds_its_level_and_matches_weighted_sidak():
     """Weighted min-p (weights 3, 1, 1, 1, 1, 1 over independent candidates): a candidate of weight
     w is rejected at p <= t w with P(any) = 1 - prod(1 - t w_c), and a direct simulation of

@@ -30,7 +30,7 @@ the data and cost the backlash, not the other candidates, the tests they add.
 from __future__ import annotations
 
 import numpy as np
-import scipy.stats
+import scipy.special
 
 N_DRAWS = 10000
 """Monte Carlo draws of the null minimum p-value (resolution 1e-4; at a level of 0.01 the relative
@@ -60,11 +60,21 @@ def min_p_null(bases, *, weights=None, n_draws: int = N_DRAWS, seed: int = SEED)
     # the smallest p-value of candidates with k degrees of freedom and one weight is that of their
     # largest statistic
     groups = sorted({(int(k), float(x)) for k, x in zip(ks, w, strict=True)})
-    logp = [
-        scipy.stats.chi2.logsf(np.max(stat[:, (ks == k) & (w == x)], axis=1), k) - np.log(x)
-        for k, x in groups
-    ]
-    return np.sort(np.exp(np.min(logp, axis=0)))
+    p = [chi2_sf(np.max(stat[:, (ks == k) & (w == x)], axis=1), k) / x for k, x in groups]
+    return np.sort(np.min(p, axis=0))
+
+
+def chi2_sf(x: np.ndarray, k: int) -> np.ndarray:
+    """Survival function of chi-square(k) at ``x``: closed forms for k = 1, 2, 3 (``erfc`` and
+    ``exp``, equal to :func:`scipy.stats.chi2.sf` to rounding and about 100 times faster on the
+    null draws), :func:`scipy.special.chdtrc` otherwise."""
+    if k == 1:
+        return scipy.special.erfc(np.sqrt(0.5 * x))
+    if k == 2:
+        return np.exp(-0.5 * x)
+    if k == 3:
+        return scipy.special.erfc(np.sqrt(0.5 * x)) + np.sqrt(2.0 * x / np.pi) * np.exp(-0.5 * x)
+    return scipy.special.chdtrc(k, x)
 
 
 def normalized(weights, n: int) -> np.ndarray:
