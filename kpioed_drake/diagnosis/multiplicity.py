@@ -21,10 +21,10 @@ draws whose minimum is at most its own p-value (:func:`adjusted_p`), never more 
 high-dimensional situations"): with weights ``w_c`` (mean 1, :func:`normalized`) the statistic is
 the minimum of ``p_c / w_c``, and a candidate's family-wise p-value the share of null minima at or
 below its ``p_c / w_c``. The level holds exactly for any weights fixed before the residuals are
-seen; a candidate with a larger weight needs a larger p-value. A selection step gives each candidate
-effect weight 1 and splits a backlash's over the sides it is scored with
-(:func:`~kpioed_drake.diagnosis.sides.side_weights`): the sides choose the backlash's column from
-the data and cost the backlash, not the other candidates, the tests they add.
+seen; a candidate with a smaller weight needs a smaller p-value. A selection step gives each
+candidate effect weight 1, and a backlash's sides other than its expected one weight 1 together
+(:func:`~kpioed_drake.diagnosis.sides.side_weights`): those sides choose the backlash's column from
+the data and cost the other candidates one test, not one per side.
 """
 
 from __future__ import annotations
