@@ -184,19 +184,18 @@ def simulate(
         raise InputError(
             f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
         )
-    if "time_s" in offsets:  # after the defaults, so a plan leaves every seeded draw as it was
-        t = t + per_pose(offsets["time_s"], n, OFFSET_COLUMNS["time_s"])
-    if "temperature_C" in offsets:
-        temp = temp + per_pose(offsets["temperature_C"], n, OFFSET_COLUMNS["temperature_C"])
-    payload = per_pose(payload_kg, n, "payload_kg")
-    if "payload_kg" in offsets:  # the mass a plan adds at the reflector in its block 2
-        payload = payload + per_pose(offsets["payload_kg"], n, OFFSET_COLUMNS["payload_kg"])
-        bad = np.flatnonzero(payload < 0)
-        if bad.size:
-            raise InputError(
-                f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
-                f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
-            )
+    # after the defaults, so a plan leaves every seeded draw as it was; the payload offset is the
+    # mass a plan adds at the reflector in its block 2
+    cond = {"time_s": t, "temperature_C": temp, "payload_kg": per_pose(payload_kg, n, "payload_kg")}
+    for c in cond:
+        if c in offsets:
+            cond[c] = cond[c] + per_pose(offsets[c], n, OFFSET_COLUMNS[c])
+    t, temp, payload = cond["time_s"], cond["temperature_C"], cond["payload_kg"]
+    if "payload_kg" in offsets and (bad := np.flatnonzero(payload < 0)).size:
+        raise InputError(
+            f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
+            f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
+        )
     # one row per (pose, target), pose-major; one target: the rows are the poses
     target = None if n_t == 1 else np.tile(np.arange(n_t), n)
     q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))

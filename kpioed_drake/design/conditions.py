@@ -82,7 +82,9 @@ _SPAN_UNITS = {
     "h": ("time_s", 3600.0),
     "kg": (PAYLOAD, 1.0),
 }
-_MAX_SPAN = {"temperature_C": 1e3, "time_s": 1e7, PAYLOAD: 1e4}
+MAX_PAYLOAD_KG = 1e4
+"""Largest payload span searched for [kg] (the payload advice says "none up to" it)."""
+_MAX_SPAN = {"temperature_C": 1e3, "time_s": 1e7, PAYLOAD: MAX_PAYLOAD_KG}
 """Largest span searched for [K, s, kg]: beyond, no plan can help."""
 _START_SPAN = {"temperature_C": 1.0, "time_s": 60.0, PAYLOAD: 1.0}
 """First span tried when sizing one [K, s, kg]."""

@@ -24,6 +24,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.design.conditions import (
+    MAX_PAYLOAD_KG,
     PAYLOAD,
     PLAN_COLUMNS,
     SPAN_OPTION,
@@ -116,7 +117,8 @@ def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPH
     payload [kg] at which every torque explanation's test reaches power :data:`TARGET_POWER` when
     the designed poses ``q`` (n, 6) are measured again with it at the reflector (block 2 of a payload
     plan; ``given`` (m, 6) or None before them). 0: the repeated poses reach the power without one;
-    None: no payload up to 10 t does. ``rated_payload_kg``: the robot's (model file), or None."""
+    None: no payload up to :data:`~kpioed_drake.design.conditions.MAX_PAYLOAD_KG` does.
+    ``rated_payload_kg``: the robot's (model file), or None."""
     plan = plan_problem(discrimination_problem(base, pair), {}, given=given)
     g = np.zeros((0, base.robot.n_joints)) if given is None else given
     need = required_spans(plan, base, pair, np.concatenate([g, q]), conditions=[PAYLOAD], alpha=alpha)
@@ -137,7 +139,8 @@ def payload_lines(rec: dict) -> list[str]:
     kg = adv["required_kg"]
     if kg is None:
         return [
-            f"  payload: no payload up to 10 t makes the repeated poses reach power {adv['target_power']:g}"
+            f"  payload: no payload up to {MAX_PAYLOAD_KG / 1000:g} t makes the repeated poses reach power "
+            f"{adv['target_power']:g}"
         ]
     if kg == 0:
         return [

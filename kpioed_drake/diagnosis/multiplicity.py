@@ -101,8 +101,15 @@ def adjusted_p(p: float, null_min_p: np.ndarray | None, m: int, *, weight: float
         return float(min(1.0, pw * m))
     share = np.searchsorted(null_min_p, pw, side="right") / null_min_p.size
     if share == 0:  # below the draws' resolution: p times the effective number of tests at 1 %
-        share = pw * max(1.0, 0.01 / float(np.quantile(null_min_p, 0.01)))
+        share = pw * max(1.0, effective_tests(null_min_p))
     return float(min(1.0, pw * m, max(share, p)))
+
+
+def effective_tests(null_min_p: np.ndarray, level: float = 0.01) -> float:
+    """Effective number of tests at ``level``: ``level / q`` with ``q`` the ``level`` quantile of
+    the null minimum p-values (:func:`min_p_null`); the number of candidates for independent ones,
+    1 for identical ones."""
+    return level / float(np.quantile(null_min_p, level))
 
 
 def critical_p(alpha: float, null_min_p: np.ndarray | None, m: int, *, weight: float = 1.0) -> float:

@@ -37,7 +37,7 @@ import numpy as np
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.multiplicity import min_p_null
+from kpioed_drake.diagnosis.multiplicity import effective_tests, min_p_null
 from kpioed_drake.effects import gravity_basis as gb
 
 N_PRIOR_DRAWS = 50
@@ -110,8 +110,7 @@ def side_penalty(bases, *, level: float = 0.01) -> float:
     it ranks the candidates, so that a side chosen from the data does not win over a one-column
     candidate by the choice alone (for large LR, ``-2 ln p`` grows by ``2 ln K`` when p is multiplied
     by K)."""
-    q = float(np.quantile(min_p_null(list(bases)), level))
-    return float(2.0 * np.log(max(level / q, 1.0)))
+    return float(2.0 * np.log(max(effective_tests(min_p_null(list(bases)), level), 1.0)))
 
 
 SIDE_SEARCH_WEIGHT = 1.0
@@ -135,5 +134,5 @@ def side_weights(bases, *, level: float = 0.01) -> np.ndarray:
     if k == 1:
         return np.ones(1)
     rest = list(bases[1:])
-    k_eff = 1.0 if k == 2 else float(np.clip(level / np.quantile(min_p_null(rest), level), 1.0, k - 1))
+    k_eff = 1.0 if k == 2 else float(np.clip(effective_tests(min_p_null(rest), level), 1.0, k - 1))
     return np.concatenate([[1.0], np.full(k - 1, SIDE_SEARCH_WEIGHT / k_eff)])
