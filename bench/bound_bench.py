@@ -35,8 +35,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 os.environ["KPIOED_CACHE"] = "off"  # measure the certificate's search, not a cache read
 
 from kpioed_drake.design import DEFAULT_START, certified_design, certify, optimize_design  # noqa: E402
+from kpioed_drake.estimation.problem import make_problem  # noqa: E402
 from kpioed_drake.outputs import atomic_write_text  # noqa: E402
-from kpioed_drake.problem import make_problem  # noqa: E402
 from kpioed_drake.study.tasks import KUKA, QUICK_NOTIONAL  # noqa: E402
 
 N_POSES = 60

@@ -7,7 +7,7 @@ environment (so the package's own default applies), and reports its wall time, C
 a child started by fork and exec also counts the parent's resident set at the fork).
 
 Data: the public UR5 laser-tracker set (1000 grid poses; ``../shared/data/ur5-laser-tracker``,
-read in place) and 1000 simulated kr16 poses (:func:`kpioed_drake.diagnosis.synthetic_case`,
+read in place) and 1000 simulated kr16 poses (:func:`kpioed_drake.study.synthetic.synthetic_case`,
 seed 0: SPEC-size geometric errors, a hidden elasticity of joint 2, temperature and time columns,
 noise N(0, 0.02 mm)); each at sigma 0.02 and 0.065 mm.
 
@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kpioed_drake.diagnosis import synthetic_case
-from kpioed_drake.models import load_robot
 from kpioed_drake.outputs import atomic_write_text
-from kpioed_drake.simulation import table_csv_text
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.simulation.workflow import table_csv_text
+from kpioed_drake.study.synthetic import synthetic_case
 
 REPO = Path(__file__).resolve().parents[1]
 UR5_DIR = Path(os.environ.get("KPIOED_SHARED_DATA", REPO.parent / "shared" / "data")) / "ur5-laser-tracker"

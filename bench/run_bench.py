@@ -47,10 +47,10 @@ import numpy as np  # noqa: E402
 from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
-from kpioed_drake.measurement import N_FULL  # noqa: E402
-from kpioed_drake.models import N_JOINTS  # noqa: E402
+from kpioed_drake.estimation.problem import Problem, make_problem  # noqa: E402
 from kpioed_drake.outputs import atomic_write_text  # noqa: E402
-from kpioed_drake.problem import Problem, make_problem  # noqa: E402
+from kpioed_drake.robot.models import N_JOINTS  # noqa: E402
+from kpioed_drake.tracker.measurement import N_FULL  # noqa: E402
 
 
 # ----------------------------------------------------------------------------------------------

@@ -5,9 +5,9 @@
 | ``kpioed info`` | :func:`info` | here |
 | ``kpioed evaluate`` | :func:`evaluate` | :func:`kpioed_drake.design.evaluate_file` |
 | ``kpioed design`` | :func:`design` | :func:`kpioed_drake.design.run_design` |
-| ``kpioed simulate`` | :func:`simulate` | :func:`kpioed_drake.simulation.simulate_file` |
+| ``kpioed simulate`` | :func:`simulate` | :func:`kpioed_drake.simulation.truth.simulate_file` |
 | ``kpioed calibrate`` | :func:`calibrate` | :func:`kpioed_drake.calibration.calibrate_file` |
-| ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.validation.validate_file` |
+| ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.run_study` |
 
@@ -35,16 +35,16 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.calibration import calibrate_file as calibrate
+from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.design import run_design as design
-from kpioed_drake.designio import q_to_file
 from kpioed_drake.diagnosis import diagnose_file as diagnose
-from kpioed_drake.identifiability import check_identifiability
-from kpioed_drake.models import load_cell, load_robot
-from kpioed_drake.parameters import parameter_layout
-from kpioed_drake.simulation import simulate_file as simulate
+from kpioed_drake.estimation.identifiability import check_identifiability
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.simulation.workflow import simulate_file as simulate
 from kpioed_drake.study import run_study as study
-from kpioed_drake.validation import validate_file as validate
+from kpioed_drake.tracker.csvio import q_to_file
 
 __all__ = ["calibrate", "design", "diagnose", "evaluate", "info", "simulate", "study", "validate"]
 

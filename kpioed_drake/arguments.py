@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import robot_path
 from kpioed_drake.outputs import check_output_paths
+from kpioed_drake.robot.models import robot_path
 
 PICTURE_SUFFIXES = (".png", ".pdf", ".svg")
 """Endings of picture outputs (matplotlib formats)."""

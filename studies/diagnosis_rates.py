@@ -1,6 +1,6 @@
 """How often does :func:`kpioed_drake.diagnosis.diagnose` name a hidden effect correctly?
 
-Seeded cases simulated by :func:`kpioed_drake.diagnosis.run_synthetic_case` (true robot = nominal +
+Seeded cases simulated by :func:`kpioed_drake.study.synthetic.run_synthetic_case` (true robot = nominal +
 geometric errors of SPEC size + random tracker frame + effects + noise 0.02 mm, on random
 collision-free poses). Kinds:
 
@@ -51,10 +51,11 @@ import scipy.stats
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES
 from kpioed_drake.effects.compliance import vertical_columns
-from kpioed_drake.models import load_robot
 from kpioed_drake.outputs import atomic_write_json
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.study import synthetic as syn
+from kpioed_drake.study.synthetic import RATE_FAMILIES
 
 DETECTABLE = 25.0
 FAMILIES = RATE_FAMILIES
@@ -82,7 +83,7 @@ def run_case(job) -> dict:
     if fam == "column_compliance":  # the robot's lifting column(s)
         families = tuple(f"{fam}:{j}" for j in vertical_columns(load_robot(opts["robot"])))
     hard = not opts["easy"]
-    rec = D.run_synthetic_case(
+    rec = syn.run_synthetic_case(
         base,
         seed,
         opts["robot"],
@@ -215,7 +216,7 @@ def main(argv=None) -> int:
         base, _, fam = k.partition(":")
         fam, _, variant = fam.partition(":")
         if (
-            base not in D.CASE_KINDS
+            base not in syn.CASE_KINDS
             or (fam and fam not in FAMILIES + fx.COMPLIANCE_FAMILIES)
             or variant not in ("", "spec")
         ):

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.dataformats import read_data
 from kpioed_drake.diagnosis import diagnose
-from kpioed_drake.estimation import register_tracker
-from kpioed_drake.models import load_robot
+from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.outputs import atomic_write_json
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.tracker.formats import read_data
 
 REPO = Path(__file__).resolve().parents[1]
 SIGMA_MM = 0.065

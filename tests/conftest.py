@@ -6,8 +6,8 @@ import tempfile
 import numpy as np
 import pytest
 
-from kpioed_drake.measurement import nominal_model
-from kpioed_drake.models import load_cell, load_robot
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.tracker.measurement import nominal_model
 
 
 def pytest_configure(config):

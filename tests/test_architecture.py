@@ -13,9 +13,41 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "kpioed_drake"
 MAX_LINES = 500
-WORKFLOWS = ("design", "calibration", "diagnosis", "study")
-# A module may import only from its own or a lower rank (flat core < workflows < api < cli).
-RANK = {"design": 1, "calibration": 2, "diagnosis": 3, "study": 4, "api": 5, "cli": 6}
+WORKFLOWS = ("design", "simulation", "calibration", "diagnosis", "study")
+CORE = ("robot", "tracker", "effects", "estimation")
+MAX_ROOT_MODULES = 10
+MAX_FOLDER_MODULES = 12
+MAX_CODE_LINES = 80  # of one function, docstring, blank and comment lines excluded
+MAX_LONG_FUNCTIONS = 3
+# A module may import only from its own or a lower rank; the longest matching prefix of its name
+# gives its rank (core by concern < workflows < api < cli; inside design: the shared base, the exact
+# design, the approximate design and its bound, the entry points, discrimination, the file workflows).
+RANK = {
+    "errors": 0,
+    "outputs": 0,
+    "paper": 0,
+    "robot": 1,
+    "tracker": 2,
+    "effects": 3,
+    "estimation": 4,
+    "arguments": 4.5,
+    "scene3d": 4.5,
+    "design.common": 5.0,
+    "design.heuristic": 5.0,
+    "design.exact": 5.1,
+    "design.approximate": 5.2,
+    "design.result": 5.3,
+    "design.optimize": 5.3,
+    "design.discriminate": 5.4,
+    "design.target": 5.4,
+    "design": 5.6,
+    "simulation": 5.8,
+    "calibration": 6,
+    "diagnosis": 7,
+    "study": 8,
+    "api": 9,
+    "cli": 10,
+}
 
 
 def _module_name(path: Path) -> str:
@@ -50,13 +82,16 @@ def _imports(tree: ast.Module, *, top_only: bool) -> list[tuple[int, str]]:
     return out
 
 
-def _rank(module: str) -> int:
-    parts = module.split(".")
-    return RANK.get(parts[1], 0) if len(parts) > 1 else 0
+def _rank(module: str) -> float:
+    parts = module.split(".")[1:]
+    for k in range(len(parts), 0, -1):
+        if ".".join(parts[:k]) in RANK:
+            return RANK[".".join(parts[:k])]
+    return 0
 
 
 def test_workflows_are_subpackages():
-    for name in WORKFLOWS:
+    for name in WORKFLOWS + CORE:
         assert (PACKAGE / name / "__init__.py").is_file(), f"kpioed_drake/{name}/ is not a package"
         assert not (PACKAGE / f"{name}.py").exists(), f"kpioed_drake/{name}.py beside the package"
 
@@ -111,12 +146,19 @@ def test_no_import_cycle():
 
 def test_checker_sees_a_cycle_and_a_late_import():
     """The checks above can fail: a synthetic late import and a synthetic cycle are found."""
-    tree = ast.parse("import os\n\ndef f():\n    from kpioed_drake import models\n")
+    tree = ast.parse("import os\n\ndef f():\n    from kpioed_drake.robot import models\n")
     assert _imports(tree, top_only=True) == []
-    assert _imports(tree, top_only=False) == [(4, "kpioed_drake.models")]
+    assert _imports(tree, top_only=False) == [(4, "kpioed_drake.robot.models")]
     assert (
-        _rank("kpioed_drake.cli.design") > _rank("kpioed_drake.design.solve") > _rank("kpioed_drake.models")
+        _rank("kpioed_drake.cli.design")
+        > _rank("kpioed_drake.design.exact.solve")
+        > _rank("kpioed_drake.robot")
     )
+    assert _rank("kpioed_drake.design.optimize") > _rank("kpioed_drake.design.approximate.search")
+    assert _rank("kpioed_drake.design.approximate.search") > _rank("kpioed_drake.design.exact.program")
+    assert _rank("kpioed_drake.design.exact.program") > _rank("kpioed_drake.design.common")
+    lines = 'def f(x):\n    """Doc."""\n\n    # note\n' + "    x += 1\n" * 81 + "    return x\n"
+    assert [n for n, _ in _long_functions({"m": (Path("m.py"), ast.parse(lines))}, {"m": lines})] == [82]
 
 
 LITERAL_SLICE = re.compile(r"\b(p|std|H|J|JW|dJ|x|Cp|free)\[(([^]]*,) *)?\d+ *: *\d*")
@@ -128,8 +170,63 @@ def test_no_literal_slice_of_the_parameter_vector():
     hits = [
         f"{path.relative_to(PACKAGE.parent)}:{k}: {line.strip()}"
         for name, (path, _) in MODULES.items()
-        if name != "kpioed_drake.parameters"
+        if name != "kpioed_drake.robot.parameters"
         for k, line in enumerate(path.read_text().splitlines(), start=1)
         if LITERAL_SLICE.search(line)
     ]
     assert not hits, "\n".join(hits)
+
+
+def _folders() -> dict[Path, list[Path]]:
+    out: dict[Path, list[Path]] = {}
+    for path, _ in MODULES.values():
+        out.setdefault(path.parent, []).append(path)
+    return out
+
+
+def test_root_and_folder_sizes():
+    """The package root holds a few entry modules; every folder stays small enough to read."""
+    folders = _folders()
+    root = sorted(p.name for p in folders[PACKAGE])
+    assert len(root) <= MAX_ROOT_MODULES, f"{len(root)} modules at the package root: {root}"
+    big = {
+        str(d.relative_to(PACKAGE.parent)): len(ps)
+        for d, ps in folders.items()
+        if d != PACKAGE and len(ps) > MAX_FOLDER_MODULES
+    }
+    assert not big, f"folders over {MAX_FOLDER_MODULES} modules: {big}"
+
+
+def _code_lines(lines: list[str], node: ast.FunctionDef) -> int:
+    body = node.body
+    first = body[0]
+    doc = (
+        isinstance(first, ast.Expr)
+        and isinstance(first.value, ast.Constant)
+        and isinstance(first.value.value, str)
+    )
+    if doc and len(body) == 1:
+        return 0
+    start = body[1].lineno if doc else first.lineno
+    return sum(
+        1 for line in lines[start - 1 : node.end_lineno] if line.strip() and not line.strip().startswith("#")
+    )
+
+
+def _long_functions(modules, texts) -> list[tuple[int, str]]:
+    out = []
+    for name, (path, tree) in modules.items():
+        lines = texts[name].splitlines()
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = _code_lines(lines, node)
+                if n > MAX_CODE_LINES:
+                    out.append((n, f"{path}:{node.lineno} {node.name}"))
+    return sorted(out, reverse=True)
+
+
+def test_few_long_functions():
+    """Functions are short enough to read at once: at most a few over 80 lines of code."""
+    texts = {name: path.read_text() for name, (path, _) in MODULES.items()}
+    long = _long_functions(MODULES, texts)
+    assert len(long) <= MAX_LONG_FUNCTIONS, f"{len(long)} functions over {MAX_CODE_LINES} lines: {long}"

@@ -24,9 +24,9 @@ import pytest
 from matplotlib.colors import rgb_to_hsv
 from matplotlib.image import imread
 
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.models import load_cell, load_robot
+from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.scene3d import design_page, write_page
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
 
 CHROMIUM = Path("/usr/bin/chromium")
 pytestmark = pytest.mark.skipif(

@@ -8,11 +8,14 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kpioed_drake import calibration, measurement, models, problem, simulation
+from kpioed_drake import calibration, simulation
 from kpioed_drake.cli import main
-from kpioed_drake.designio import write_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurements import Measurements, read_measurements
+from kpioed_drake.estimation import problem
+from kpioed_drake.robot import models
+from kpioed_drake.tracker import measurement
+from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.data import Measurements, read_measurements
 
 SIGMA = 0.02
 

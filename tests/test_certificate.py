@@ -7,8 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kpioed_drake.design import certcache, certificate, check_design, heuristic_design
-from kpioed_drake.design.approximate import (
+from kpioed_drake.design import check_design, heuristic_design
+from kpioed_drake.design.approximate import certcache, certificate
+from kpioed_drake.design.approximate.certificate import (
+    certified_design,
+    certify,
+    pool_certificate,
+    verify_search,
+)
+from kpioed_drake.design.approximate.design import (
     approximate_design,
     approximate_start,
     efficient_rounding,
@@ -18,9 +25,14 @@ from kpioed_drake.design.approximate import (
     rank3_changes,
     replicate_poses,
 )
-from kpioed_drake.design.certificate import certified_design, certify, pool_certificate, verify_search
-from kpioed_drake.design.search import DualObjective, corner_poses, dual_values, maximize_dual, pose_rows
-from kpioed_drake.problem import make_problem
+from kpioed_drake.design.approximate.search import (
+    DualObjective,
+    corner_poses,
+    dual_values,
+    maximize_dual,
+    pose_rows,
+)
+from kpioed_drake.estimation.problem import make_problem
 
 
 @pytest.fixture(scope="module")

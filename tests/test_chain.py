@@ -8,15 +8,15 @@ import pytest
 from fd import central_fd
 from numpy.testing import assert_allclose
 
-from kpioed_drake.design.constraints import incidence_rows
+from kpioed_drake.design.exact.constraints import incidence_rows
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
-from kpioed_drake.geometry import ClearanceModel
-from kpioed_drake.kinematics import forward_kinematics, point_jacobian, point_velocity_jacobian
-from kpioed_drake.measurement import measure, measurement_jacobian, nominal_model
-from kpioed_drake.models import MODELS_DIR, load_cell, load_robot
-from kpioed_drake.plant import MM, build_scene
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.kinematics import forward_kinematics, point_jacobian, point_velocity_jacobian
+from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
+from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.tracker.measurement import measure, measurement_jacobian, nominal_model
 
 UR5_URDF = str(MODELS_DIR / "robots" / "ur5.urdf")
 

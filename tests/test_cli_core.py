@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from kpioed_drake.cli import main
-from kpioed_drake.designio import write_design
-from kpioed_drake.models import load_robot
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.tracker.csvio import write_design
 
 
 @pytest.fixture(scope="module")

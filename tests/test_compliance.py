@@ -10,20 +10,20 @@ import pytest
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.cli import main
-from kpioed_drake.design.explanations import parse_pair
-from kpioed_drake.designio import write_design
+from kpioed_drake.design.discriminate.explanations import parse_pair
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.physical import plausibility
 from kpioed_drake.diagnosis.selection import candidate_effects
-from kpioed_drake.diagnosis.synthetic import detectability, perturbed_masses, synthetic_case
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects.gravity_basis import link_moments, link_regressor
+from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import flange_point, forward_kinematics
-from kpioed_drake.measurement import nominal_model
-from kpioed_drake.models import MODELS_DIR, load_cell, load_robot
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
+from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
+from kpioed_drake.study.synthetic import detectability, perturbed_masses, synthetic_case
+from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.measurement import nominal_model
 
 ROBOTS = MODELS_DIR / "robots"
 

@@ -6,23 +6,23 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from kpioed_drake import covariance, criteria
-from kpioed_drake.authoring import work_target
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.geometry import ClearanceModel, segment_distance
-from kpioed_drake.identifiability import check_identifiability
-from kpioed_drake.kinematics import flange_point, forward_kinematics
-from kpioed_drake.measurement import (
+from kpioed_drake.estimation import covariance, criteria
+from kpioed_drake.estimation.identifiability import check_identifiability
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.authoring import work_target
+from kpioed_drake.robot.geometry import ClearanceModel, segment_distance
+from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
+from kpioed_drake.robot.models import list_robots, load_cell, load_robot
+from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
+from kpioed_drake.tracker.measurement import (
     incidence_cosine,
     kpi_jacobian,
     measure,
     measurement_jacobian,
     nominal_model,
 )
-from kpioed_drake.models import list_robots, load_cell, load_robot
-from kpioed_drake.plant import MM, build_scene
-from kpioed_drake.problem import make_problem
 
 ROBOTS = ["kr16", "kr300", "kr500", "notional-650-600", "notional-1100-1000", "notional-850-800"]
 

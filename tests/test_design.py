@@ -22,14 +22,14 @@ from kpioed_drake.design import (
     incidence_rows,
     optimize_design,
 )
-from kpioed_drake.design import solve as design_solve
 from kpioed_drake.design.common import INCIDENCE_MARGIN_DEG
-from kpioed_drake.design.constraints import restore_incidence
-from kpioed_drake.designio import read_design
+from kpioed_drake.design.exact import solve as design_solve
+from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import TOL_DEG, FeasibilityChecker
-from kpioed_drake.measurement import incidence_cosine
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.tracker.csvio import read_design
+from kpioed_drake.tracker.feasibility import TOL_DEG, FeasibilityChecker
+from kpioed_drake.tracker.measurement import incidence_cosine
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,6 @@ import pytest
 from fd import central_fd
 from numpy.testing import assert_allclose
 
-from kpioed_drake import criteria
 from kpioed_drake.cli import main
 from kpioed_drake.design import (
     DesignObjective,
@@ -22,11 +21,12 @@ from kpioed_drake.design import (
     read_working_poses,
     remove_poses,
 )
-from kpioed_drake.design import solve as design_solve
 from kpioed_drake.design import target as design_target
-from kpioed_drake.designio import read_design, write_design
+from kpioed_drake.design.exact import solve as design_solve
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation import criteria
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.tracker.csvio import read_design, write_design
 
 PATH_OFFSETS_DEG = np.array([[0, 0, 0, 0, 0, 0], [20, 10, -10, 0, 15, 0], [-20, -5, 10, 0, -10, 30]])
 """A working path around kr16's q_work sampled at 3 points [deg] (within the joint limits)."""

@@ -10,17 +10,11 @@ import pytest
 
 from kpioed_drake import api
 from kpioed_drake.cli import main
-from kpioed_drake.design import (
-    START_METHODS,
-    approximate_start,
-    certificate,
-    check_design,
-    optimize_design,
-    resolve_start,
-)
-from kpioed_drake.designio import write_design
+from kpioed_drake.design import START_METHODS, approximate_start, check_design, optimize_design, resolve_start
+from kpioed_drake.design.approximate import certificate
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.tracker.csvio import write_design
 
 
 @pytest.fixture(scope="module")

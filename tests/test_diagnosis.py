@@ -1,7 +1,7 @@
 """Diagnosis of model discrepancy (kpioed_drake.diagnosis): the tests hide effects in simulated data
 and require that ``diagnose`` names them, stays quiet on clean data, and improves the held-out error.
 
-Simulation (``diagnosis.synthetic_case``): true robot = nominal + geometric errors of SPEC size
+Simulation (``synthetic.synthetic_case``): true robot = nominal + geometric errors of SPEC size
 (0.5 mm, 0.05 deg) + a random tracker frame + the hidden effects + N(0, 0.02 mm) noise, 80 random
 collision-free poses of the KR 16. The default run checks a few cases (each family once, clean data,
 pairs); ``-m slow`` runs 50 seeded cases of each kind and checks the rates documented in
@@ -17,8 +17,9 @@ from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import calibrate
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import load_robot
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.study import synthetic as syn
+from kpioed_drake.tracker.data import Measurements
 
 SIGMA = 0.02
 
@@ -42,8 +43,8 @@ def _detectable_case(kr16, family: str, seed: int):
     reflector, is below the noise of 80 poses and is redrawn)."""
     rng = np.random.default_rng([seed, fx.FAMILIES.index(family)])
     while True:
-        case = D.synthetic_case(kr16, rng, [_draw_in_family(family, rng)], n_poses=80, sigma=SIGMA)
-        if min(D.detectability(case)) >= 25.0:
+        case = syn.synthetic_case(kr16, rng, [_draw_in_family(family, rng)], n_poses=80, sigma=SIGMA)
+        if min(syn.detectability(case)) >= 25.0:
             return case
 
 
@@ -70,7 +71,7 @@ def test_hidden_effect_is_named_and_estimated(kr16, family):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_clean_data_raises_no_discrepancy(seed):
-    r = D.run_synthetic_case("clean", seed)
+    r = syn.run_synthetic_case("clean", seed)
     assert not r["discrepancy"], r
     assert r["named"] == []
     assert r["holdout_ext_over_sigma"] < 1.3
@@ -78,7 +79,7 @@ def test_clean_data_raises_no_discrepancy(seed):
 
 @pytest.mark.parametrize("seed", [3, 4])
 def test_pairs_are_both_named(seed):
-    r = D.run_synthetic_case("pair", seed)
+    r = syn.run_synthetic_case("pair", seed)
     assert min(r["lambda"]) >= 25.0  # both effects visible in the data
     assert r["exact"], r
     assert r["holdout_ext_over_sigma"] < 1.3
@@ -86,7 +87,7 @@ def test_pairs_are_both_named(seed):
 
 def test_report_json_contract_cli_and_plots(kr16, tmp_path):
     rng = np.random.default_rng(21)
-    case = D.synthetic_case(
+    case = syn.synthetic_case(
         kr16, rng, ["joint_elasticity:2=4e-7", "gear_cyclic:4:2=0.012,-0.008"], n_poses=70
     )
     csv = tmp_path / "data.csv"
@@ -128,9 +129,9 @@ def test_absorbed_candidate_is_reported_not_fitted(kr16):
     is a constant angle offset, absorbed by theta4 (reported, not fitted) while the geometry itself
     stays determined (calibrate accepts these poses)."""
     rng = np.random.default_rng(5)
-    q = D.random_poses(kr16, 80, rng)
+    q = syn.random_poses(kr16, 80, rng)
     q[:, 3] = np.where(np.arange(80) % 2 == 0, 0.0, np.pi)
-    case = D.synthetic_case(kr16, rng, [], q=q)
+    case = syn.synthetic_case(kr16, rng, [], q=q)
     calibrate(kr16, case.data)  # no error: the poses determine the geometry
     rep = D.diagnose(kr16, case.data)
     rows = {r["candidate"]: r for r in rep.steps[0]["candidates"]}
@@ -147,9 +148,9 @@ def test_undetermined_geometry_is_handled_like_calibrate(kr16):
     parameters at nominal as calibrate does and says so (it used to go on with a pseudo-inverse);
     calibrate --strict refuses."""
     rng = np.random.default_rng(5)
-    q = D.random_poses(kr16, 80, rng)
+    q = syn.random_poses(kr16, 80, rng)
     q[:, 3] = np.deg2rad(30.0)
-    case = D.synthetic_case(kr16, rng, [], q=q)
+    case = syn.synthetic_case(kr16, rng, [], q=q)
     cal = calibrate(kr16, case.data)
     held = cal.held_at_nominal
     assert 1 <= len(held) <= 4 and any(
@@ -164,7 +165,7 @@ def test_undetermined_geometry_is_handled_like_calibrate(kr16):
 
 def test_candidates_follow_the_data(kr16):
     rng = np.random.default_rng(2)
-    case = D.synthetic_case(kr16, rng, [], n_poses=40)
+    case = syn.synthetic_case(kr16, rng, [], n_poses=40)
     import dataclasses
 
     cands, notes = D.candidate_effects(dataclasses.replace(case.data, temperature_C=None, time_s=None))
@@ -179,10 +180,10 @@ def test_candidates_follow_the_data(kr16):
 
 def test_bad_inputs(kr16):
     rng = np.random.default_rng(1)
-    case = D.synthetic_case(kr16, rng, [], n_poses=12)
+    case = syn.synthetic_case(kr16, rng, [], n_poses=12)
     with pytest.raises(InputError, match="too few"):
         D.diagnose(kr16, case.data)
-    case = D.synthetic_case(kr16, rng, [], n_poses=30)
+    case = syn.synthetic_case(kr16, rng, [], n_poses=30)
     with pytest.raises(InputError, match="sigma"):
         D.diagnose(kr16, case.data, sigma_mm=0.0)
     with pytest.raises(InputError, match="missing column 'z_mm'"):
@@ -195,7 +196,7 @@ def test_bad_inputs(kr16):
 @pytest.mark.slow
 def test_rates_over_many_seeds():
     """>= 50 seeded cases per kind; the rates are written in docs/diagnosis.md."""
-    recs = {k: [D.run_synthetic_case(k, s) for s in range(50)] for k in D.CASE_KINDS}
+    recs = {k: [syn.run_synthetic_case(k, s) for s in range(50)] for k in syn.CASE_KINDS}
     single, pair, clean = recs["single"], recs["pair"], recs["clean"]
 
     def rate(rs, key):

@@ -1,6 +1,6 @@
 """Competing explanations, plausibility and the unexplained rest of ``kpioed diagnose`` (issue 13).
 
-Seeded simulated campaigns on the KR 16 (``diagnosis.synthetic_case``): a gear-ratio error, a pair
+Seeded simulated campaigns on the KR 16 (``synthetic.synthetic_case``): a gear-ratio error, a pair
 of candidates the poses cannot tell apart, a negative compliance, clean data, and an error outside
 the effect library. Unit checks of the plausibility bounds and of the rest's structure.
 """
@@ -14,12 +14,13 @@ import pytest
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis import physical
 from kpioed_drake.diagnosis.alternatives import settle
 from kpioed_drake.diagnosis.selection import Selection, _stand_in
-from kpioed_drake.measurement import reflector_world
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import load_robot
+from kpioed_drake.effects import physical
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.study import synthetic as syn
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import reflector_world
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,7 @@ def _names(rep) -> list[set]:
 
 
 def test_joint_scale_is_named_or_offered(kr16):
-    case = D.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
+    case = syn.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
     rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
     groups = _names(rep)
     assert any("joint_scale:2" in g for g in groups), groups
@@ -50,7 +51,7 @@ def test_joint_scale_is_named_or_offered(kr16):
 def test_a_cause_beaten_by_a_candidate_is_swapped(kr16):
     """A selection that chose gear_cyclic:2:1 for a gear-ratio error of joint 2 (over its whole range):
     given the data, joint_scale:2 fits significantly better and replaces it."""
-    case = D.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
+    case = syn.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
     prob = D.FitProblem(kr16, case.data, case.sigma)
     wrong = prob.fit([fx.parse_effect("gear_cyclic:2:1")])
     sel = Selection(fit=wrong, holdout=prob.holdout(wrong), steps=[], evidence={})
@@ -67,9 +68,9 @@ def test_indistinguishable_pair_is_reported_together(kr16):
     """Joint 4 spans only +-15 deg: its gear-ratio error q4 and a first-harmonic gear error sin(q4)
     differ by < 1 %, so the data cannot tell joint_scale:4 from gear_cyclic:4:1."""
     rng = np.random.default_rng(5)
-    q = D.random_poses(kr16, 70, rng)
+    q = syn.random_poses(kr16, 70, rng)
     q[:, 3] = np.deg2rad(rng.uniform(-15.0, 15.0, size=q.shape[0]))
-    case = D.synthetic_case(kr16, rng, ["joint_scale:4=-800"], q=q)
+    case = syn.synthetic_case(kr16, rng, ["joint_scale:4=-800"], q=q)
     rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
     groups = _names(rep)
     assert {"joint_scale:4", "gear_cyclic:4:1"} in [g & {"joint_scale:4", "gear_cyclic:4:1"} for g in groups]
@@ -82,7 +83,7 @@ def test_indistinguishable_pair_is_reported_together(kr16):
 
 
 def test_negative_compliance_is_implausible(kr16):
-    case = D.synthetic_case(kr16, np.random.default_rng(3), ["joint_elasticity:3=-3e-6"], n_poses=70)
+    case = syn.synthetic_case(kr16, np.random.default_rng(3), ["joint_elasticity:3=-3e-6"], n_poses=70)
     rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
     cause = next(c for c in rep.causes if c["effect"] == "joint_elasticity" and c["joint"] == 3)
     assert cause["value"] < 0
@@ -91,7 +92,7 @@ def test_negative_compliance_is_implausible(kr16):
 
 
 def test_clean_case_has_no_causes_and_no_rest(kr16):
-    case = D.synthetic_case(kr16, np.random.default_rng(21), [], n_poses=60)
+    case = syn.synthetic_case(kr16, np.random.default_rng(21), [], n_poses=60)
     rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
     assert rep.causes == [] and rep.unexplained is None and not rep.discrepancy
 
@@ -100,7 +101,7 @@ def test_error_outside_the_library_is_unexplained(kr16):
     """A smooth vertical error growing with the reflector's height squared (no candidate has it):
     the report says the model does not fit and that the rest follows the height."""
     rng = np.random.default_rng(8)
-    case = D.synthetic_case(kr16, rng, [], n_poses=70)
+    case = syn.synthetic_case(kr16, rng, [], n_poses=70)
     truth = case.model_true
     p_W = reflector_world(truth, case.data.q)
     z = (p_W[:, 2] - p_W[:, 2].mean()) / p_W[:, 2].std()
@@ -125,7 +126,7 @@ def test_error_outside_the_library_is_unexplained(kr16):
 
 
 def test_new_families_are_candidates(kr16):
-    case = D.synthetic_case(kr16, np.random.default_rng(2), [], n_poses=40)
+    case = syn.synthetic_case(kr16, np.random.default_rng(2), [], n_poses=40)
     prob = D.FitProblem(kr16, case.data, case.sigma)
     names = {c.name for c in D.candidate_effects(case.data, prob.tau)[0]}
     assert {f"joint_scale:{j}" for j in range(1, 7)} <= names

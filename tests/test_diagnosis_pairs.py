@@ -7,12 +7,12 @@ import json
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis import pairs as pr
-from kpioed_drake.diagnosis import synthetic
-from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
-from kpioed_drake.diagnosis.synthetic import run_synthetic_case
 from kpioed_drake.diagnosis.workflow import diagnose
+from kpioed_drake.estimation import multiplicity as mp
+from kpioed_drake.study import synthetic
+from kpioed_drake.study.synthetic import RATE_FAMILIES as FAMILIES
+from kpioed_drake.study.synthetic import run_synthetic_case
 
 
 def _unit(v):

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kpioed_drake.diagnosis import synthetic as S
 from kpioed_drake.effects import parse_effect
+from kpioed_drake.study import synthetic as S
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("diagnosis_rates", ROOT / "studies" / "diagnosis_rates.py")

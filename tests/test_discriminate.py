@@ -20,17 +20,17 @@ from numpy.testing import assert_allclose
 from kpioed_drake import api
 from kpioed_drake import effects as fx
 from kpioed_drake.cli import main
-from kpioed_drake.design import discriminate as dc
-from kpioed_drake.design import explanations as ex
+from kpioed_drake.design.discriminate import design as dc
+from kpioed_drake.design.discriminate import explanations as ex
+from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.objective import DesignObjective
-from kpioed_drake.designio import design_csv_text
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.synthetic import random_poses, synthetic_case
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import T_REF_C, augmented_jacobian, gravity_torques
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.study.synthetic import random_poses, synthetic_case
+from kpioed_drake.tracker.csvio import design_csv_text
 
 PAIR = "joint_scale:2=300|gear_cyclic:2:1"
 SIGMA = 0.02

@@ -22,19 +22,19 @@ from numpy.testing import assert_allclose
 
 from kpioed_drake import api
 from kpioed_drake.cli import main
-from kpioed_drake.design import conditions as cd
-from kpioed_drake.design import explanations as ex
-from kpioed_drake.design.discriminate import discrimination_problem, explanation_indices
+from kpioed_drake.design.discriminate import conditions as cd
+from kpioed_drake.design.discriminate import explanations as ex
+from kpioed_drake.design.discriminate.design import discrimination_problem, explanation_indices
+from kpioed_drake.design.discriminate.plan import plan_design
+from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.objective import DesignObjective
-from kpioed_drake.design.plan import plan_design
-from kpioed_drake.designio import design_csv_text
-from kpioed_drake.diagnosis.synthetic import random_poses
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.simulation import simulate, table_csv_text
+from kpioed_drake.study.synthetic import random_poses
+from kpioed_drake.tracker.csvio import design_csv_text
 
 SIGMA = 0.02
 TEMP_PAIR = "thermal_expansion|tracker_scale"

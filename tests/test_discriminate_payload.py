@@ -22,19 +22,19 @@ from fd import central_fd
 from numpy.testing import assert_allclose
 
 from kpioed_drake.cli import main
-from kpioed_drake.design import conditions as cd
-from kpioed_drake.design import explanations as ex
-from kpioed_drake.design import plan as plan_mod
-from kpioed_drake.design.discriminate import discrimination_problem, explanation_indices
+from kpioed_drake.design.discriminate import conditions as cd
+from kpioed_drake.design.discriminate import explanations as ex
+from kpioed_drake.design.discriminate import plan as plan_mod
+from kpioed_drake.design.discriminate.design import discrimination_problem, explanation_indices
+from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.plan import plan_design
-from kpioed_drake.diagnosis.synthetic import random_poses
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import MODELS_DIR, load_robot
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.models import MODELS_DIR, load_robot
 from kpioed_drake.simulation import simulate, table_csv_text
+from kpioed_drake.study.synthetic import random_poses
 
 SIGMA = 0.02
 PAIR = "joint_elasticity:2|joint_scale:2"

@@ -8,8 +8,8 @@ import pytest
 
 from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import forward_kinematics, point_velocity_jacobian
-from kpioed_drake.measurement import measure, measurement_jacobian
+from kpioed_drake.robot.kinematics import forward_kinematics, point_velocity_jacobian
+from kpioed_drake.tracker.measurement import measure, measurement_jacobian
 
 
 @pytest.fixture(scope="module")

@@ -7,10 +7,10 @@ import pytest
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
-from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurement import measure
-from kpioed_drake.simulation import simulate
+from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.tracker.csvio import read_design
+from kpioed_drake.tracker.measurement import measure
 
 DESIGN = "studies/results/designs/kr16_kpi_ca.csv"
 

@@ -1,4 +1,4 @@
-"""Registration and Levenberg-Marquardt estimation (kpioed_drake.estimation)."""
+"""Registration and Levenberg-Marquardt estimation (kpioed_drake.estimation.estimator)."""
 
 import dataclasses
 
@@ -8,8 +8,10 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kpioed_drake import estimation, measurement, models, problem, residuals
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation import estimator, problem, residuals
+from kpioed_drake.robot import models
+from kpioed_drake.tracker import measurement
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +45,7 @@ def test_registration_recovers_random_rigid_transform():
         t = rng.uniform(-5000, 5000, 3)
         p_T = rng.uniform(-2000, 2000, (30, 3))
         p_W = p_T @ R.T + t
-        R_est, t_est = estimation.register_tracker(p_W, p_T)
+        R_est, t_est = estimator.register_tracker(p_W, p_T)
         assert_allclose(R_est, R, atol=1e-12)
         assert_allclose(t_est, t, atol=1e-8)
 
@@ -54,23 +56,23 @@ def test_registration_proper_rotation_for_planar_points_and_mirrored_data():
     p_T = np.column_stack([rng.uniform(-1000, 1000, (10, 2)), np.zeros(10)])
     R = Rotation.random(random_state=5).as_matrix()
     t = np.array([100.0, -200.0, 300.0])
-    R_est, t_est = estimation.register_tracker(p_T @ R.T + t, p_T)
+    R_est, t_est = estimator.register_tracker(p_T @ R.T + t, p_T)
     assert_allclose(R_est, R, atol=1e-12)
     assert_allclose(t_est, t, atol=1e-9)
     # mirrored (left-handed) data: the best proper rotation, never a reflection
     p_T = rng.uniform(-1000, 1000, (20, 3))
     p_W = (p_T * np.array([1.0, 1.0, -1.0])) @ R.T
-    R_est, _ = estimation.register_tracker(p_W, p_T)
+    R_est, _ = estimator.register_tracker(p_W, p_T)
     assert_allclose(R_est.T @ R_est, np.eye(3), atol=1e-12)
     assert_allclose(np.linalg.det(R_est), 1.0, atol=1e-12)
 
 
 def test_registration_rejects_bad_input():
     with pytest.raises(InputError, match="at least 3"):
-        estimation.register_tracker(np.zeros((2, 3)), np.zeros((2, 3)))
+        estimator.register_tracker(np.zeros((2, 3)), np.zeros((2, 3)))
     line = np.outer(np.arange(5.0), [1.0, 2.0, 3.0])
     with pytest.raises(InputError, match="collinear"):
-        estimation.register_tracker(line, line)
+        estimator.register_tracker(line, line)
 
 
 def test_noise_free_data_recovers_truth_exactly(kr16):
@@ -78,7 +80,7 @@ def test_noise_free_data_recovers_truth_exactly(kr16):
     rng = np.random.default_rng(3)
     q = random_poses(robot, 40, rng)
     truth = perturbed_truth(model, rng)
-    res = estimation.estimate(model, q, measurement.measure(truth, q), sigma=0.02)
+    res = estimator.estimate(model, q, measurement.measure(truth, q), sigma=0.02)
     assert res.converged
     joint_ref = np.r_[model.layout.free[:18], 30, 31, 32]  # joint and reflector parameters
     assert_allclose(res.model.p[joint_ref], truth.p[joint_ref], atol=1e-7)
@@ -96,7 +98,7 @@ def test_recovers_perturbed_parameters_within_reported_std(kr16):
     for _ in range(3):
         truth = perturbed_truth(model, rng)
         eta = measurement.measure(truth, q) + rng.normal(0.0, sigma, (60, 3))
-        res = estimation.estimate(model, q, eta, sigma=sigma)
+        res = estimator.estimate(model, q, eta, sigma=sigma)
         assert res.converged
         free = model.layout.free
         z = (res.model.p[free] - truth.p[free]) / res.std
@@ -119,7 +121,7 @@ def test_too_few_poses(kr16):
     robot, _, model = kr16
     q = random_poses(robot, 8, np.random.default_rng(0))
     with pytest.raises(InputError, match="at least 9 poses"):
-        estimation.estimate(model, q, measurement.measure(model, q))
+        estimator.estimate(model, q, measurement.measure(model, q))
 
 
 def test_mask_excludes_poses(kr16):
@@ -131,8 +133,8 @@ def test_mask_excludes_poses(kr16):
     eta_bad[7] += 5.0
     mask = np.ones(30, bool)
     mask[7] = False
-    a = estimation.estimate(model, q[mask], eta[mask])
-    b = estimation.estimate(model, q, eta_bad, mask=mask)
+    a = estimator.estimate(model, q[mask], eta[mask])
+    b = estimator.estimate(model, q, eta_bad, mask=mask)
     assert_allclose(b.model.p, a.model.p, atol=1e-8)
     assert_allclose(b.cost, a.cost, rtol=1e-8)
     nr = residuals.normalized_residuals(b)
@@ -159,7 +161,7 @@ def test_monte_carlo_kpi_covariance_matches_Cs(kr16):
     S = np.empty((N, 3))
     for k in range(N):
         eta = h + rng.normal(0.0, sigma, h.shape)
-        res = estimation.estimate(model, q, eta, sigma=sigma)
+        res = estimator.estimate(model, q, eta, sigma=sigma)
         assert res.converged, res.message
         S[k] = measurement.kpi_jacobian(res.model, robot.q_work)[0]
     C_sample = np.cov(S.T)

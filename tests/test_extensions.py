@@ -9,12 +9,12 @@ from numpy.testing import assert_allclose
 from kpioed_drake.calibration import calibrate_extended
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignObjective
-from kpioed_drake.designio import write_design
-from kpioed_drake.diagnosis import random_poses
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import load_robot
-from kpioed_drake.problem import make_problem
-from kpioed_drake.simulation import simulate
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.study.synthetic import random_poses
+from kpioed_drake.tracker.csvio import write_design
 
 EXT = ["joint_elasticity:2", "gear_cyclic:4:2"]
 

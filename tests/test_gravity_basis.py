@@ -17,10 +17,10 @@ from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.cli import main as cli_main
 from kpioed_drake.diagnosis import diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.study.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 
 
 @pytest.fixture(scope="module")

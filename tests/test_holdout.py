@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kpioed_drake import estimation, models
-from kpioed_drake.diagnosis import synthetic_case
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.effects import parse_effect
+from kpioed_drake.estimation import estimator
+from kpioed_drake.robot import models
+from kpioed_drake.study.synthetic import synthetic_case
 
 SIGMA = 0.02
 
@@ -50,8 +51,8 @@ def test_one_step_holdout_equals_refits(problem, effects):
 def test_predicted_decrease_stop_is_converged(problem):
     data = problem.data
     model = problem.nominal
-    fast = estimation.estimate(model, data.q, data.eta, sigma=SIGMA)
-    tight = estimation.estimate(model, data.q, data.eta, sigma=SIGMA, tol=1e-13)
+    fast = estimator.estimate(model, data.q, data.eta, sigma=SIGMA)
+    tight = estimator.estimate(model, data.q, data.eta, sigma=SIGMA, tol=1e-13)
     assert fast.converged and fast.iterations < 10
     assert abs(fast.cost - tight.cost) <= 1e-9 * tight.cost
     dz = (fast.model.p[fast.free] - tight.model.p[tight.free]) / tight.std

@@ -17,15 +17,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from kpioed_drake import api, calibration, estimation, identifiability, measurement, models, simulation
+from kpioed_drake import api, calibration, simulation
 from kpioed_drake.cli import main
-from kpioed_drake.dataformats import read_data
-from kpioed_drake.designio import write_design
-from kpioed_drake.diagnosis import synthetic
-from kpioed_drake.diagnosis.synthetic import run_synthetic_case
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurements import Measurements
+from kpioed_drake.estimation import estimator, identifiability
+from kpioed_drake.robot import models
+from kpioed_drake.study import synthetic
+from kpioed_drake.study.synthetic import run_synthetic_case
+from kpioed_drake.tracker import measurement
+from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.formats import read_data
 
 SIGMA = 0.02
 ON_AXIS_MM = (0.0, 0.0, 150.0)
@@ -127,7 +130,7 @@ def test_well_posed_data_unchanged_by_the_check(kr16, design):
     assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
     assert report.to_dict()["held_at_nominal"] == []
     nominal = measurement.nominal_model(kr16, models.load_cell(robot=kr16))
-    direct = estimation.estimate(nominal, data.q, data.eta, sigma=SIGMA, mask=report.used)
+    direct = estimator.estimate(nominal, data.q, data.eta, sigma=SIGMA, mask=report.used)
     assert report.result.n_params == 27 and not report.outliers
     assert_array_equal(report.result.model.p, direct.model.p)
     assert_array_equal(report.result.Cp, direct.Cp)

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from kpioed_drake.diagnosis import multiplicity as mp
 from kpioed_drake.diagnosis.elastic_basis import use_expected_sides
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.sides import prior_moments, side_patterns, side_weights
-from kpioed_drake.diagnosis.synthetic import RATE_FAMILIES as FAMILIES
-from kpioed_drake.diagnosis.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.estimation import multiplicity as mp
+from kpioed_drake.study.synthetic import RATE_FAMILIES as FAMILIES
+from kpioed_drake.study.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
 
 
 def _orthonormal(m, k, seed):

@@ -7,12 +7,13 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
-from kpioed_drake import estimation, simulation
+from kpioed_drake import simulation
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurement import measurement_jacobian, nominal_model
-from kpioed_drake.measurements import Measurements, per_pose
-from kpioed_drake.models import load_cell, load_robot
-from kpioed_drake.parameters import FIXED_NAMES, n_parameters, parameter_layout
+from kpioed_drake.estimation import estimator
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.parameters import FIXED_NAMES, n_parameters, parameter_layout
+from kpioed_drake.tracker.data import Measurements, per_pose
+from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
 
 
 @pytest.fixture(scope="module")
@@ -101,11 +102,11 @@ def test_measurements_from_arrays_validates():
 def test_covariance_is_the_inverse_information_or_raises():
     rng = np.random.default_rng(0)
     J = rng.standard_normal((40, 5)) * np.array([1e-3, 1.0, 1e3, 1.0, 10.0])
-    assert_allclose(estimation.covariance(J), np.linalg.inv(J.T @ J), rtol=1e-10)
+    assert_allclose(estimator.covariance(J), np.linalg.inv(J.T @ J), rtol=1e-10)
     J[:, 4] = 0.0  # a parameter the data says nothing about
     with pytest.raises(np.linalg.LinAlgError):
-        estimation.covariance(J)
-    C = estimation.covariance(J, singular_ok=True)
+        estimator.covariance(J)
+    C = estimator.covariance(J, singular_ok=True)
     assert_allclose(C, np.linalg.pinv(J.T @ J), rtol=1e-8, atol=1e-12)
 
 

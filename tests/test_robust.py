@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from kpioed_drake import calibration, models, simulation
+from kpioed_drake import calibration, simulation
 from kpioed_drake.calibration.robust import CHI2_3_MEDIAN, robust_scale_factor
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurements import Measurements
+from kpioed_drake.robot import models
+from kpioed_drake.tracker.data import Measurements
 
 SIGMA = 0.02
 N_POSES = 200

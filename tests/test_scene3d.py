@@ -14,10 +14,8 @@ import pytest
 from numpy.testing import assert_allclose
 from pydrake.geometry import Meshcat
 
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.measurement import measure, nominal_model
-from kpioed_drake.models import load_cell, load_robot
-from kpioed_drake.plant import build_scene
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.plant import build_scene
 from kpioed_drake.scene3d import (
     INFEASIBLE,
     ROBOT,
@@ -29,6 +27,8 @@ from kpioed_drake.scene3d import (
 )
 from kpioed_drake.scene3d.canvas import Canvas, nice_scale
 from kpioed_drake.scene3d.drawing import clearance_witness
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
+from kpioed_drake.tracker.measurement import measure, nominal_model
 
 msgpack = pytest.importorskip("msgpack")  # installed with the dask extra (make setup)
 

@@ -16,12 +16,12 @@ import pytest
 from kpioed_drake import study
 from kpioed_drake.cli import build_parser, main
 from kpioed_drake.design import DESIGN_METHODS, approximate_design
-from kpioed_drake.designio import read_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.geometry import ClearanceModel
-from kpioed_drake.measurement import incidence_cosine
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.tracker.csvio import read_design
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
+from kpioed_drake.tracker.measurement import incidence_cosine
 
 COMMITTED = Path(__file__).resolve().parents[1] / "studies" / "results"
 

@@ -26,21 +26,24 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform
 from test_identifiability_warnings import WRIST, named
 
-from kpioed_drake import api, calibration, identifiability, measurement, models, simulation
+from kpioed_drake import api, calibration, simulation
+from kpioed_drake.calibration.validate import validate as validate_model
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignConstraints, optimize_design
-from kpioed_drake.design.approximate import rank3_changes
-from kpioed_drake.designio import write_design
+from kpioed_drake.design.approximate.design import rank3_changes
 from kpioed_drake.diagnosis import diagnose
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.geometry import ClearanceModel
-from kpioed_drake.kinematics import flange_point, forward_kinematics
-from kpioed_drake.measurements import Measurements, read_measurements
-from kpioed_drake.plant import MM, capsule_pose
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation import identifiability
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot import models
+from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
+from kpioed_drake.robot.plant import MM, capsule_pose
 from kpioed_drake.scene3d.drawing import clearance_witness
-from kpioed_drake.validation import validate as validate_model
+from kpioed_drake.tracker import measurement
+from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.data import Measurements, read_measurements
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
 
 REPO = Path(__file__).resolve().parents[1]
 SIGMA = 0.02

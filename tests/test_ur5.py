@@ -18,12 +18,12 @@ import pytest
 
 from kpioed_drake import api
 from kpioed_drake.calibration import calibrate, calibrated_robot_yaml
-from kpioed_drake.dataformats import read_data
-from kpioed_drake.kinematics import forward_kinematics
-from kpioed_drake.measurement import nominal_model, reflector_world
-from kpioed_drake.models import load_cell, load_robot
-from kpioed_drake.plant import MM, build_scene
-from kpioed_drake.validation import validate
+from kpioed_drake.calibration.validate import validate
+from kpioed_drake.robot.kinematics import forward_kinematics
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.measurement import nominal_model, reflector_world
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("KPIOED_SHARED_DATA", REPO.parent / "shared" / "data")) / "ur5-laser-tracker"

@@ -18,12 +18,12 @@ from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis import candidate_effects
 from kpioed_drake.effects.gravity import gravity_torques
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import forward_kinematics
-from kpioed_drake.measurement import measure, nominal_model
-from kpioed_drake.measurements import Measurements, read_measurements
-from kpioed_drake.models import MODELS_DIR, load_cell, load_robot
-from kpioed_drake.plant import MM, build_scene
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.kinematics import forward_kinematics
+from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
+from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.tracker.data import Measurements, read_measurements
+from kpioed_drake.tracker.measurement import measure, nominal_model
 
 ROBOTS = MODELS_DIR / "robots"
 UR5_URDF = (ROBOTS / "ur5.urdf").read_text()

@@ -10,8 +10,8 @@ import pytest
 from kpioed_drake import api
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import load_robot
-from kpioed_drake.simulation import simulate
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.simulation.truth import simulate
 
 KEYS = ("n_poses", "rms_mm", "mean_error_mm", "p95_error_mm", "max_error_mm", "errors_mm")
 

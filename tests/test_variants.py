@@ -11,7 +11,7 @@ import pytest
 from kpioed_drake import api, study
 from kpioed_drake.cli import build_parser
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import make_problem
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.study.sensitivity import sensitivity_table, sensitivity_tasks
 from kpioed_drake.study.tasks import _problem_and_checker
 

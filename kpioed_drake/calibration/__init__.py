@@ -13,7 +13,7 @@ One module per concern:
 - :mod:`.workflow`: :func:`calibrate_file`, the whole ``kpioed calibrate`` run;
 - :mod:`.common`: the working pose and the KPI shared by the plain and the extended fit.
 
-Reading and validating the data: :mod:`kpioed_drake.measurements`.
+Reading and validating the data: :mod:`kpioed_drake.tracker.data`.
 """
 
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
@@ -23,7 +23,7 @@ from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import N_CORRELATIONS, CalibrationReport
 from kpioed_drake.calibration.workflow import calibrate_file
-from kpioed_drake.measurements import ROW_CONVENTION, Measurements, read_measurements
+from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, read_measurements
 
 __all__ = [
     "MIN_POSES_FOR_OUTLIER_TEST",

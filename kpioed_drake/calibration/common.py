@@ -12,9 +12,9 @@ import numpy as np
 
 from kpioed_drake import effects as fx
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import EstimationResult
-from kpioed_drake.measurement import kpi_jacobian
-from kpioed_drake.models import Robot
+from kpioed_drake.estimation.estimator import EstimationResult
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.tracker.measurement import kpi_jacobian
 
 
 def working_pose(robot: Robot, q_work=None) -> np.ndarray:

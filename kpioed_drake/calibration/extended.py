@@ -1,7 +1,7 @@
 """Calibration of an extended model: the geometric parameters and non-geometric effects together.
 
 What ``kpioed calibrate --extend EFFECT`` runs: registration and least squares
-(:func:`kpioed_drake.estimation.estimate`) on the free geometric parameters plus the parameters of
+(:func:`kpioed_drake.estimation.estimator.estimate`) on the free geometric parameters plus the parameters of
 the given effects (:mod:`kpioed_drake.effects`), goodness of fit, and the KPI (TCP at ``q_work``
 in W under KPI conditions: no payload, reference temperature) with its covariance. No outlier
 screening (run ``kpioed calibrate`` without ``--extend`` first to find outliers).
@@ -18,11 +18,11 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
 from kpioed_drake.effects.gravity_basis import resolve_all
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import data_conditions, estimate, rms
-from kpioed_drake.measurement import nominal_model
-from kpioed_drake.measurements import Measurements, as_measurements
-from kpioed_drake.models import Robot, load_cell, load_robot
-from kpioed_drake.plausibility import check_data
+from kpioed_drake.estimation.estimator import data_conditions, estimate, rms
+from kpioed_drake.estimation.plausibility import check_data
+from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.tracker.data import Measurements, as_measurements
+from kpioed_drake.tracker.measurement import nominal_model
 
 _MIN_SIDE = 3
 """Poses needed on each side of a backlash (gravity torque positive and negative)."""
@@ -41,13 +41,13 @@ def calibrate_extended(
     """Calibration with a model extension: the free geometric parameters and the effects' values.
 
     Args:
-        robot: model name, path or :class:`~kpioed_drake.models.Robot`.
-        data: measurement CSV path or :class:`~kpioed_drake.measurements.Measurements`.
+        robot: model name, path or :class:`~kpioed_drake.robot.models.Robot`.
+        data: measurement CSV path or :class:`~kpioed_drake.tracker.data.Measurements`.
         extend: effect texts, e.g. ``["joint_elasticity:2"]``.
         sigma_mm: noise standard deviation per coordinate [mm].
         q_work: (6,) working pose [rad] (default: the model's).
         cell: the cell (default: the robot's cell file).
-        force: go on with implausible data (:func:`kpioed_drake.plausibility.check_data`), warning.
+        force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), warning.
 
     Returns:
         JSON-ready report: ``rms_residual_mm``, ``chi2_per_dof``, ``p_value``, ``kpi_mm`` (TCP at

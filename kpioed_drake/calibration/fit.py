@@ -1,7 +1,7 @@
 """Calibration from measured data (SPEC "Measured data and model discrepancy").
 
 :func:`calibrate`: rigid registration of the tracker, Levenberg-Marquardt on the free geometric
-parameters (:func:`kpioed_drake.estimation.estimate`), robust outlier handling, goodness of fit and
+parameters (:func:`kpioed_drake.estimation.estimator.estimate`), robust outlier handling, goodness of fit and
 the KPI (TCP at ``q_work`` in W) with its covariance ``Js Cp Js^T`` (paper eq. 19, 24e).
 
 Outlier test (normalised residuals): for every used pose i the studentised statistic
@@ -15,7 +15,7 @@ most ``max_outlier_fraction`` of the poses are removed, or removing one more wou
 10 poses. The report warns when the cap is reached.
 
 Identifiability: before the fit, the Jacobian of the registered nominal model over the poses is
-tested (:func:`kpioed_drake.identifiability.undetermined_parameters`: near-rank of the
+tested (:func:`kpioed_drake.estimation.identifiability.undetermined_parameters`: near-rank of the
 column-scaled Jacobian and correlations above 0.999); the parameters these poses do not determine
 are held at nominal, with a warning naming them (``strict``: refused). After the fit the same test
 runs on the Jacobian at the estimated parameters (:func:`hold_at_solution`): what the nominal check
@@ -37,20 +37,26 @@ from kpioed_drake.calibration.robust import (
     screen_outliers,
 )
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import Conditions, EstimationResult, covariance, estimate, registered_model
-from kpioed_drake.identifiability import undetermined_parameters
-from kpioed_drake.measurement import (
+from kpioed_drake.estimation.estimator import (
+    Conditions,
+    EstimationResult,
+    covariance,
+    estimate,
+    registered_model,
+)
+from kpioed_drake.estimation.identifiability import undetermined_parameters
+from kpioed_drake.estimation.plausibility import check_data
+from kpioed_drake.estimation.residuals import normalized_residuals
+from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import (
     TrackerModel,
     hold_unused_targets,
     kpi_jacobian,
     measurement_jacobian,
     nominal_model,
 )
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import Robot, load_cell, load_robot
-from kpioed_drake.parameters import parameter_layout
-from kpioed_drake.plausibility import check_data
-from kpioed_drake.residuals import normalized_residuals
 
 __all__ = ["MIN_POSES_FOR_OUTLIER_TEST", "calibrate", "hold_at_solution", "hold_undetermined"]
 
@@ -96,7 +102,7 @@ def hold_undetermined(
 def _hold(
     model: TrackerModel, found, what: str, data: Measurements, strict: bool, warnings, *, at_estimate=()
 ) -> TrackerModel:
-    """``model`` with the parameters ``found`` (:class:`~kpioed_drake.identifiability.Undetermined`)
+    """``model`` with the parameters ``found`` (:class:`~kpioed_drake.estimation.identifiability.Undetermined`)
     no longer estimated, with a warning (``at_estimate``: those of them held at ``model``'s value, an
     estimate, not at nominal); InputError with ``strict`` or too many."""
     if not found.names:
@@ -173,15 +179,15 @@ def calibrate(
 
     Args:
         robot: model name, YAML path or :class:`Robot` (the nominal model to start from).
-        data: :class:`~kpioed_drake.measurements.Measurements` (e.g. from
-            :func:`~kpioed_drake.measurements.read_measurements`).
+        data: :class:`~kpioed_drake.tracker.data.Measurements` (e.g. from
+            :func:`~kpioed_drake.tracker.data.read_measurements`).
         sigma_mm: noise standard deviation per coordinate [mm].
         q_work: (6,) working pose [rad] for the KPI; default: the model file's.
         outlier_threshold: family-wise false-alarm probability alpha of the outlier test
             (Bonferroni: each pose is tested at alpha / n); None or 0 disables the test.
         max_outlier_fraction: remove at most this fraction of the poses.
         cell_path: cell file (default models/cell.yaml): nominal tracker position, reflector offset.
-        force: go on with implausible data (:func:`kpioed_drake.plausibility.check_data`), warning.
+        force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), warning.
         strict: refuse poses that do not determine every free parameter instead of holding the
             undetermined ones at nominal with a warning.
 

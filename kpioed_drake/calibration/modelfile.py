@@ -3,10 +3,10 @@
 :func:`calibrated_robot_yaml` writes the estimated joint rows, the estimated reflector offset
 (``reflector_position_mm``; with several targets all of them, ``targets_mm``, target 1 first)
 and the estimated tracker pose (``tracker_position_mm``,
-``tracker_rpy_deg``) into the robot's :class:`~kpioed_drake.models.RobotSpec` (read back from its
+``tracker_rpy_deg``) into the robot's :class:`~kpioed_drake.robot.models.RobotSpec` (read back from its
 source file when available), so that the result is a complete model usable as ``--robot path.yaml``
 by every command: the reflector and tracker fields override the cell file's
-(:func:`kpioed_drake.models.load_cell`).
+(:func:`kpioed_drake.robot.models.load_cell`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake.calibration.report import CalibrationReport
-from kpioed_drake.jointmap import joint_map_spec
-from kpioed_drake.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
-from kpioed_drake.urdfwrite import calibrated_sidecar, calibrated_urdf
+from kpioed_drake.robot.jointmap import joint_map_spec
+from kpioed_drake.robot.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
+from kpioed_drake.robot.urdfwrite import calibrated_sidecar, calibrated_urdf
 
 
 def _spec_from_robot(robot: Robot) -> RobotSpec:
@@ -130,7 +130,7 @@ def _note(report: CalibrationReport) -> str:
 
 def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
     """A calibrated URDF robot: the URDF text (estimated errors folded into the joint origins) and
-    its sidecar text (estimated reflector offset and tracker pose); :mod:`kpioed_drake.urdfwrite`."""
+    its sidecar text (estimated reflector offset and tracker pose); :mod:`kpioed_drake.robot.urdfwrite`."""
     rob, model = report.robot, report.model
     note = _note(report)
     urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.calibration.report import CalibrationReport
-from kpioed_drake.designio import q_to_file
 from kpioed_drake.outputs import pyplot
+from kpioed_drake.tracker.csvio import q_to_file
 
 
 def _figure(*args, **kwargs):

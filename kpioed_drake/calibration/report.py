@@ -3,7 +3,7 @@
 :class:`CalibrationReport` holds the outcome of :func:`kpioed_drake.calibration.calibrate` in
 internal units (mm, rad); :meth:`CalibrationReport.to_dict` is the JSON report of
 ``kpioed calibrate --json`` (mm, deg) and :meth:`CalibrationReport.summary` the text summary.
-Row numbers follow :data:`kpioed_drake.measurements.ROW_CONVENTION`.
+Row numbers follow :data:`kpioed_drake.tracker.data.ROW_CONVENTION`.
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from scipy.stats import chi2 as chi2_dist
 
-from kpioed_drake.designio import q_to_file
-from kpioed_drake.estimation import EstimationResult
-from kpioed_drake.measurement import TrackerModel
-from kpioed_drake.measurements import ROW_CONVENTION, Measurements
-from kpioed_drake.models import Robot
-from kpioed_drake.parameters import parameter_layout
+from kpioed_drake.estimation.estimator import EstimationResult
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.tracker.csvio import q_to_file
+from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
+from kpioed_drake.tracker.measurement import TrackerModel
 
 N_CORRELATIONS = 10
 """Correlations listed in the report (the strongest)."""
@@ -74,7 +74,7 @@ class CalibrationReport:
     @property
     def held_at_nominal(self) -> list[str]:
         """Parameters the robot's layout estimates but this fit held at nominal (the poses do not
-        determine them: :func:`kpioed_drake.identifiability.undetermined_parameters`); a tracker-pose
+        determine them: :func:`kpioed_drake.estimation.identifiability.undetermined_parameters`); a tracker-pose
         coordinate held at the solution keeps its estimate and is in :attr:`held_at_estimate`."""
         return [n for n in self._held() if n not in self.model.layout.tracker_names]
 

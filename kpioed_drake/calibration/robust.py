@@ -5,7 +5,7 @@ real robot that no geometric model explains. The test therefore compares each po
 own spread when that exceeds the given noise:
 
 - ``t_i``: the studentised residual of pose i at the given sigma
-  (:func:`kpioed_drake.residuals.normalized_residuals`), chi^2(3) distributed if sigma and the
+  (:func:`kpioed_drake.estimation.residuals.normalized_residuals`), chi^2(3) distributed if sigma and the
   model are right.
 - **Robust scale** ``s = sigma * sqrt(median(t_used) / m3)`` with ``m3`` = 2.366 the median of
   chi^2(3): the noise level the bulk of the poses shows. The median ignores up to half of the poses,
@@ -33,9 +33,9 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import EstimationResult
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.residuals import normalized_residuals
+from kpioed_drake.estimation.estimator import EstimationResult
+from kpioed_drake.estimation.residuals import normalized_residuals
+from kpioed_drake.tracker.data import Measurements
 
 MIN_POSES_FOR_OUTLIER_TEST = 10
 """No pose is removed when fewer than this many would remain."""

@@ -14,13 +14,13 @@ from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
-from kpioed_drake.dataformats import read_data
-from kpioed_drake.designio import parse_q_work
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import load_cell, load_robot
 from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
 from kpioed_drake.scene3d import calibration_page
-from kpioed_drake.urdfwrite import check_out_path, sidecar_of
+from kpioed_drake.tracker.csvio import parse_q_work
+from kpioed_drake.tracker.formats import read_data
 
 
 def calibrate_file(
@@ -54,7 +54,7 @@ def calibrate_file(
         json_path: JSON report to write.
         plots_dir: folder for the residual plots (PNG).
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
-        force: go on with implausible data (:mod:`kpioed_drake.plausibility`), with a warning.
+        force: go on with implausible data (:mod:`kpioed_drake.estimation.plausibility`), with a warning.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter (InputError) instead of holding
             the undetermined ones at nominal with a warning (geometric calibration only).

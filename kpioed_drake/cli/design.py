@@ -20,7 +20,6 @@ import sys
 
 from kpioed_drake import api
 from kpioed_drake.cli.common import add_extend, add_html, add_robot, add_sigma
-from kpioed_drake.criteria import TABLE
 from kpioed_drake.design import (
     DEFAULT_START,
     DESIGN_METHODS,
@@ -30,9 +29,10 @@ from kpioed_drake.design import (
     discrimination_lines,
     format_summary,
 )
-from kpioed_drake.design.plan import payload_lines, plan_lines
+from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
 from kpioed_drake.errors import EXIT_SOLVER, InputError
-from kpioed_drake.problem import KPI_AGGREGATES
+from kpioed_drake.estimation.criteria import TABLE
+from kpioed_drake.estimation.problem import KPI_AGGREGATES
 
 
 def register(sub) -> None:
@@ -148,7 +148,7 @@ def _add_kpi_options(p) -> None:
 
 
 def _weights(text: str | None) -> list[float] | None:
-    """``--kpi-weights w1,...,wK`` as numbers (checked by :func:`~kpioed_drake.problem.make_problem`)."""
+    """``--kpi-weights w1,...,wK`` as numbers (checked by :func:`~kpioed_drake.estimation.problem.make_problem`)."""
     if text is None:
         return None
     try:

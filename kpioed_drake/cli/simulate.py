@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from kpioed_drake import api, designio
+from kpioed_drake import api
 from kpioed_drake.cli.common import add_robot
+from kpioed_drake.tracker import csvio
 
 
 def register(sub) -> None:
@@ -60,7 +61,7 @@ def run(args) -> int:
         f"geometric errors {'on' if truth['geometric_errors'] else 'off'}, effects: {eff}"
     )
     if truth.get("condition_offsets"):
-        cols = " and ".join(designio.OFFSET_COLUMNS[c] for c in truth["condition_offsets"])
+        cols = " and ".join(csvio.OFFSET_COLUMNS[c] for c in truth["condition_offsets"])
         print(f"  measurement plan: the design's {cols} added to the simulated conditions")
     p = truth["p_WT_mm"]
     print(f"  true tracker position in W: ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm (random orientation)")

@@ -11,7 +11,7 @@ with ``C`` from the KKT system of eq. (24c), ``F1 = dh/dp / sigma`` (eq. 24d) an
 ``F2 = dTCP/dp`` at the working pose ``q_work`` (eq. 24e; several working poses or a sampled path:
 the weighted mean or the worst of their variances, paper Outlook). The criteria ``phi`` (``kpi``, the
 paper's method; ``param``, the standard method; ``d``; ``o1``) are those of
-:mod:`kpioed_drake.criteria`. The design methods (:data:`DESIGN_METHODS`) are the heuristic and the
+:mod:`kpioed_drake.estimation.criteria`. The design methods (:data:`DESIGN_METHODS`) are the heuristic and the
 optimum design for each criterion.
 
 Modules, in dependency order:
@@ -19,20 +19,20 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.common`: the design methods, solvers and the optimiser's settings;
 - :mod:`~kpioed_drake.design.heuristic`: the paper's heuristic (uniform random feasible poses), also
   the optimiser's default start;
-- :mod:`~kpioed_drake.design.objective`: the cost and its closed-form gradient;
-- :mod:`~kpioed_drake.design.constraints`: incidence and clearance rows pose by pose, and the
+- :mod:`~kpioed_drake.design.exact.objective`: the cost and its closed-form gradient;
+- :mod:`~kpioed_drake.design.exact.constraints`: incidence and clearance rows pose by pose, and the
   choice of each pose's smallest clearance rows;
-- :mod:`~kpioed_drake.design.program`: the Drake ``MathematicalProgram`` (one cost, constraint
+- :mod:`~kpioed_drake.design.exact.program`: the Drake ``MathematicalProgram`` (one cost, constraint
   bindings of 10 poses);
-- :mod:`~kpioed_drake.design.check`: the independent check with Drake signed distances;
-- :mod:`~kpioed_drake.design.solve`: SNOPT/IPOPT settings, one solve, the checked solve with its
+- :mod:`~kpioed_drake.design.exact.check`: the independent check with Drake signed distances;
+- :mod:`~kpioed_drake.design.exact.solve`: SNOPT/IPOPT settings, one solve, the checked solve with its
   all-rows retry, and block sweeps for designs over 60 poses;
-- :mod:`~kpioed_drake.design.search`: local maxima over the feasible poses of the pricing function
+- :mod:`~kpioed_drake.design.approximate.search`: local maxima over the feasible poses of the pricing function
   ``g(x) = ||F_x Y||^2`` of a dual matrix ``Y``, and starts with joints at their limits;
-- :mod:`~kpioed_drake.design.approximate`: the approximate KPI design (weights on poses) by column
+- :mod:`~kpioed_drake.design.approximate.design`: the approximate KPI design (weights on poses) by column
   generation with a Clarabel cone program, its efficient rounding to n poses
   (:func:`approximate_start`, the optimiser's ``start="approximate"``);
-- :mod:`~kpioed_drake.design.certificate`: the optimality certificate, a lower bound on tr(Cs)/3 of
+- :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on tr(Cs)/3 of
   any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
 - :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
@@ -42,21 +42,19 @@ Modules, in dependency order:
   tr(Cs)/3 (paper, Conclusion);
 - :mod:`~kpioed_drake.design.plots` and :mod:`~kpioed_drake.design.workflow`: pictures, the
   ``kpioed design`` file workflow (:func:`run_design`) and :func:`demo`;
-- :mod:`~kpioed_drake.design.discriminate`: designs that tell two explanations (effects) apart,
+- :mod:`~kpioed_drake.design.discriminate.design`: designs that tell two explanations (effects) apart,
   T-optimal through the worst case of the KPI machinery (:func:`discrimination_design`,
   ``kpioed design --discriminate "A|B"``);
 - :mod:`~kpioed_drake.design.evaluate`: ``kpioed evaluate`` (:func:`evaluate_file`), a given design's
   KPI variance, criteria and feasibility.
 
-Every returned design is checked independently by :class:`~kpioed_drake.feasibility.FeasibilityChecker`
+Every returned design is checked independently by :class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`
 (Drake signed-distance queries), never by the optimiser's own constraint functions.
 
 Units: millimetres and radians inside; degrees in files and on the command line.
 """
 
-from kpioed_drake.criteria import CRITERIA
-from kpioed_drake.design.approximate import ApproximateDesign, approximate_design, approximate_start
-from kpioed_drake.design.certificate import (
+from kpioed_drake.design.approximate.certificate import (
     PoolCertificate,
     certificate_fields,
     certificate_line,
@@ -64,7 +62,7 @@ from kpioed_drake.design.certificate import (
     certify,
     pool_certificate,
 )
-from kpioed_drake.design.check import DesignCheck, check_design
+from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_design, approximate_start
 from kpioed_drake.design.common import (
     ACTIVE_ROWS_PER_POSE,
     CLEARANCE_MARGIN_MM,
@@ -82,22 +80,24 @@ from kpioed_drake.design.common import (
     SWEEP_RTOL,
     method_label,
 )
-from kpioed_drake.design.constraints import DesignConstraints, incidence_rows, update_active_rows
-from kpioed_drake.design.discriminate import (
+from kpioed_drake.design.discriminate.design import (
     DiscriminationResult,
     discrimination_design,
     discrimination_lines,
 )
 from kpioed_drake.design.evaluate import evaluate_file
+from kpioed_drake.design.exact.check import DesignCheck, check_design
+from kpioed_drake.design.exact.constraints import DesignConstraints, incidence_rows, update_active_rows
+from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.exact.program import DesignProgram
+from kpioed_drake.design.exact.solve import solver_options
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.optimize import min_new_poses, optimize_design, resolve_start
 from kpioed_drake.design.plots import plot_design_poses
-from kpioed_drake.design.program import DesignProgram
 from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
-from kpioed_drake.design.solve import solver_options
 from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
 from kpioed_drake.design.workflow import demo, read_working_poses, run_design
+from kpioed_drake.estimation.criteria import CRITERIA
 
 DESIGN_CRITERIA = DESIGN_METHODS
 """Alias of :data:`DESIGN_METHODS` (the name before the heuristic was told apart from the criteria)."""

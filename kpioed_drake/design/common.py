@@ -7,16 +7,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from kpioed_drake.criteria import CRITERIA, TABLE
-from kpioed_drake.models import N_JOINTS
+from kpioed_drake.estimation.criteria import CRITERIA, TABLE
+from kpioed_drake.robot.models import N_JOINTS
 
 DESIGN_METHODS: tuple[str, ...] = ("heuristic", *CRITERIA)
 """Everything :func:`~kpioed_drake.design.optimize.optimize_design` accepts as ``criterion``: the
-heuristic (paper 3.2) and the optimum designs of the criteria of :mod:`kpioed_drake.criteria`."""
+heuristic (paper 3.2) and the optimum designs of the criteria of :mod:`kpioed_drake.estimation.criteria`."""
 START_METHODS = ("heuristic", "approximate")
 """Starts of the optimiser (``start`` of :func:`~kpioed_drake.design.optimize.optimize_design`):
 the paper's heuristic (random feasible poses) or, for the ``kpi`` criterion only, the approximate
-design rounded to n poses (:func:`~kpioed_drake.design.approximate.approximate_start`)."""
+design rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`)."""
 DEFAULT_START = "approximate"
 """The start of the ``kpi`` criterion when none is asked for (other criteria and ``given`` poses:
 the heuristic). "Default when it wins" (issue 14): with the exchange pass after the rounding the
@@ -33,10 +33,10 @@ CLEARANCE_ROW_SCALE = 1e-2
 """Clearance rows are passed to the solver in units of 100 mm (incidence rows are cosines, O(1))."""
 INCIDENCE_MARGIN_DEG = 1e-4
 """The optimiser keeps the incidence angle this far inside the limit [deg], so that a pose on the
-limit still passes the independent check (tolerance :data:`~kpioed_drake.feasibility.TOL_DEG`,
+limit still passes the independent check (tolerance :data:`~kpioed_drake.tracker.feasibility.TOL_DEG`,
 1e-4 deg) despite the solver's own feasibility tolerance (SNOPT's is relative to the size of the
 solution vector); an overshoot beyond both is pulled back by
-:func:`~kpioed_drake.design.constraints.restore_incidence`."""
+:func:`~kpioed_drake.design.exact.constraints.restore_incidence`."""
 CLEARANCE_MARGIN_MM = 1e-3
 """The optimiser keeps every clearance at least this large [mm] (the check's tolerance is -1e-3)."""
 ACTIVE_ROWS_PER_POSE = 4
@@ -57,7 +57,7 @@ SWEEP_BLOCK_POSES = 30
 and ended higher (0.0301, 0.01466)."""
 SWEEP_RTOL = 1e-3
 """Sweeps stop when one lowers the criterion by less than this fraction (of its normalisation,
-:meth:`kpioed_drake.criteria.Criterion.normalisation`)."""
+:meth:`kpioed_drake.estimation.criteria.Criterion.normalisation`)."""
 MAX_SWEEPS = 10
 """Most sweeps."""
 POSE_BLOCK = 10
@@ -66,7 +66,7 @@ AutoDiffXd per row with a derivative per variable of the binding: with one bindi
 variables that is a dense (rows, 6n) matrix whose conversion grew faster than n^2 (4.3 ms of an
 evaluation at 60 poses). With bindings of 10 poses the conversion costs 1.2 ms in all; the rows of
 every pose are still computed in one vectorised call (see
-:class:`~kpioed_drake.design.program.DesignProgram`)."""
+:class:`~kpioed_drake.design.exact.program.DesignProgram`)."""
 
 
 def as_poses(q, n_joints: int = N_JOINTS) -> np.ndarray:

@@ -1,9 +1,9 @@
 """``kpioed evaluate``: the KPI variance, standard criterion and feasibility of a given design file.
 
-The covariance of eq. 19 (:meth:`~kpioed_drake.problem.Problem.covariances`) and the independent
-feasibility check with Drake's signed distances (:class:`~kpioed_drake.feasibility.FeasibilityChecker`,
+The covariance of eq. 19 (:meth:`~kpioed_drake.estimation.problem.Problem.covariances`) and the independent
+feasibility check with Drake's signed distances (:class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`,
 eq. 24b) of poses read from a CSV, optionally with the optimality certificate
-(:func:`~kpioed_drake.design.certificate.certify`) and a 3-D page.
+(:func:`~kpioed_drake.design.approximate.certificate.certify`) and a 3-D page.
 """
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.arguments import check_paths, check_positive
-from kpioed_drake.design.certificate import certificate_fields
-from kpioed_drake.design.certificate import certify as certify_design
-from kpioed_drake.designio import parse_q_work, q_to_file, read_design
+from kpioed_drake.design.approximate.certificate import certificate_fields
+from kpioed_drake.design.approximate.certificate import certify as certify_design
 from kpioed_drake.errors import InputError
-from kpioed_drake.feasibility import FeasibilityChecker, summarize
-from kpioed_drake.models import load_robot
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.problem import make_problem
+from kpioed_drake.robot.models import load_robot
 from kpioed_drake.scene3d import design_page
+from kpioed_drake.tracker.csvio import parse_q_work, q_to_file, read_design
+from kpioed_drake.tracker.feasibility import FeasibilityChecker, summarize
 
 
 def evaluate_file(

@@ -2,7 +2,7 @@
 
 It is the paper's baseline design and the optimiser's starting point. A drawn pose is kept if its
 incidence angle is within the cell's limit (paper eq. 4) and, with collision avoidance, every
-capsule clearance of :class:`~kpioed_drake.geometry.ClearanceModel` (robot, obstacles, self pairs,
+capsule clearance of :class:`~kpioed_drake.robot.geometry.ClearanceModel` (robot, obstacles, self pairs,
 laser beam; paper eq. 20-22) is at least :data:`~kpioed_drake.design.common.HEURISTIC_MARGIN_MM`.
 """
 
@@ -14,10 +14,10 @@ import numpy as np
 
 from kpioed_drake.design.common import HEURISTIC_MARGIN_MM
 from kpioed_drake.errors import InputError
-from kpioed_drake.geometry import ClearanceModel
-from kpioed_drake.kinematics import forward_kinematics
-from kpioed_drake.measurement import incidence_cosines
-from kpioed_drake.problem import Problem
+from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.kinematics import forward_kinematics
+from kpioed_drake.tracker.measurement import incidence_cosines
 
 
 def heuristic_design(
@@ -35,7 +35,7 @@ def heuristic_design(
     Poses are drawn with ``numpy.random.default_rng(seed)`` in batches (the result does not depend
     on ``batch``: the first ``n`` feasible draws are kept, in draw order). A pose is kept if its
     incidence angle is within the cell's limit and, with ``collision``, every clearance of
-    :class:`~kpioed_drake.geometry.ClearanceModel` (robot, obstacles, self pairs, laser beam) is at
+    :class:`~kpioed_drake.robot.geometry.ClearanceModel` (robot, obstacles, self pairs, laser beam) is at
     least ``margin_mm``.
 
     Args:

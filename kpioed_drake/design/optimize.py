@@ -1,15 +1,15 @@
 """The design entry point: the optimum experimental design of paper eq. (24), or the heuristic.
 
 :func:`optimize_design` validates the request, makes one or more heuristic starts
-(:mod:`~kpioed_drake.design.heuristic`), solves each (:mod:`~kpioed_drake.design.solve`: one solve
+(:mod:`~kpioed_drake.design.heuristic`), solves each (:mod:`~kpioed_drake.design.exact.solve`: one solve
 up to :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES` poses, block sweeps above), checks every
-result independently (:func:`~kpioed_drake.design.check.check_design`) and keeps the best feasible
+result independently (:func:`~kpioed_drake.design.exact.check.check_design`) and keeps the best feasible
 start. A failed or infeasible result raises :class:`~kpioed_drake.design.result.DesignError`
 unless ``allow_infeasible``.
 
 Starts (``start``, :data:`~kpioed_drake.design.common.START_METHODS`): the paper's heuristic, or for
 the ``kpi`` criterion the approximate design (column generation over the feasible poses, Clarabel)
-rounded to n poses (:func:`~kpioed_drake.design.approximate.approximate_start`). The approximate
+rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`). The approximate
 design is the optimum of the KPI criterion over weights on poses; it is not defined for the other
 criteria's objectives nor with poses held fixed, so ``start="approximate"`` is an input error there.
 
@@ -24,8 +24,7 @@ import time
 
 import numpy as np
 
-from kpioed_drake.design.approximate import approximate_start
-from kpioed_drake.design.check import DesignCheck, check_design
+from kpioed_drake.design.approximate.design import approximate_start
 from kpioed_drake.design.common import (
     ACTIVE_ROWS_PER_POSE,
     DEFAULT_START,
@@ -36,12 +35,13 @@ from kpioed_drake.design.common import (
     START_METHODS,
     SWEEP_BLOCK_POSES,
 )
+from kpioed_drake.design.exact.check import DesignCheck, check_design
+from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.objective import DesignObjective
 from kpioed_drake.design.result import DesignError, DesignResult
-from kpioed_drake.design.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import Problem
+from kpioed_drake.estimation.problem import Problem
 
 
 def _positive_int(x) -> bool:
@@ -210,7 +210,7 @@ def optimize_design(
         q0: (n, 6) [rad] start of the first solve instead of ``start``'s.
         allow_infeasible: return a failed or infeasible result instead of raising.
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
-            rows); see :class:`~kpioed_drake.design.program.DesignProgram`.
+            rows); see :class:`~kpioed_drake.design.exact.program.DesignProgram`.
         pose_block: poses per constraint binding (default
             :data:`~kpioed_drake.design.common.POSE_BLOCK`; None: one binding for all poses).
         max_block: most poses one solve varies (default
@@ -226,7 +226,7 @@ def optimize_design(
         start: how the starting poses are made, one of
             :data:`~kpioed_drake.design.common.START_METHODS`: ``heuristic`` (paper 3.2) or
             ``approximate`` (``kpi`` only, without ``given``:
-            :func:`~kpioed_drake.design.approximate.approximate_start`; several working poses:
+            :func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses:
             the approximate design of their weighted mean); None: :func:`resolve_start`.
             Recorded in the result's ``start`` (``q0`` when the caller's ``q0`` was kept).
 

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.kinematics import flange_point, forward_kinematics
-from kpioed_drake.models import Cell, Robot
 from kpioed_drake.outputs import pyplot
+from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
+from kpioed_drake.robot.models import Cell, Robot
 
 
 def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 20, n_cap: int = 6):

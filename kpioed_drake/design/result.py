@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.design.certificate import certificate_fields, certificate_line
-from kpioed_drake.designio import jsonable, q_to_file
+from kpioed_drake.design.approximate.certificate import certificate_fields, certificate_line
 from kpioed_drake.errors import SolverError
-from kpioed_drake.problem import Problem
+from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.tracker.csvio import jsonable, q_to_file
 
 
 @dataclasses.dataclass
@@ -53,7 +53,7 @@ class DesignResult:
     """Poses with a collision or beam failure in the full check (reported also when the design was
     made without collision avoidance)."""
     reports: list[dict]
-    """Per pose, :meth:`~kpioed_drake.feasibility.PoseReport.as_dict` of the full check."""
+    """Per pose, :meth:`~kpioed_drake.tracker.feasibility.PoseReport.as_dict` of the full check."""
     start_values: list[float]
     """The criterion's value reached from each start (NaN where the solve failed)."""
     initial_values: list[float] = dataclasses.field(default_factory=list)
@@ -88,7 +88,7 @@ class DesignResult:
     """Wall time of making the starts [s] (not in ``solve_s``; for ``approximate`` the column
     generation and the rounding; in the printed summary, not in the JSON record)."""
     certificate: dict | None = None
-    """The optimality certificate (:func:`~kpioed_drake.design.certificate.certify`): a lower bound
+    """The optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`): a lower bound
     ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how the
     bound was found. None: not asked for."""
     target: dict | None = None
@@ -104,7 +104,7 @@ class DesignResult:
 
     def summary(self) -> dict:
         """JSON-ready record (angles in degrees); ``given``, ``target``, ``values.kpi_vars_mm2`` and
-        only when set; the certificate's fields (:func:`~kpioed_drake.design.certificate.certificate_fields`)
+        only when set; the certificate's fields (:func:`~kpioed_drake.design.approximate.certificate.certificate_fields`)
         always (null when not computed)."""
         out = {
             "robot": self.robot,

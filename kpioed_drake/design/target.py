@@ -20,7 +20,7 @@ V. The optimum of a local solver is not exactly monotone in N, so N is the small
 N reaches V and N - 1 (as solved in the search) does not. Heuristic designs are nested in N (the
 first N feasible draws), so for them the search is exact.
 
-The lower bound for N poses is :func:`~kpioed_drake.design.certificate.certify`'s ``bound_mm2``
+The lower bound for N poses is :func:`~kpioed_drake.design.approximate.certificate.certify`'s ``bound_mm2``
 (no design of N poses among those it searched has a smaller tr(Cs)/3).
 """
 
@@ -30,12 +30,12 @@ import time
 
 import numpy as np
 
-from kpioed_drake.design.certificate import certify
+from kpioed_drake.design.approximate.certificate import certify
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import min_new_poses, optimize_design
 from kpioed_drake.design.result import DesignError, DesignResult
 from kpioed_drake.errors import InputError
-from kpioed_drake.problem import Problem
+from kpioed_drake.estimation.problem import Problem
 
 MAX_TARGET_POSES = 600
 """Most poses the search tries by default (doubling stops here)."""

@@ -5,7 +5,7 @@
 JSON record and a picture; with several working poses (``--q-work`` repeated or a CSV of
 working poses), poses already measured (``--given``) or a target variance (``--target-var``,
 :func:`~kpioed_drake.design.target.design_for_target`); and (unless ``--no-certify``) the
-optimality certificate (:func:`~kpioed_drake.design.certificate.certify`) of the design. :func:`demo`
+optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`) of the design. :func:`demo`
 compares the heuristic, the standard (``param``) and the KPI design of one robot (default: the
 KR 16) in the default cell.
 """
@@ -16,21 +16,21 @@ from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake import designio
 from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed, require
-from kpioed_drake.design import certificate
+from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS, method_label
-from kpioed_drake.design.conditions import read_given_conditions
+from kpioed_drake.design.discriminate.conditions import read_given_conditions
+from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.optimize import optimize_design
-from kpioed_drake.design.plan import plan_design
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import Robot, load_robot
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.outputs import Outputs, atomic_write_json
-from kpioed_drake.problem import make_problem
+from kpioed_drake.robot.models import Robot, load_robot
 from kpioed_drake.scene3d import design_page
+from kpioed_drake.tracker import csvio
 
 WEIGHT_COLUMN = "weight"
 """Optional column of a working-pose CSV: the pose's weight in the mean KPI."""
@@ -46,11 +46,11 @@ def read_working_poses(path: str | Path, robot: Robot) -> tuple[np.ndarray, np.n
     Raises:
         InputError: missing file or column, bad numbers, angles outside the limits.
     """
-    q = designio.read_design(path, robot)
-    header, data = designio.read_csv_table(path, designio.q_columns(robot))
+    q = csvio.read_design(path, robot)
+    header, data = csvio.read_csv_table(path, csvio.q_columns(robot))
     if WEIGHT_COLUMN not in header:
         return q, None
-    return q, designio.parse_float_column(path, header, data, WEIGHT_COLUMN)
+    return q, csvio.parse_float_column(path, header, data, WEIGHT_COLUMN)
 
 
 def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -62,11 +62,11 @@ def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | 
     if q_work_deg is None:
         return None, None
     if isinstance(q_work_deg, str):
-        return designio.parse_q_work(q_work_deg, robot), None
+        return csvio.parse_q_work(q_work_deg, robot), None
     if all(isinstance(v, str) for v in q_work_deg):
-        return np.stack([designio.parse_q_work(v, robot) for v in q_work_deg]), None
+        return np.stack([csvio.parse_q_work(v, robot) for v in q_work_deg]), None
     q = np.asarray(q_work_deg, dtype=float)
-    rows = [designio.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
+    rows = [csvio.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
     return (rows[0] if q.ndim == 1 else np.stack(rows)), None
 
 
@@ -130,18 +130,18 @@ def run_design(
             their parameters and its KPI variance includes them (:func:`problem.make_problem`).
         certify: add the optimality certificate of the design (``res.certificate``, in the JSON
             record ``bound_mm2``, ``efficiency``, ``design_beyond_search`` and ``certificate``):
-            :func:`~kpioed_drake.design.certificate.certify` with this ``collision`` and ``seed``,
+            :func:`~kpioed_drake.design.approximate.certificate.certify` with this ``collision`` and ``seed``,
             a bound on tr(Cs)/3 whatever the criterion (with ``given``: of the combined design).
             None (default): certify unless ``discriminate``; False: ``bound_mm2`` and
             ``efficiency`` are null. Costs 4-13 s once per robot, cell and setup (then cached on
-            disk, :mod:`~kpioed_drake.design.certcache`) and 1-4 s per design.
+            disk, :mod:`~kpioed_drake.design.approximate.certcache`) and 1-4 s per design.
         discriminate: ``"A|B"``, two competing explanations (effects, e.g.
             ``"joint_scale:2=300|gear_cyclic:2:1"``): poses that tell them apart
-            (:func:`~kpioed_drake.design.discriminate.discrimination_design`; instead of
+            (:func:`~kpioed_drake.design.discriminate.design.discrimination_design`; instead of
             ``criterion``; ``given`` is the first data set). The JSON record's ``discrimination``
             has the assumed sizes and each test's non-centrality and power before and after. A
             pair that needs temperature or time gets a measurement plan
-            (:func:`~kpioed_drake.design.plan.plan_design`: each pose in two blocks; the CSV's
+            (:func:`~kpioed_drake.design.discriminate.plan.plan_design`: each pose in two blocks; the CSV's
             ``block`` and ``temperature_offset_K`` / ``time_offset_s``; the record's ``plan``).
         condition_span: with ``discriminate``, the span of block 2 from block 1 (``"3K"``,
             ``"600s"``, ``"10min"``, ``"3K,600s"``; None: the span for power 0.8, rounded up;
@@ -178,7 +178,7 @@ def run_design(
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
         kpi_aggregate=kpi_aggregate,
     )
-    q_given = None if given is None else designio.read_design(given, robot)
+    q_given = None if given is None else csvio.read_design(given, robot)
     common = dict(
         criterion=criterion, collision=collision, solver=solver, seed=seed, starts=starts, start=start
     )
@@ -214,7 +214,7 @@ def run_design(
                 "min_clearance_mm": np.array([r["min_clearance_mm"] for r in res.reports]),
                 **(getattr(res, "plan_columns", None) or {}),  # a measurement plan's block and condition
             }
-            staged.add_text(out, designio.design_csv_text(res.q, extra, robot=problem.robot))
+            staged.add_text(out, csvio.design_csv_text(res.q, extra, robot=problem.robot))
         if json_path is not None:
             staged.add_json(json_path, json_record(res, problem))
         if plot is not None:
@@ -280,7 +280,7 @@ def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, 
         compare=("heuristic", hres.q, first_kpi_covariance(problem, hres.q)),
     )
     with Outputs() as staged:
-        staged.add_text(stem.with_suffix(".csv"), designio.design_csv_text(kres.q, robot=problem.robot))
+        staged.add_text(stem.with_suffix(".csv"), csvio.design_csv_text(kres.q, robot=problem.robot))
         plot_design_poses(
             problem.robot,
             problem.cell,

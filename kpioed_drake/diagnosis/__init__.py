@@ -5,10 +5,9 @@ One module per concern (method and JSON contract: docs/diagnosis.md):
 - :mod:`.workflow`: :func:`diagnose`, the four steps (calibration and goodness of fit, residual
   structure, stepwise selection of the cause, the extended model and its gain);
 - :mod:`.fit`: :class:`FitProblem`, fits of any set of effects on any subset of poses with the
-  package's one estimator (:mod:`kpioed_drake.estimation`), cross-validation;
+  package's one estimator (:mod:`kpioed_drake.estimation.estimator`), cross-validation;
 - :mod:`.selection`: candidates, identifiability, score tests, stepwise selection;
 - :mod:`.report`: :class:`DiagnosisReport` and the numbers in it;
-- :mod:`.synthetic`: the self-test harness (simulated campaigns with hidden effects);
 - :mod:`.plots`: residual pictures (``kpioed diagnose --plots``);
 - :mod:`.common`: levels and limits.
 """
@@ -17,21 +16,10 @@ from kpioed_drake.diagnosis.common import ALPHA, FOLD_SEED, K_FOLDS, MAX_EFFECTS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.diagnosis.selection import candidate_effects, identifiability, score_tests
-from kpioed_drake.diagnosis.synthetic import (
-    CASE_KINDS,
-    SyntheticCase,
-    detectability,
-    draw_effect_text,
-    kpi_error,
-    random_poses,
-    run_synthetic_case,
-    synthetic_case,
-)
 from kpioed_drake.diagnosis.workflow import diagnose, diagnose_file
 
 __all__ = [
     "ALPHA",
-    "CASE_KINDS",
     "FOLD_SEED",
     "K_FOLDS",
     "MAX_EFFECTS",
@@ -39,16 +27,9 @@ __all__ = [
     "DiagnosisReport",
     "Fit",
     "FitProblem",
-    "SyntheticCase",
     "candidate_effects",
-    "detectability",
     "diagnose",
     "diagnose_file",
-    "draw_effect_text",
     "identifiability",
-    "kpi_error",
-    "random_poses",
-    "run_synthetic_case",
     "score_tests",
-    "synthetic_case",
 ]

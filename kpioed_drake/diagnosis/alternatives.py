@@ -41,9 +41,9 @@ import scipy.stats
 
 from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.physical import plausibility
 from kpioed_drake.diagnosis.selection import Selection, columns, identifiability, projected_basis
-from kpioed_drake.estimation import rms
+from kpioed_drake.effects.physical import plausibility
+from kpioed_drake.estimation.estimator import rms
 
 
 def _outside(Q: np.ndarray, C: np.ndarray) -> float:

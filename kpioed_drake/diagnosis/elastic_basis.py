@@ -32,7 +32,7 @@ from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.selection import Selection, backward_step
 from kpioed_drake.effects import gravity_basis as gb
-from kpioed_drake.estimation import rms
+from kpioed_drake.estimation.estimator import rms
 
 
 def basis_for(prob: FitProblem, joint: int) -> fx.Effect:

@@ -2,7 +2,7 @@
 
 :class:`FitProblem` binds the data, the noise and the per-pose conditions (gravity torques at the
 commanded angles, temperature, time) and fits with the package's one estimator
-(:func:`kpioed_drake.estimation.estimate`); :meth:`FitProblem.holdout` gives K-fold
+(:func:`kpioed_drake.estimation.estimator.estimate`); :meth:`FitProblem.holdout` gives K-fold
 cross-validated residuals (each fold's refit one Gauss-Newton step from the fit on all poses).
 """
 
@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from kpioed_drake import estimation
 from kpioed_drake.diagnosis.common import FOLD_SEED, K_FOLDS
-from kpioed_drake.estimation import EstimationResult
-from kpioed_drake.measurement import nominal_model
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import Robot, load_cell
+from kpioed_drake.estimation import estimator
+from kpioed_drake.estimation.estimator import EstimationResult
+from kpioed_drake.robot.models import Robot, load_cell
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import nominal_model
 
 Fit = EstimationResult
 """A fit of the geometric parameters and some effects (``effects``, ``Cp`` of both)."""
@@ -39,7 +39,7 @@ class FitProblem:
         self.robot, self.data, self.sigma = robot, data, float(sigma)
         self.cell = load_cell(robot=robot) if cell is None else cell
         self.nominal = nominal_model(robot, self.cell)
-        self.conditions = estimation.data_conditions(robot, data, p_FP=self.nominal.p_FQ)
+        self.conditions = estimator.data_conditions(robot, data, p_FP=self.nominal.p_FQ)
         self.side_patterns = {}
 
     @property
@@ -49,7 +49,7 @@ class FitProblem:
 
     def response(self, model, effects, idx):
         """h (m, 3), H (m, 3, n_full), E (m, 3, k) at poses ``idx``."""
-        return estimation.response(model, list(effects), self.data.q[idx], self.conditions.subset(idx))
+        return estimator.response(model, list(effects), self.data.q[idx], self.conditions.subset(idx))
 
     def fit(self, effects, *, start: Fit | None = None, idx=None) -> Fit:
         """Fit the geometric parameters and the effects' values on poses ``idx`` (default all).
@@ -65,7 +65,7 @@ class FitProblem:
             e.with_values(known[e.key].value_array() if e.key in known else np.zeros(e.n_params))
             for e in effects
         ]
-        return estimation.estimate(
+        return estimator.estimate(
             self.nominal if start is None else start.model,
             self.data.q,
             self.data.eta,
@@ -111,9 +111,9 @@ class FitProblem:
             train[test] = False
             A = J[train].reshape(-1, J.shape[2]) / D
             dxs = np.linalg.lstsq(A, r[train].reshape(-1), rcond=None)[0]
-            model, effects = estimation.apply_step(full.model, full.effects, dxs / D)
+            model, effects = estimator.apply_step(full.model, full.effects, dxs / D)
             cond = self.conditions.subset(test)
-            h_test = estimation.response(model, effects, self.data.q[test], cond, jac=False)
+            h_test = estimator.response(model, effects, self.data.q[test], cond, jac=False)
             out[test] = self.data.eta[test] - h_test
         return out
 

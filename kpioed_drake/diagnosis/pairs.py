@@ -12,7 +12,7 @@ projected bases have a largest canonical correlation of at least
 and :func:`pair_bases` gives each pair's orthonormal basis ``B`` (the span of both). The score
 statistic ``|B^T r|^2`` is chi2(k_a + k_b) under "neither effect"; the selection
 (:func:`~kpioed_drake.diagnosis.selection.select_effects`) takes the family-wise p-value over the
-pairs by the min-p method (:mod:`~kpioed_drake.diagnosis.multiplicity`), refits the best pair and
+pairs by the min-p method (:mod:`~kpioed_drake.estimation.multiplicity`), refits the best pair and
 adds both if they pass the same tests as a single candidate.
 """
 
@@ -25,9 +25,9 @@ import scipy.stats
 
 from kpioed_drake.diagnosis.common import PAIR_CORRELATION
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.multiplicity import adjusted_p, min_p_null
 from kpioed_drake.diagnosis.sides import set_side
-from kpioed_drake.estimation import rms
+from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.estimation.multiplicity import adjusted_p, min_p_null
 
 MAX_ROWS = 10
 """Pairs listed in a pair step's record (the strongest by score)."""

@@ -19,10 +19,10 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.designio import q_to_file
 from kpioed_drake.diagnosis.report import DiagnosisReport
-from kpioed_drake.measurement import reflector_world
 from kpioed_drake.outputs import pyplot
+from kpioed_drake.tracker.csvio import q_to_file
+from kpioed_drake.tracker.measurement import reflector_world
 
 _BEFORE, _AFTER, _FIT = "tab:orange", "tab:blue", "black"
 

@@ -17,13 +17,13 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import kpi_and_covariance
-from kpioed_drake.designio import jsonable, q_to_file
 from kpioed_drake.diagnosis.alternatives import settle
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.physical import plausibility
 from kpioed_drake.diagnosis.selection import Selection
-from kpioed_drake.estimation import rms
+from kpioed_drake.effects.physical import plausibility
+from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.tracker.csvio import jsonable, q_to_file
 
 
 @dataclasses.dataclass

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.measurement import reflector_world
+from kpioed_drake.tracker.measurement import reflector_world
 
 MAX_FOLLOWS = 6
 """Most variables listed in ``follows``."""

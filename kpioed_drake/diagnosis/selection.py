@@ -12,7 +12,7 @@
   projector on the part of its columns the model cannot absorb (chi^2 under "no effect").
 - :func:`select_effects`: forward selection with the likelihood ratio against the known noise
   (``LR = chi^2_before - chi^2_after`` ~ chi^2(k), its family-wise p-value over the candidates of a
-  step by the weighted min-p method, :mod:`~kpioed_drake.diagnosis.multiplicity`; a backlash scored
+  step by the weighted min-p method, :mod:`~kpioed_drake.estimation.multiplicity`; a backlash scored
   with every side its joint's torque may take under the mass prior, its sides weighted by
   :func:`~kpioed_drake.diagnosis.sides.side_weights`),
   BIC (``LR > k ln(3 n)``) and K-fold held-out error; after each addition every chosen effect is
@@ -36,13 +36,13 @@ from kpioed_drake.diagnosis.common import (
     PAIR_ALPHA_SHARE,
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.multiplicity import adjusted_p, critical_p, min_p_null, normalized
 from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.sides import set_side, side_penalty, side_weights, unit_columns
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
-from kpioed_drake.estimation import rms
-from kpioed_drake.measurements import Measurements
-from kpioed_drake.models import Robot
+from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.estimation.multiplicity import adjusted_p, critical_p, min_p_null, normalized
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.tracker.data import Measurements
 
 _VARIABLE = {
     "joint_elasticity": "gravity torque tau_{joint}",

@@ -16,7 +16,7 @@ the prior (each mass times ``U(1 - s, 1 + s)``, each centre-of-mass coordinate s
 ``U(-s, s)`` times the centre of mass's distance, 100 mm where it is 0). A selection step scores a
 backlash candidate with each of its joint's patterns and keeps the best; the family-wise level of
 the step counts every pattern as a test (weighted min-p over all candidates and patterns,
-:mod:`~kpioed_drake.diagnosis.multiplicity`), with the weights of :func:`side_weights`: the
+:mod:`~kpioed_drake.estimation.multiplicity`), with the weights of :func:`side_weights`: the
 expected side 1 like every other candidate, the other patterns 1 together, so that choosing the side
 from the data costs the backlash what the choice is worth and the other candidates one test (the
 patterns of one joint differ at a few poses and are strongly correlated: 2-14 effective tests for
@@ -37,8 +37,8 @@ import numpy as np
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.multiplicity import effective_tests, min_p_null
 from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.estimation.multiplicity import effective_tests, min_p_null
 
 N_PRIOR_DRAWS = 50
 """Draws of the link moments from the mass prior per joint (distinct sign patterns are kept)."""
@@ -105,7 +105,7 @@ def set_side(prob: FitProblem, joint: int, side: np.ndarray) -> None:
 def side_penalty(bases, *, level: float = 0.01) -> float:
     """``2 ln K_eff``: what choosing the best of a backlash's sides adds to its likelihood ratio under
     "no effect", ``K_eff = level / q`` with ``q`` the ``level`` quantile of the smallest p-value over
-    the sides' (correlated) columns ``bases`` (:func:`~kpioed_drake.diagnosis.multiplicity.min_p_null`;
+    the sides' (correlated) columns ``bases`` (:func:`~kpioed_drake.estimation.multiplicity.min_p_null`;
     1 for a single side, the number of sides for independent ones). The selection subtracts it when
     it ranks the candidates, so that a side chosen from the data does not win over a one-column
     candidate by the choice alone (for large LR, ``-2 ln p`` grows by ``2 ln K`` when p is multiplied
@@ -121,7 +121,7 @@ candidate): choosing the side from the data is one more test, paid by the backla
 
 def side_weights(bases, *, level: float = 0.01) -> np.ndarray:
     """(K,) weights of one candidate's K sides in a selection step's weighted min-p test
-    (:func:`~kpioed_drake.diagnosis.multiplicity.min_p_null`): the expected side (``bases[0]``) 1,
+    (:func:`~kpioed_drake.estimation.multiplicity.min_p_null`): the expected side (``bases[0]``) 1,
     each other side :data:`SIDE_SEARCH_WEIGHT` divided by the effective number of tests of the other
     sides (``level / q``, ``q`` the ``level`` quantile of their null minimum p-value; 1 to K - 1).
     A single side: [1].

@@ -14,7 +14,7 @@ Four steps on laser-tracker data (SPEC "Measured data and model discrepancy"; do
    KPI (TCP at ``q_work``): its shift between the two models and its variance tr(Cs)/3
    (:mod:`kpioed_drake.diagnosis.report`); per cause its competing explanations
    (:mod:`~kpioed_drake.diagnosis.alternatives`) and plausibility
-   (:mod:`~kpioed_drake.diagnosis.physical`); the unexplained rest when the extended model still
+   (:mod:`~kpioed_drake.effects.physical`); the unexplained rest when the extended model still
    fails the goodness-of-fit test (:mod:`~kpioed_drake.diagnosis.rest`).
 """
 
@@ -29,7 +29,6 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import check_paths, check_positive
 from kpioed_drake.calibration import hold_undetermined
-from kpioed_drake.dataformats import read_data
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
 from kpioed_drake.diagnosis.elastic_basis import add_alternatives, upgrade_elasticity, use_expected_sides
@@ -39,12 +38,13 @@ from kpioed_drake.diagnosis.rest import unexplained_rest
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation import covariance
-from kpioed_drake.measurements import Measurements, as_measurements
-from kpioed_drake.models import Robot, load_robot
+from kpioed_drake.estimation.estimator import covariance
+from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.plausibility import check_data
+from kpioed_drake.robot.models import Robot, load_robot
 from kpioed_drake.scene3d import diagnosis_page
+from kpioed_drake.tracker.data import Measurements, as_measurements
+from kpioed_drake.tracker.formats import read_data
 
 
 def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
@@ -88,15 +88,15 @@ def diagnose(
     """Diagnose the model discrepancy of a robot's laser-tracker data.
 
     Args:
-        robot: model name, path or :class:`~kpioed_drake.models.Robot`.
-        data: a path to a SPEC measurement CSV or :class:`~kpioed_drake.measurements.Measurements`.
+        robot: model name, path or :class:`~kpioed_drake.robot.models.Robot`.
+        data: a path to a SPEC measurement CSV or :class:`~kpioed_drake.tracker.data.Measurements`.
         sigma_mm: the known noise standard deviation per coordinate [mm].
         alpha: level of the goodness-of-fit test and family-wise level of each selection step.
         k_folds: folds of the cross-validation over poses.
         max_effects: most effects to add.
         candidates: override the candidate list (effects or texts).
         cell: the cell (default: the robot's cell file).
-        force: go on with implausible data (:func:`kpioed_drake.plausibility.check_data`), noted.
+        force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), noted.
 
     Returns:
         :class:`~kpioed_drake.diagnosis.report.DiagnosisReport`.

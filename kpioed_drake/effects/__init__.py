@@ -1,7 +1,7 @@
 """Non-geometric effects: what the kinematic model leaves out (SPEC "Measured data and model discrepancy").
 
 Four effect families, each a few parameters on top of the geometric parameter vector of
-:mod:`kpioed_drake.parameters` (joint numbers are 1-based, as in SPEC and on the command line):
+:mod:`kpioed_drake.robot.parameters` (joint numbers are 1-based, as in SPEC and on the command line):
 
 ============================  ============================================  ====================
 family (``parse_effect``)     model                                         parameters (inside)
@@ -50,7 +50,7 @@ Conventions (the choices SPEC leaves open, kept here in one place):
   commanded angles (the difference to evaluating them at ``q_actual`` is second order, below
   1e-7 rad at SPEC sizes).
 - Gravity torque ``tau(q)`` [N m] is Drake's ``MultibodyPlant.CalcGravityGeneralizedForces`` on the
-  plant of :func:`kpioed_drake.plant.build_scene` built from the robot's *nominal* geometry, link
+  plant of :func:`kpioed_drake.robot.plant.build_scene` built from the robot's *nominal* geometry, link
   masses and centres of mass (metres inside Drake). Drake returns the generalized force that
   gravity exerts on each joint (the term on the right of ``M v' + C v = tau_g + tau``), so a joint
   held by a spring of compliance c at the commanded angle settles at

@@ -46,8 +46,8 @@ import numpy as np
 
 from kpioed_drake.effects.gravity import _robot_key, gravity_model, reference_poses
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import cross, flange_point, forward_kinematics
-from kpioed_drake.models import Robot
+from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics
+from kpioed_drake.robot.models import Robot
 
 COLUMN = "column_compliance"
 BASE = "base_compliance"

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 
-from kpioed_drake.kinematics import cross, forward_kinematics, point_jacobian
-from kpioed_drake.measurement import TrackerModel
-from kpioed_drake.models import Robot
-from kpioed_drake.plant import build_scene
+from kpioed_drake.robot.kinematics import cross, forward_kinematics, point_jacobian
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.robot.plant import build_scene
+from kpioed_drake.tracker.measurement import TrackerModel
 
 _N_REFERENCE = 2000
 _REFERENCE_SEED = 20170710

@@ -44,9 +44,9 @@ import scipy.special
 
 from kpioed_drake.effects.gravity import gravity_model, reference_poses
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import cross, forward_kinematics
-from kpioed_drake.measurement import TrackerModel
-from kpioed_drake.models import Robot
+from kpioed_drake.robot.kinematics import cross, forward_kinematics
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.tracker.measurement import TrackerModel
 
 FAMILY = "joint_elasticity_basis"
 _N_REF = 500

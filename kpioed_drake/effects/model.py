@@ -15,7 +15,7 @@ from kpioed_drake.effects.gravity import elastic_lever
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_basis
 from kpioed_drake.errors import InputError
-from kpioed_drake.measurement import TrackerModel
+from kpioed_drake.tracker.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
 """Effect names as in SPEC (and ``none`` for a model that explains the data): diagnosis's candidates."""

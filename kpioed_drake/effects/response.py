@@ -15,9 +15,9 @@ from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
 from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
 from kpioed_drake.errors import InputError
-from kpioed_drake.kinematics import cross, flange_point, point_jacobian
-from kpioed_drake.measurement import TrackerModel, tracker_jacobian
-from kpioed_drake.measurements import per_pose
+from kpioed_drake.robot.kinematics import cross, flange_point, point_jacobian
+from kpioed_drake.tracker.data import per_pose
+from kpioed_drake.tracker.measurement import TrackerModel, tracker_jacobian
 
 
 # ----------------------------------------------------------------------------------------------

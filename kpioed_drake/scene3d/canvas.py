@@ -31,7 +31,7 @@ from pydrake.geometry import (
 )
 from pydrake.math import RigidTransform, RotationMatrix
 
-from kpioed_drake.plant import MM, capsule_pose
+from kpioed_drake.robot.plant import MM, capsule_pose
 
 ROBOT = Rgba(1.0, 0.42, 0.0, 1.0)
 """Robot colour (feasible poses): KUKA orange."""

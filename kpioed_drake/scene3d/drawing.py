@@ -1,6 +1,6 @@
 """The robot, the measuring cell and one measurement pose drawn on a :class:`Canvas`.
 
-The robot is the MultibodyPlant's own collision geometry (:func:`kpioed_drake.plant.build_scene`:
+The robot is the MultibodyPlant's own collision geometry (:func:`kpioed_drake.robot.plant.build_scene`:
 the link capsules), posed by the plant's SceneGraph at each joint vector. The cell is the plant's
 world geometry (mount and car capsules) plus the floor and the wall, which the plant models as
 12 m boxes (half-spaces) and which are drawn here as panels over the scene's extent, and the laser
@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 from pydrake.geometry import Box, Rgba
 
-from kpioed_drake.geometry import beam_targets, segment_distance
-from kpioed_drake.kinematics import flange_point, forward_kinematics
-from kpioed_drake.models import Cell, Robot
-from kpioed_drake.plant import MM, Scene
+from kpioed_drake.robot.geometry import beam_targets, segment_distance
+from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
+from kpioed_drake.robot.models import Cell, Robot
+from kpioed_drake.robot.plant import MM, Scene
 from kpioed_drake.scene3d.canvas import (
     BEAM,
     CAR,
@@ -113,9 +113,9 @@ def clearance_witness(scene: Scene, robot: Robot, cell: Cell, q, pair: str) -> t
     """Witness points (p_WA, p_WB) (3,) [mm] on the two surfaces of a clearance pair at ``q``.
 
     Args:
-        scene: the plant of ``robot`` in ``cell`` (:func:`kpioed_drake.plant.build_scene`).
+        scene: the plant of ``robot`` in ``cell`` (:func:`kpioed_drake.robot.plant.build_scene`).
         q: (6,) joint angles [rad].
-        pair: ``"A vs B"`` as named by :class:`kpioed_drake.feasibility.PoseReport`
+        pair: ``"A vs B"`` as named by :class:`kpioed_drake.tracker.feasibility.PoseReport`
             (``min_clearance_pair``): two SceneGraph geometries, whose witness points come from
             Drake's ``ComputeSignedDistancePairClosestPoints``, or ``beam vs B``, the laser beam
             capsule (reflector to tracker, ``cell.beam_radius``) against a link capsule or an

@@ -21,11 +21,9 @@ import numpy as np
 import scipy.stats
 from pydrake.geometry import Rgba
 
-from kpioed_drake.feasibility import FeasibilityChecker, PoseReport
-from kpioed_drake.measurement import TrackerModel, reflector_world
-from kpioed_drake.models import Cell, Robot
 from kpioed_drake.outputs import atomic_write_text
-from kpioed_drake.plant import build_scene
+from kpioed_drake.robot.models import Cell, Robot
+from kpioed_drake.robot.plant import build_scene
 from kpioed_drake.scene3d.canvas import (
     BEAM,
     CAR,
@@ -47,6 +45,8 @@ from kpioed_drake.scene3d.drawing import (
     draw_robot,
     reflector_point,
 )
+from kpioed_drake.tracker.feasibility import FeasibilityChecker, PoseReport
+from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
 
 K95 = float(np.sqrt(scipy.stats.chi2.ppf(0.95, 3)))
 """Radius of the 95 % confidence ellipsoid of a 3-D Gaussian in standard deviations (2.7955)."""

@@ -24,10 +24,10 @@ import pandas as pd
 
 from kpioed_drake.arguments import check_count, check_seed, require
 from kpioed_drake.errors import InputError, SolverError
-from kpioed_drake.models import list_robots, load_robot
 from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.paper import PAPER
-from kpioed_drake.parameters import parameter_layout
+from kpioed_drake.robot.models import list_robots, load_robot
+from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.study.bounds import add_efficiency, bound_tasks_of, bounds_frame, rows_from_results
 from kpioed_drake.study.plots import make_figures
 from kpioed_drake.study.report import make_report

@@ -2,7 +2,7 @@
 
 A :class:`~kpioed_drake.study.tasks.BoundTask` gives, per robot (and variant, n), the dual matrix
 ``Y`` (k, 3) of the approximate KPI design over the poses its search evaluated, ``tr(K^T Y)^2``
-and ``g_max`` = the largest ``||F_x Y||_F^2`` found (:mod:`kpioed_drake.design.certificate`). For a
+and ``g_max`` = the largest ``||F_x Y||_F^2`` found (:mod:`kpioed_drake.design.approximate.certificate`). For a
 design of n poses ``x_1..x_n`` with collision avoidance,
 
     bound = tr(K^T Y)^2 / (n max(g_max, max_i ||F_{x_i} Y||_F^2))
@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kpioed_drake.design.search import dual_values, pose_rows
-from kpioed_drake.designio import read_design
+from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.errors import InputError
 from kpioed_drake.study.tasks import BoundTask, Task, _problem_and_checker
+from kpioed_drake.tracker.csvio import read_design
 
 BOUND_COLUMNS = [
     "robot",

@@ -5,7 +5,7 @@ A :class:`Task` is one design: robot x design method (``heuristic``, ``param`` =
 ``kpi`` = phi_A(Cs), paper eq. 24a with the projections of eq. 25) x collision avoidance x seed.
 :func:`run_task` makes it with :mod:`kpioed_drake.design`, evaluates both criteria with
 ``Problem.criteria`` and checks every pose with the independent Drake checker
-(:class:`~kpioed_drake.feasibility.FeasibilityChecker`, collisions always checked, so a design made
+(:class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`, collisions always checked, so a design made
 without collision avoidance reports its colliding poses). It runs in a worker process, on a Dask worker
 or inline, and returns a JSON-able row.
 
@@ -30,10 +30,10 @@ import numpy as np
 
 from kpioed_drake import design
 from kpioed_drake.errors import raise_if_interrupted
-from kpioed_drake.feasibility import FeasibilityChecker
-from kpioed_drake.models import list_robots
-from kpioed_drake.problem import Problem
+from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.robot.models import list_robots
 from kpioed_drake.study.variants import DEFAULT, variant_problem
+from kpioed_drake.tracker.feasibility import FeasibilityChecker
 
 KUKA = ("kr16", "kr300", "kr500")
 """The KUKA robots of Table 6 (our kr16 is the paper's KR 15)."""

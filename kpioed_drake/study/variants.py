@@ -6,8 +6,8 @@ are considered in OED"; the underlines are lost in our copy), how the incidence 
 ("angle between sensor surface and laser beam >= 30 deg") is measured, the working pose q_work,
 the scaling P of Cp in eq. (25) and where the KPI point (the TCP of eq. 12) sits relative to the
 reflector. A :class:`Variant` is one documented choice for these; :func:`variant_problem` builds
-its :class:`~kpioed_drake.problem.Problem` through the keyword options of
-:func:`~kpioed_drake.problem.make_problem`. The ``default`` variant is SPEC's problem, exactly
+its :class:`~kpioed_drake.estimation.problem.Problem` through the keyword options of
+:func:`~kpioed_drake.estimation.problem.make_problem`. The ``default`` variant is SPEC's problem, exactly
 ``make_problem(robot)``.
 """
 
@@ -18,9 +18,9 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.models import load_robot
-from kpioed_drake.parameters import FIXED_NAMES, parameter_layout
-from kpioed_drake.problem import Problem, make_problem
+from kpioed_drake.estimation.problem import Problem, make_problem
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.robot.parameters import FIXED_NAMES, parameter_layout
 
 DEFAULT = "default"
 """Name of SPEC's problem (task ids and file names carry no variant suffix)."""

@@ -1,0 +1,226 @@
+"""Validation of a model on fresh data: how well does it predict measurements it has not seen?
+
+``kpioed validate --robot MODEL DATA.csv`` predicts every measured reflector position with the
+given model (its joint rows and reflector offset, paper eq. 3 ``h(p, q)``) and compares. Only the
+tracker frame is re-registered (a rigid 6-DoF fit, Kabsch/Umeyama:
+:func:`kpioed_drake.estimation.estimator.register_tracker`), because a tracker is set up anew for every
+measurement campaign; ``keep_tracker`` uses the model's tracker pose instead (a calibrated model
+file carries it). For data already in the base frame (``frame: base``) the registration estimates
+the small residual frame error; kept, the tracker frame is the robot file's (for a model
+calibrated on base-frame data: the frame error estimated then) or else the identity.
+
+Several targets (a ``target`` column): each row is predicted with its target's offset from the
+model file (``targets_mm``); the report gives the errors per target as well.
+
+Nothing robot-side is fitted, so the errors are prediction errors: for a nominal model they are its
+absolute accuracy (the "uncalibrated" error), for a calibrated one its accuracy after calibration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RollPitchYaw, RotationMatrix
+
+from kpioed_drake.arguments import check_paths, require
+from kpioed_drake.estimation.estimator import register_tracker
+from kpioed_drake.estimation.plausibility import check_data
+from kpioed_drake.outputs import Outputs, pyplot
+from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
+from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.measurement import nominal_model, reflector_world
+
+
+@dataclasses.dataclass(frozen=True)
+class ValidationResult:
+    """Prediction errors of a model on measured data.
+
+    Attributes:
+        robot: the model's name.
+        model_source: the model file.
+        data: the measurements.
+        residuals_W: (n, 3) measured minus predicted reflector position, in W [mm].
+        R_WT: (3, 3) tracker orientation used (registered or kept).
+        p_WT: (3,) tracker position used [mm].
+        registered: True if the tracker frame was re-registered to these data.
+    """
+
+    robot: str
+    model_source: str
+    data: Measurements
+    residuals_W: np.ndarray
+    R_WT: np.ndarray
+    p_WT: np.ndarray
+    registered: bool
+
+    @property
+    def errors_mm(self) -> np.ndarray:
+        """(n,) 3-D prediction error of each pose [mm]."""
+        return np.linalg.norm(self.residuals_W, axis=1)
+
+    def per_target(self) -> list[dict]:
+        """Errors of each target's rows (target numbers 1..T as in the file) [mm]."""
+        target = np.zeros(self.data.n, dtype=int) if self.data.target is None else self.data.target
+        out = []
+        for t in range(self.data.n_targets):
+            rows = target == t
+            e, r = self.errors_mm[rows], self.residuals_W[rows]
+            out.append(
+                {
+                    "target": t + 1,
+                    "n_rows": int(np.count_nonzero(rows)),
+                    "rms_mm": float(np.sqrt(np.mean(r**2))) if e.size else None,
+                    "mean_error_mm": float(np.mean(e)) if e.size else None,
+                    "max_error_mm": float(np.max(e)) if e.size else None,
+                }
+            )
+        return out
+
+    def to_dict(self) -> dict:
+        """The JSON report (mm, deg)."""
+        e = self.errors_mm
+        return {
+            "robot": self.robot,
+            "model": self.model_source,
+            "data": self.data.path,
+            "frame": self.data.frame,
+            "n_poses": self.data.n,
+            "rms_mm": float(np.sqrt(np.mean(self.residuals_W**2))),
+            "rms_xyz_mm": np.sqrt(np.mean(self.residuals_W**2, axis=0)).tolist(),
+            "mean_error_mm": float(np.mean(e)),
+            "p95_error_mm": float(np.percentile(e, 95)),
+            "max_error_mm": float(np.max(e)),
+            "errors_mm": e.tolist(),
+            "targets": self.per_target(),
+            "rows": [int(r) for r in self.data.rows],
+            "row_convention": ROW_CONVENTION,
+            "residuals_W_mm": self.residuals_W.tolist(),
+            "tracker": {
+                "registered": self.registered,
+                "p_WT_mm": self.p_WT.tolist(),
+                "rpy_deg": np.rad2deg(RollPitchYaw(RotationMatrix(self.R_WT)).vector()).tolist(),
+            },
+            "note": "measured minus predicted reflector position in W; rms_mm over all coordinates, "
+            "rms_xyz_mm per axis; *_error_mm of the 3-D distance per pose; only the tracker frame "
+            "was fitted (rigid, 6 DoF) unless tracker.registered is false",
+        }
+
+    def summary(self) -> str:
+        """A human-readable summary."""
+        d = self.to_dict()
+        how = "re-registered (rigid, 6 DoF)" if self.registered else "kept from the model"
+        per_target = [
+            f"  target {t['target']}: {t['n_rows']} rows, mean {t['mean_error_mm']:.4f} mm, "
+            f"max {t['max_error_mm']:.4f} mm"
+            for t in d["targets"]
+            if self.data.n_targets > 1 and t["n_rows"]
+        ]
+        return "\n".join(
+            [
+                f"{self.robot}: validated on {self.data.path}: {self.data.n} poses, tracker frame {how}",
+                f"  3-D error: mean {d['mean_error_mm']:.4f} mm, 95 % {d['p95_error_mm']:.4f} mm, "
+                f"max {d['max_error_mm']:.4f} mm",
+                f"  RMS per coordinate {d['rms_mm']:.4f} mm (x, y, z: "
+                + ", ".join(f"{v:.4f}" for v in d["rms_xyz_mm"])
+                + ")",
+                *per_target,
+            ]
+        )
+
+
+def validate(
+    robot: Robot, data: Measurements, *, keep_tracker: bool = False, cell_path=None
+) -> ValidationResult:
+    """Prediction errors of ``robot`` (a nominal or calibrated model) on ``data``.
+
+    Args:
+        robot: the model (joint rows; reflector offset, further targets and tracker pose from
+            the robot file when it has them, else from the cell file).
+        data: the measurements (tracker or base frame).
+        keep_tracker: use the model's tracker pose instead of re-registering it to the data: the
+            robot file's (a calibrated model has one), else the identity for base-frame data,
+            else the cell file's.
+        cell_path: cell file (default models/cell.yaml).
+
+    Returns:
+        :class:`ValidationResult`.
+
+    Raises:
+        InputError: too few poses or collinear points (the tracker frame is undetermined), or
+            implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`: other length units,
+            gross errors, another robot or a wrong joint map).
+    """
+    model = nominal_model(robot, load_cell(cell_path, robot=robot))
+    check_data(model, data, n_params=6)
+    p_W = reflector_world(model, data.q, data.target)
+    if keep_tracker and robot.X_WT is None and data.frame == "base":
+        R_WT, p_WT = np.eye(3), np.zeros(3)
+    elif keep_tracker:
+        R_WT, p_WT = model.R_WT, model.p_WT
+    else:
+        R_WT, p_WT = register_tracker(p_W, data.eta)
+    residuals = data.eta @ R_WT.T + p_WT - p_W
+    return ValidationResult(
+        robot=robot.name,
+        model_source=robot.source,
+        data=data,
+        residuals_W=residuals,
+        R_WT=R_WT,
+        p_WT=p_WT,
+        registered=not keep_tracker,
+    )
+
+
+def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:
+    """``validation_errors.png``: the 3-D error per pose (file row) and their histogram."""
+    plt = pyplot()
+
+    e = result.errors_mm
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    ax1.plot(result.data.rows, e, ".", ms=4)
+    ax1.axhline(np.mean(e), color="k", lw=0.8, label=f"mean {np.mean(e):.3f} mm")
+    ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=f"{result.robot}: prediction error")
+    ax1.legend()
+    ax2.hist(e, bins=min(30, max(5, len(e) // 5)))
+    ax2.set(xlabel="3-D error [mm]", ylabel="poses")
+    fig.tight_layout()
+    path = folder / "validation_errors.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
+
+
+def validate_file(
+    robot: str,
+    data_path: str | Path,
+    *,
+    data_format: str | Path | None = None,
+    keep_tracker: bool = False,
+    json_path: str | Path | None = None,
+    plots_dir: str | Path | None = None,
+    cell_path=None,
+) -> ValidationResult:
+    """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.
+
+    Args:
+        robot: model name or YAML path (e.g. the file ``kpioed calibrate --out`` wrote).
+        data_path: the measurement file (SPEC layout, or another one with ``data_format``).
+        data_format: format file of another layout (``docs/data-formats.md``).
+        keep_tracker: use the model's tracker pose instead of re-registering it.
+        json_path: JSON report; plots_dir: folder for ``validation_errors.png``.
+    """
+    require(isinstance(keep_tracker, bool), f"keep_tracker: expected True or False, got {keep_tracker!r}")
+    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[json_path], folders=[plots_dir])
+    rob = load_robot(robot)
+    data = read_data(data_path, rob, data_format)
+    result = validate(rob, data, keep_tracker=keep_tracker, cell_path=cell_path)
+    with Outputs() as staged:
+        if json_path:
+            staged.add_json(json_path, result.to_dict())
+        if plots_dir:
+            plot_validation(result, staged.folder(plots_dir))
+        staged.commit()
+    return result

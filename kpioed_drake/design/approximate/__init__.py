@@ -1,0 +1,6 @@
+"""The approximate design (weights on poses) and the certified lower bound on any n-pose design.
+
+:mod:`.search` (local maxima of the pricing function), :mod:`.design` (column generation, rounding:
+the optimiser's approximate start), :mod:`.certificate` (the bound and a design's efficiency) and
+:mod:`.certcache` (the bound's disk cache).
+"""

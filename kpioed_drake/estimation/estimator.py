@@ -1,0 +1,476 @@
+"""Parameter estimation from laser-tracker data: rigid registration and Levenberg-Marquardt.
+
+The one estimator of the package, used by calibration and by the diagnosis:
+
+- :func:`register_tracker`: the tracker pose from nominal reflector positions in W and the measured
+  ones in the tracker frame T (Kabsch/Umeyama without scaling; a proper rotation even when the
+  best orthogonal fit would be a reflection).
+- :func:`estimate`: weighted nonlinear least squares on the free geometric parameters
+  (``model.layout.free``, 27 for six joints) of :class:`~kpioed_drake.tracker.measurement.TrackerModel`,
+  optionally together with the parameters of non-geometric effects (their Jacobian columns from
+  :func:`kpioed_drake.effects.augmented_jacobian`), started from the given model, by default with
+  the registered tracker pose. The tracker orientation is kept as a reference rotation
+  ``R_WT_ref`` times three small rotations; after every accepted step the small rotations are
+  folded into the reference (:meth:`TrackerModel.rebased`), so they stay near zero and the
+  parametrisation never approaches a singularity, whatever the tracker's orientation.
+- :func:`covariance`: ``(J^T J)^-1`` of a weighted Jacobian (column-scaled Cholesky).
+
+The covariance of the estimated parameters is ``Cp = (F1^T F1)^-1`` with ``F1 = J / sigma`` at the
+solution (paper eq. 19 without constraints): the a-priori covariance given the noise ``sigma``.
+``EstimationResult.Cp_scaled`` multiplies it by chi^2/dof (the a-posteriori version).
+
+Units: millimetres and radians. Residuals are ``eta - h(p, q)`` in the tracker frame [mm].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.linalg
+
+from kpioed_drake import effects as fx
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.robot.parameters import ParameterLayout
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
+
+LM_LAMBDA0 = 1e-6
+"""Initial Levenberg-Marquardt damping (relative to the unit diagonal of the column-scaled
+information matrix)."""
+GN_RIDGE = 1e-12
+"""Relative ridge of the convergence test: the iteration stops when the Gauss-Newton step predicts a
+cost decrease below ``tol`` times the cost (a step that small would not change the result, and
+evaluating it near the optimum only meets rounding)."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Registration
+# ----------------------------------------------------------------------------------------------
+def register_tracker(p_W, p_T) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform (no scaling) that best maps tracker-frame points onto world points.
+
+    Minimises ``sum_i |p_W[i] - (R_WT p_T[i] + p_WT)|^2`` over proper rotations ``R_WT``
+    (det = +1) and translations ``p_WT`` (Kabsch/Umeyama; if the unconstrained orthogonal optimum
+    is a reflection, the axis of the smallest singular value is flipped).
+
+    Args:
+        p_W: (n, 3) points in W [mm] (e.g. nominal reflector positions).
+        p_T: (n, 3) the same points measured in the tracker frame T [mm].
+
+    Returns:
+        R_WT (3, 3) and p_WT (3,) [mm], so that ``p_W ~= p_T @ R_WT.T + p_WT``.
+
+    Raises:
+        InputError: fewer than 3 points, mismatched shapes, or (nearly) collinear points.
+    """
+    p_W = np.asarray(p_W, dtype=float)
+    p_T = np.asarray(p_T, dtype=float)
+    if p_W.ndim != 2 or p_W.shape[1] != 3 or p_W.shape != p_T.shape:
+        raise InputError(f"registration: expected two (n, 3) arrays, got {p_W.shape} and {p_T.shape}")
+    if p_W.shape[0] < 3:
+        raise InputError(f"registration: need at least 3 points, got {p_W.shape[0]}")
+    c_W, c_T = p_W.mean(axis=0), p_T.mean(axis=0)
+    A, B = p_T - c_T, p_W - c_W
+    M = A.T @ B  # (3, 3) cross-covariance: sum a_i b_i^T
+    U, S, Vt = np.linalg.svd(M)
+    spread = np.linalg.svd(A, compute_uv=False)
+    if spread[1] <= 1e-9 * max(spread[0], 1e-300):
+        raise InputError("registration: the points are (nearly) collinear; the tracker pose is undetermined")
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    D = np.diag([1.0, 1.0, d if d != 0 else 1.0])
+    R_WT = Vt.T @ D @ U.T
+    p_WT = c_W - R_WT @ c_T
+    return R_WT, p_WT
+
+
+def registered_model(model: TrackerModel, q, eta, target=None) -> TrackerModel:
+    """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
+
+    Small rotations zero, ``R_WT_ref`` the registered rotation; ``target``: (n,) each row's 0-based target.
+    """
+    p_W = reflector_world(model, q, target)
+    R_WT, p_WT = register_tracker(p_W, eta)
+    p = model.p.copy()
+    p[model.layout.tracker_position] = p_WT
+    p[model.layout.tracker_rotation] = 0.0
+    return dataclasses.replace(model, p=p, R_WT_ref=R_WT)
+
+
+# ----------------------------------------------------------------------------------------------
+# The model response with effects
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Conditions:
+    """Per-pose inputs of the effects (all optional).
+
+    Attributes:
+        temperature_C: (n,) [C] (thermal expansion).
+        time_s: (n,) [s] (tracker drift).
+        tau: (n, 6) gravity torques [N m] at the commanded angles, payload included (joint
+            elasticity); computed by the effects module when needed and not given.
+        target: (n,) 0-based target (reflector) of each row; None: target 0 for every row.
+        side: (n, 6) a backlash's side per pose; None: the sign of ``tau``.
+        payload_kg: (n,) [kg] or None: the payload of a column or base compliance's moment.
+    """
+
+    temperature_C: np.ndarray | None = None
+    time_s: np.ndarray | None = None
+    tau: np.ndarray | None = None
+    target: np.ndarray | None = None
+    side: np.ndarray | None = None
+    payload_kg: np.ndarray | None = None
+
+    def subset(self, idx) -> Conditions:
+        """The poses ``idx``."""
+
+        def pick(x):
+            return None if x is None else x[idx]
+
+        return Conditions(
+            pick(self.temperature_C),
+            pick(self.time_s),
+            pick(self.tau),
+            pick(self.target),
+            pick(self.side),
+            pick(self.payload_kg),
+        )
+
+
+def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
+    """The conditions of measured data: its temperature and time, and the gravity torques at the
+    commanded angles with the payload at ``p_FP`` [mm] (held fixed during a fit, so that the
+    residual function is the same for every parameter value)."""
+    tau = fx.gravity_torques(robot, data.q, payload_kg=data.payload_kg, p_FP=p_FP)
+    return Conditions(data.temperature_C, data.time_s, tau, data.target, payload_kg=data.payload_kg)
+
+
+def rms(r) -> float:
+    """Root mean square over all coordinates [mm] (nan for no coordinates)."""
+    r = np.asarray(r)
+    return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
+
+
+def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bool = True):
+    """Model response with effects and (with ``jac``) its Jacobian: h (n, 3) [mm], H (n, 3, n_full),
+    E (n, 3, k)."""
+    f = fx.augmented_jacobian if jac else fx.augmented_response
+    return f(
+        model,
+        q,
+        effects,
+        temperature_C=conditions.temperature_C,
+        time_s=conditions.time_s,
+        tau=conditions.tau,
+        target=conditions.target,
+        side=conditions.side,
+        compliance_payload_kg=conditions.payload_kg,
+    )
+
+
+def covariance(J: np.ndarray, *, singular_ok: bool = False) -> np.ndarray:
+    """``(J^T J)^-1`` of a weighted (m, k) Jacobian, from the column-scaled information matrix.
+
+    Cholesky when the information is positive definite; otherwise, with ``singular_ok``, its
+    pseudo-inverse (the parameters without information get none).
+
+    Raises:
+        numpy.linalg.LinAlgError: the information matrix is singular and ``singular_ok`` is False.
+    """
+    D = np.linalg.norm(J, axis=0)
+    D[D == 0] = 1.0
+    Js = J / D
+    A = Js.T @ Js
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        if not singular_ok:
+            raise
+        return np.linalg.pinv(A) / np.outer(D, D)
+    Linv = scipy.linalg.solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    return (Linv.T @ Linv) / np.outer(D, D)
+
+
+# ----------------------------------------------------------------------------------------------
+# Levenberg-Marquardt
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class EstimationResult:
+    """Outcome of :func:`estimate`.
+
+    Attributes:
+        model: the estimated model (tracker small rotations folded into ``R_WT_ref``, so zero).
+        residuals: (n, 3) ``eta - h`` for every pose, used or not [mm, tracker frame].
+        mask: (n,) poses used in the fit.
+        weights: (n,) relative weights of the poses (1 = noise ``sigma``).
+        sigma: noise standard deviation per coordinate [mm].
+        iterations: accepted plus rejected LM iterations.
+        converged: True if a step/cost tolerance was met.
+        cost: chi^2 = sum over used poses of ``w_i |r_i|^2 / sigma^2``.
+        dof: 3 * (used poses) - (estimated parameters).
+        Cp: (n_free + k, n_free + k) a-priori covariance ``(F1^T F1)^-1`` of the estimated
+            parameters (free geometric ones, then the effects') [mm, rad, effect units].
+        J: (3 m, n_free + k) weighted Jacobian ``F1`` at the solution over the used poses
+            (pose-major).
+        message: why the iteration stopped.
+        q: (n, 6) [rad], the commanded joint angles the fit was made to.
+        eta: (n, 3) [mm], the measurements the fit was made to.
+        effects: the estimated effects with their values (empty for the geometric model).
+        conditions: the per-pose inputs of the effects.
+    """
+
+    model: TrackerModel
+    residuals: np.ndarray
+    mask: np.ndarray
+    weights: np.ndarray
+    sigma: float
+    iterations: int
+    converged: bool
+    cost: float
+    dof: int
+    Cp: np.ndarray
+    J: np.ndarray
+    message: str
+    q: np.ndarray
+    eta: np.ndarray
+    effects: tuple = ()
+    conditions: Conditions = dataclasses.field(default_factory=Conditions)
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.model.layout.free
+
+    @property
+    def free_names(self) -> list[str]:
+        return self.model.layout.free_names
+
+    @property
+    def k(self) -> int:
+        """Number of effect parameters."""
+        return sum(e.n_params for e in self.effects)
+
+    @property
+    def layout(self) -> ParameterLayout:
+        """The model's layout with the effect parameters after the free geometric ones."""
+        return self.model.layout.with_effects(self.k)
+
+    @property
+    def n_params(self) -> int:
+        """Estimated parameters: free geometric plus effects'."""
+        return self.layout.n_unknowns
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.cost / self.dof if self.dof > 0 else float("nan")
+
+    @property
+    def Cp_scaled(self) -> np.ndarray:
+        """A-posteriori covariance ``Cp * chi^2/dof`` (noise level estimated from the residuals)."""
+        return self.Cp * self.chi2_per_dof if self.dof > 0 else np.full_like(self.Cp, np.nan)
+
+    @property
+    def std(self) -> np.ndarray:
+        """(n_free + k,) a-priori standard deviations of the estimated parameters [mm, rad, ...]."""
+        return np.sqrt(np.diag(self.Cp))
+
+    @property
+    def n_used(self) -> int:
+        return int(np.count_nonzero(self.mask))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Problem:
+    """The used poses, their weights and conditions: residuals and Jacobians of a parameter point."""
+
+    q: np.ndarray
+    eta: np.ndarray
+    sw: np.ndarray
+    sigma: float
+    conditions: Conditions
+
+    def weighted(self, model: TrackerModel, effects, *, jac: bool = True):
+        w = self.sw[:, None] / self.sigma
+        if not jac:
+            return ((self.eta - response(model, effects, self.q, self.conditions, jac=False)) * w).reshape(-1)
+        h, H, E = response(model, effects, self.q, self.conditions)
+        r = ((self.eta - h) * w).reshape(-1)
+        free = model.layout.free
+        J = np.concatenate([H[:, :, free], E], axis=2) * w[:, :, None]
+        return r, J.reshape(r.size, -1)
+
+
+def apply_step(model: TrackerModel, effects, dx: np.ndarray):
+    """``model`` and ``effects`` moved by ``dx`` (n_free + k,): the free geometric parameters, then
+    the effects' values in order [mm, rad, effect units]. Returns (model, list of effects)."""
+    free = model.layout.free
+    p = model.p.copy()
+    p[free] += dx[: free.size]
+    out, c = [], free.size
+    for e in effects:
+        out.append(e.with_values(e.value_array() + dx[c : c + e.n_params]))
+        c += e.n_params
+    return model.with_params(p), out
+
+
+def _gauss_newton_decrease(A: np.ndarray, g: np.ndarray) -> float:
+    """Decrease of the cost the (undamped) Gauss-Newton step predicts, ``g^T A^-1 g`` (a tiny
+    relative ridge keeps a rank-deficient ``A`` solvable; inf if it still fails)."""
+    try:
+        return float(g @ np.linalg.solve(A + GN_RIDGE * np.eye(A.shape[0]), g))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    eta = np.atleast_2d(np.asarray(eta, dtype=float))
+    n = q.shape[0]
+    if q.shape != (n, nj) or eta.shape != (n, 3):
+        raise InputError(f"estimate: expected q (n, {nj}) and eta (n, 3), got {q.shape} and {eta.shape}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InputError(f"estimate: sigma must be a positive number of millimetres, got {sigma!r}")
+    mask = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).copy()
+    if mask.shape != (n,) or w.shape != (n,) or np.any(w[mask] <= 0) or not np.all(np.isfinite(w)):
+        raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
+    m = int(np.count_nonzero(mask))
+    if 3 * m < n_params:
+        raise InputError(
+            f"estimate: {m} poses give {3 * m} coordinates, fewer than the {n_params} parameters "
+            f"(need at least {int(np.ceil(n_params / 3))} poses)"
+        )
+    return q, eta, mask, w
+
+
+def estimate(
+    model: TrackerModel,
+    q,
+    eta,
+    *,
+    sigma: float = 0.02,
+    max_iter: int = 100,
+    tol: float = 1e-10,
+    mask=None,
+    weights=None,
+    register: bool = True,
+    effects=(),
+    conditions: Conditions | None = None,
+    singular_ok: bool = False,
+) -> EstimationResult:
+    """Estimate the free parameters of ``model`` (and the effects' values) from measured reflector positions.
+
+    Args:
+        model: starting model (normally the nominal one); its tracker pose is replaced by the
+            registration of its reflector points to the data unless ``register`` is False.
+        q: (n, 6) commanded joint angles [rad].
+        eta: (n, 3) measured reflector positions in the tracker frame [mm].
+        sigma: noise standard deviation per coordinate [mm].
+        max_iter: most LM iterations (accepted or rejected).
+        tol: stop when the Gauss-Newton step predicts a cost decrease below ``tol`` times the
+            cost, or the accepted step is below ``tol`` relative to the parameters (in
+            Jacobian-scaled units), or the relative cost decrease is below ``tol``.
+        mask: (n,) bool, the poses to use (default all).
+        weights: (n,) positive relative weights (pose i has noise ``sigma / sqrt(w_i)``).
+        register: start from the rigid registration of the tracker (default True).
+        effects: :class:`~kpioed_drake.effects.Effect` list estimated with the geometry; their
+            values are the starting point (unknown = 0).
+        conditions: the per-pose inputs the effects need (over all n poses).
+        singular_ok: accept a rank-deficient Jacobian at the solution (``Cp`` is then the
+            pseudo-inverse) instead of raising; the diagnosis fits candidates that way.
+
+    Returns:
+        :class:`EstimationResult`.
+
+    Raises:
+        InputError: bad shapes, too few poses for the parameters, or (unless ``singular_ok``) a
+            Jacobian without full rank at the solution (parameters not identifiable from these poses).
+    """
+    effects = [e.with_values(e.value_array()) for e in effects]
+    conditions = Conditions() if conditions is None else conditions
+    free = model.layout.free
+    n_params = free.size + sum(e.n_params for e in effects)
+    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params, model.robot.n_joints)
+    m = int(np.count_nonzero(mask))
+    prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
+    if register:
+        model = registered_model(model, prob.q, prob.eta, prob.conditions.target)
+
+    r, J = prob.weighted(model, effects)
+    cost = float(r @ r)
+    lam = LM_LAMBDA0
+    nu = 2.0
+    converged, message, it = False, "maximum number of iterations reached", 0
+    while it < max_iter:
+        it += 1
+        D = np.linalg.norm(J, axis=0)
+        D[D == 0] = 1.0
+        Js = J / D
+        g = Js.T @ r
+        A = Js.T @ Js
+        if np.max(np.abs(g)) <= 1e-14 * max(1.0, np.sqrt(cost)):
+            converged, message = True, "gradient is zero"
+            break
+        if _gauss_newton_decrease(A, g) <= tol * cost:
+            converged, message = True, "predicted cost decrease below tol"
+            break
+        try:
+            dxs = np.linalg.solve(A + lam * np.eye(A.shape[0]), g)
+        except np.linalg.LinAlgError:
+            lam *= nu
+            nu *= 2.0
+            continue
+        dx = dxs / D
+        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
+        trial, trial_effects = apply_step(model, effects, dx)
+        r_new = prob.weighted(trial, trial_effects, jac=False)
+        cost_new = float(r_new @ r_new)
+        actual = cost - cost_new
+        rho = actual / pred if pred > 0 else -1.0
+        x_scaled = D * np.concatenate([model.p[free], *(e.value_array() for e in effects)])
+        if actual > 0 and rho > 0:
+            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol)
+            small_cost = actual <= tol * cost
+            model, effects = trial.rebased(), trial_effects
+            r, J = prob.weighted(model, effects)
+            cost = float(r @ r)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if small_step or small_cost:
+                converged = True
+                message = "relative step below tol" if small_step else "relative cost decrease below tol"
+                break
+        else:
+            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol):
+                converged, message = True, "no further decrease possible (step below tol)"
+                break
+            lam *= nu
+            nu *= 2.0
+
+    # covariance at the solution (a priori, with the given sigma)
+    try:
+        Cp = covariance(J, singular_ok=singular_ok)
+    except np.linalg.LinAlgError:
+        raise InputError(
+            f"estimate: the {m} poses do not determine the {n_params} parameters (information matrix "
+            "singular); use more or more varied poses"
+        ) from None
+    residuals = eta - response(model, effects, q, conditions, jac=False)
+    return EstimationResult(
+        model=model,
+        residuals=residuals,
+        mask=mask,
+        weights=w,
+        sigma=float(sigma),
+        iterations=it,
+        converged=converged,
+        cost=cost,
+        dof=3 * m - n_params,
+        Cp=Cp,
+        J=J,
+        message=message,
+        q=q,
+        eta=eta,
+        effects=tuple(effects),
+        conditions=conditions,
+    )

@@ -1,0 +1,377 @@
+"""The identification problem of one robot in one cell: F1, Js, Cp, Cs for a set of poses.
+
+Bundles the robot, the cell, the nominal measurement model, the working pose and the noise, and
+evaluates paper eqs. (19), (24c)-(24e) for a design: ``F1 = dh/dp / sigma`` over the 27 estimated
+parameters (rows pose-major: x, y, z of pose 1, then pose 2, ...), ``Js = dTCP/dp`` at ``q_work``,
+``Cp = (F1^T F1)^-1`` and ``Cs = Js Cp Js^T``.
+
+Several KPIs (paper, Outlook: further working poses, or a working path sampled at K points): with
+working poses ``q_work_k`` (K, 6) and weights ``w_k`` (sum 1), the KPI is the weighted mean of the
+variances ``v_k = tr(Js_k Cp Js_k^T)/3`` or the worst one (``kpi_aggregate``). The weighted mean
+equals ``tr(Js Cp Js^T)/3`` of the stacked rows ``Js = [sqrt(w_1) Js_1; ...; sqrt(w_K) Js_K]``
+(3K, k), so :meth:`Problem.Js` returns that stack and every KPI criterion works on it unchanged;
+with K = 1 it is the single (3, k) Jacobian and every number is that of one working pose.
+
+Several targets (the robot file's ``targets_mm``): a pose measures all T of them, so its rows in
+F1 are the stacked rows of its targets (3T rows: target 1's x, y, z, then target 2's, ...).
+
+Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
+add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
+columns to Js, so that a design for the extended model estimates them too and its KPI variance
+includes them (paper outlook; issue "model discrepancy").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.effects import (
+    COMPLIANCE_FAMILIES,
+    JOINT_FAMILIES,
+    effect_kpi_columns,
+    extension_columns,
+    extension_param_names,
+    parse_effect,
+    resolve,
+)
+from kpioed_drake.errors import InputError
+from kpioed_drake.estimation import covariance
+from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
+from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.tracker.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
+
+KPI_AGGREGATES = ("mean", "max")
+"""How the variances of several working poses make the KPI: weighted mean or the worst."""
+KPI_POINTS = ("reflector", "flange")
+"""Where the KPI point sits: the reflector (plus ``tool_offset``; SPEC) or the flange origin (the
+paper's TCP frame k, which does not move with the reflector offset)."""
+PARAM_SCALINGS = ("reach", "none")
+"""Scalings of the standard criterion phi_A(Cp): SPEC's (angles times the reach) or none (the
+paper's eq. 25 with the identity, angles in radians)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """Everything the covariance of a design depends on.
+
+    Attributes:
+        robot, cell: the models (cell as loaded for this robot).
+        model: measurement model at the parameter values the design is evaluated at.
+        q_work: (6,) working configuration [rad]; several KPIs: (K, 6) working poses (or the
+            K samples of a working path) [rad].
+        sigma: noise standard deviation per coordinate [mm].
+        tool_offset: (3,) TCP relative to the reflector, flange axes [mm].
+        extensions: model extensions (:mod:`kpioed_drake.effects`) whose parameters are estimated
+            too: their columns follow the 27 geometric ones in ``F1`` and ``Js``.
+        kpi_weights: (K,) weights of the working poses, positive, summing to 1 (None: one working
+            pose, or equal weights).
+        kpi_aggregate: how the K variances make the KPI: ``mean`` (weighted mean) or ``max`` (the
+            worst working pose). Only the ``kpi`` criterion depends on it.
+        param_scaling: scaling of the standard criterion's geometric parameters: ``reach`` (SPEC:
+            lengths 1, angles times the reach) or ``none`` (all 1). Only ``param_crit`` depends on it.
+        kpi_point: ``reflector`` (the reflector point plus ``tool_offset``) or ``flange`` (the
+            flange origin, frame k of the paper: its position does not depend on the reflector
+            offset, whose Js columns are then zero).
+    """
+
+    robot: Robot
+    cell: Cell
+    model: TrackerModel
+    q_work: np.ndarray
+    sigma: float
+    tool_offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    extensions: tuple = ()
+    kpi_weights: np.ndarray | None = None
+    kpi_aggregate: str = "mean"
+    param_scaling: str = "reach"
+    kpi_point: str = "reflector"
+
+    @property
+    def q_works(self) -> np.ndarray:
+        """(K, 6) the working poses [rad] (K = 1 for one working pose)."""
+        return np.atleast_2d(self.q_work)
+
+    @property
+    def n_kpis(self) -> int:
+        """K, the number of working poses whose TCP variance makes the KPI."""
+        return self.q_works.shape[0]
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(K,) weights of the working poses (sum 1)."""
+        if self.kpi_weights is None:
+            return np.full(self.n_kpis, 1.0 / self.n_kpis)
+        return np.asarray(self.kpi_weights, dtype=float)
+
+    @property
+    def worst_case(self) -> bool:
+        """The KPI is the largest of several variances (``kpi_aggregate == "max"`` and K > 1)."""
+        return self.kpi_aggregate == "max" and self.n_kpis > 1
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.model.layout.free
+
+    @property
+    def n_params(self) -> int:
+        """Estimated parameters: 27 geometric plus those of the extensions."""
+        return self.model.layout.n_free + sum(e.n_params for e in self.extensions)
+
+    @property
+    def param_names(self) -> list[str]:
+        return self.model.layout.free_names + extension_param_names(self.extensions)
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(k,) scaling of the standard criterion to millimetres at the tool.
+
+        SPEC: lengths 1, angles times the reach (``param_scaling == "none"``: all 1). An extension
+        parameter is scaled by how far one unit of it moves the TCP at ``q_work`` (its KPI column's
+        norm; several working poses: the norm of its weighted stack, the root mean square over
+        them) [mm per unit].
+        """
+        geo = self.model.layout.scale(self.robot.reach)
+        if self.param_scaling == "none":
+            geo = np.ones_like(geo)
+        if not self.extensions:
+            return geo
+        ext = np.linalg.norm(self.Js()[:, self.model.layout.n_free :], axis=0)
+        return np.concatenate([geo, np.where(ext > 0, ext, 1.0)])
+
+    def _stack(self, blocks) -> np.ndarray:
+        """Rows ``sqrt(w_k) B_k`` of K blocks B_k (3, c), stacked to (3K, c)."""
+        return np.concatenate([np.sqrt(w) * B for w, B in zip(self.weights, blocks, strict=True)], axis=0)
+
+    @property
+    def n_targets(self) -> int:
+        """Targets every pose measures (T; 1: the reflector)."""
+        return self.model.layout.n_targets
+
+    def min_poses(self) -> int:
+        """Fewest poses whose 3 coordinates (per target) can determine the parameters."""
+        return int(np.ceil(self.n_params / (3 * self.n_targets)))
+
+    def F1(self, q, *, with_dq: bool = False, frames=None):
+        """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27).
+
+        ``frames``: ``self.model.frames(q)`` if the caller has it already. With T targets every
+        pose has 3T rows (its targets' rows stacked): (3Tn, k) and (n, 6, 3T, k).
+        """
+        if self.n_targets > 1:
+            return self._F1_targets(np.atleast_2d(q), with_dq)
+        out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
+        H = out[1][:, :, self.free] / self.sigma
+        dH = out[2][..., self.free] / self.sigma if with_dq else None
+        if self.extensions:
+            ext = extension_columns(self.model, q, self.extensions, with_dq=with_dq)
+            E, dE = (ext[0], ext[1]) if with_dq else (ext, None)
+            H = np.concatenate([H, E / self.sigma], axis=2)
+            if with_dq:
+                dH = np.concatenate([dH, dE / self.sigma], axis=3)
+        n = H.shape[0]
+        if not with_dq:
+            return H.reshape(3 * n, -1)
+        return H.reshape(3 * n, -1), dH
+
+    def _F1_targets(self, q: np.ndarray, with_dq: bool):
+        """:meth:`F1` of T > 1 targets: every pose measured at each target (geometric model)."""
+        n, T, nj = q.shape[0], self.n_targets, self.model.layout.n_joints
+        target = np.tile(np.arange(T), n)
+        out = measurement_jacobian(self.model, np.repeat(q, T, axis=0), with_dq=with_dq, target=target)
+        H = out[1][:, :, self.free] / self.sigma  # (nT, 3, k)
+        F = H.reshape(3 * T * n, -1)
+        if not with_dq:
+            return F
+        dH = out[2][..., self.free] / self.sigma  # (nT, 6, 3, k)
+        dH = dH.reshape(n, T, nj, 3, -1).transpose(0, 2, 1, 3, 4).reshape(n, nj, 3 * T, -1)
+        return F, dH
+
+    def Js_each(self) -> np.ndarray:
+        """(K, 3, k) KPI Jacobian ``dTCP/dp`` at each working pose [mm per parameter unit]."""
+        flange = self.kpi_point == "flange"
+        offset = -self.model.p_FQ if flange else self.tool_offset
+        out = []
+        for qw in self.q_works:
+            _, Js = kpi_jacobian(self.model, qw, offset)
+            if flange:
+                Js[:, self.model.layout.target(0)] = 0.0
+            Js = Js[:, self.free]
+            if self.extensions:
+                ext = effect_kpi_columns(self.model, qw, self.extensions, tool_offset=offset)
+                Js = np.concatenate([Js, ext], axis=1)
+            out.append(Js)
+        return np.stack(out)
+
+    def Js(self) -> np.ndarray:
+        """KPI Jacobian: (3, k) at ``q_work``; several working poses: the stack (3K, k) of
+        ``sqrt(w_k) Js_k``, whose ``tr(Js Cp Js^T)/3`` is the weighted mean of the K variances."""
+        Js = self.Js_each()
+        return Js[0] if self.n_kpis == 1 else self._stack(Js)
+
+    def covariances(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """``Cp`` (27, 27) and ``Cs = Js Cp Js^T`` (3, 3) [mm^2] of a design ``q`` (n, 6) [rad]
+        (several working poses: (3K, 3K) of the weighted stack :meth:`Js`, trace/3 = the mean KPI).
+
+        Raises:
+            InputError: if the design does not determine all parameters.
+        """
+        try:
+            return covariance.kpi_covariance(self.F1(q), self.Js())
+        except np.linalg.LinAlgError:
+            raise InputError(
+                f"the {len(np.atleast_2d(q))} poses do not determine the {self.n_params} parameters "
+                "(information matrix singular); use more or more varied poses"
+            ) from None
+
+    def kpi_variances(self, q) -> np.ndarray:
+        """(K,) ``tr(Cs_k)/3`` [mm^2] at each working pose of a design ``q`` (n, 6) [rad].
+
+        Raises:
+            InputError: if the design does not determine all parameters.
+        """
+        Cp, _ = self.covariances(q)
+        return np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self.Js_each()])
+
+    def criteria(self, q) -> dict[str, float]:
+        """``kpi_avg_var_mm2`` and ``param_crit`` (scaled tr(Cp) [mm^2]) of a design.
+
+        ``kpi_avg_var_mm2`` is tr(Cs)/3 [mm^2]; with several working poses the KPI: the weighted
+        mean of their tr(Cs_k)/3, or with ``kpi_aggregate == "max"`` the largest.
+        """
+        Cp, Cs = self.covariances(q)
+        kpi = float(np.max(self.kpi_variances(q))) if self.worst_case else float(np.trace(Cs) / 3.0)
+        return {
+            "kpi_avg_var_mm2": kpi,
+            "param_crit": float(np.sum(np.diag(Cp) * self.scale**2)),
+        }
+
+
+def make_problem(
+    robot: str | Robot,
+    *,
+    cell_path=None,
+    q_work: np.ndarray | None = None,
+    sigma_mm: float | None = None,
+    tool_offset_mm=(0.0, 0.0, 0.0),
+    extend=(),
+    kpi_weights=None,
+    kpi_aggregate: str = "mean",
+    fixed: tuple[str, ...] | None = None,
+    max_incidence_deg: float | None = None,
+    param_scaling: str = "reach",
+    kpi_point: str = "reflector",
+) -> Problem:
+    """Build the :class:`Problem` of a robot (name, file path or :class:`Robot`).
+
+    Args:
+        q_work: (6,) [rad]; several KPIs: (K, 6) working poses or samples of a working path [rad];
+            default: the model file's ``q_work_deg``.
+        sigma_mm: noise per coordinate [mm]; default: the cell's ``noise_sigma_mm``.
+        extend: model extensions, e.g. ``["joint_elasticity:2", "gear_cyclic:4:2"]`` (texts of
+            :func:`kpioed_drake.effects.parse_effect`, values not needed). Only effects that do not
+            need per-pose temperature or time (elasticity, gear errors) can extend a design.
+        kpi_weights: (K,) positive weights of the working poses, normalised to sum 1 (default:
+            equal). Not allowed with ``kpi_aggregate="max"`` unless equal.
+        kpi_aggregate: ``mean`` (weighted mean of the K variances tr(Cs_k)/3) or ``max`` (the
+            largest).
+        fixed: the parameters held at their nominal values (default: SPEC's gauge,
+            :data:`~kpioed_drake.robot.parameters.FIXED_NAMES`); the others are estimated.
+        max_incidence_deg: largest admitted incidence angle from the reflector's axis [deg]
+            (default: the cell's); the optimiser, the heuristic and the checker use it.
+        param_scaling: scaling of the standard criterion, one of :data:`PARAM_SCALINGS`.
+        kpi_point: one of :data:`KPI_POINTS`; ``flange`` takes no ``tool_offset_mm``.
+
+    Raises:
+        InputError: q_work outside the joint limits or of a bad shape, bad weights or aggregate,
+            bad sigma or extensions, unknown fixed names, an incidence limit outside (0, 90) deg,
+            an unknown scaling or KPI point, a tool offset with the flange as KPI point.
+    """
+    robot = load_robot(robot) if isinstance(robot, str) else robot
+    cell = load_cell(cell_path, robot=robot)
+    if max_incidence_deg is not None:
+        if not 0 < max_incidence_deg < 90:
+            raise InputError(f"max_incidence_deg must be in (0, 90) deg, got {max_incidence_deg!r}")
+        cell = dataclasses.replace(cell, max_incidence=float(np.deg2rad(max_incidence_deg)))
+    if param_scaling not in PARAM_SCALINGS:
+        raise InputError(f"param_scaling must be one of {', '.join(PARAM_SCALINGS)}, got {param_scaling!r}")
+    if kpi_point not in KPI_POINTS:
+        raise InputError(f"kpi_point must be one of {', '.join(KPI_POINTS)}, got {kpi_point!r}")
+    if kpi_point == "flange" and np.any(np.asarray(tool_offset_mm, dtype=float) != 0):
+        raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
+    if q_work is None:
+        if robot.q_work is None:
+            where = "q_work in its sidecar" if robot.urdf is not None else "q_work_deg"
+            raise InputError(f"{robot.name}: the model file has no {where}; pass --q-work")
+        q_work = robot.q_work
+    q_work = np.asarray(q_work, dtype=float)
+    if q_work.ndim == 2 and q_work.shape[0] == 1:
+        q_work = q_work[0]
+    nj = robot.n_joints
+    if q_work.shape[-1:] != (nj,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
+        raise InputError(
+            f"{robot.name}: q_work must be ({nj},) or (K, {nj}) finite angles [rad], got {q_work.shape}"
+        )
+    if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
+        raise InputError(f"{robot.name}: q_work is outside the joint limits")
+    weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
+    sigma = cell.sigma if sigma_mm is None else float(sigma_mm)
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
+    model = nominal_model(robot, cell)
+    exts = _parse_extensions(extend, model)
+    if exts and robot.n_targets > 1:
+        raise InputError(f"{robot.name}: --extend is not available with several targets (targets_mm)")
+    if fixed is not None:
+        try:
+            model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
+        except ValueError as exc:
+            raise InputError(f"{robot.name}: {exc}") from None
+    return Problem(
+        extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
+        robot=robot,
+        cell=cell,
+        model=model,
+        q_work=q_work,
+        sigma=sigma,
+        tool_offset=np.asarray(tool_offset_mm, dtype=float),
+        kpi_weights=weights,
+        kpi_aggregate=kpi_aggregate,
+        param_scaling=param_scaling,
+        kpi_point=kpi_point,
+    )
+
+
+def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
+    """Checked, normalised (K,) weights of K working poses (None for one pose with no weights)."""
+    if aggregate not in KPI_AGGREGATES:
+        raise InputError(f"--kpi-aggregate must be one of {', '.join(KPI_AGGREGATES)}, got {aggregate!r}")
+    if kpi_weights is None:
+        return None if k == 1 else np.full(k, 1.0 / k)
+    w = np.asarray(kpi_weights, dtype=float).reshape(-1)
+    if w.shape != (k,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise InputError(
+            f"--kpi-weights: expected {k} positive numbers (one per working pose), got {w.tolist()}"
+        )
+    if aggregate == "max" and not np.allclose(w, w[0]):
+        raise InputError("--kpi-weights: the worst case (--kpi-aggregate max) takes no weights")
+    return w / w.sum()
+
+
+def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
+    if not extend:
+        return ()
+    out = []
+    for e in extend:
+        eff = parse_effect(e, model=model) if isinstance(e, str) else e
+        if eff.family not in JOINT_FAMILIES + COMPLIANCE_FAMILIES:
+            raise InputError(
+                f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) and "
+                f"compliances ({', '.join(COMPLIANCE_FAMILIES)}) can extend a design or an evaluation "
+                "(thermal_expansion, tracker_drift and tracker_scale need per-pose temperature and time)"
+            )
+        if any(o.key == eff.key for o in out):
+            raise InputError(f"--extend {eff.name} is given twice")
+        out.append(eff)
+    return tuple(out)

@@ -1,0 +1,214 @@
+"""Serial chains of revolute and prismatic joints (URDF robots): kinematics, error model and gauge.
+
+A chain robot is a list of joint frames. Joint i has a fixed nominal placement ``X_{P_i J_i}`` in
+the frame of link i-1 (``R_PJ``, ``p_PJ``: the URDF joint origin; link 0 is W, the base pose is
+folded into joint 1's placement), a unit ``axis`` in J_i and a type. Link i's frame is J_i moved by
+the joint: ``Rot(axis, q_i + off_i)`` (revolute) or ``Trans(axis (q_i + off_i))`` (prismatic).
+
+Error model (paper eq. 1 generalised, 7 parameters per joint, in this order):
+
+- ``off``: the joint-variable offset [rad or mm]; its column is dh/dq_i (as DH's theta);
+- ``px, py, pz``: a translation of J_i along the nominal J_i axes [mm];
+- ``rx, ry, rz``: small rotations of J_i about its x, then y, then z axis [rad], so that the
+  placement is ``X_{P J} = X_PJ_nominal Trans(px, py, pz) Rx(rx) Ry(ry) Rz(rz)``.
+
+The nominal values of all seven are 0. Every element is a rotation (unit axis ``u`` through a
+point ``o``: column ``u x (p - o)``) or a translation (column ``u``), as the DH/Hayati elements of
+:mod:`kpioed_drake.robot.kinematics`, so one closed form serves both. Placement elements of joint i are
+upstream of joint i's motion; the offset is not.
+
+Gauge: 7 per joint plus the tracker (6) and targets are far more than the data determine.
+:func:`auto_gauge` chooses the estimated set by a rank-revealing QR of the column-normalised
+Jacobian of a reflector on many seeded random poses (as FIGAROH chooses base parameters):
+columns are taken in the preference order tracker, targets, then the joints from the base up
+(offset, translations, rotations), and a column is kept only if it adds to the rank; the others
+are held at nominal. Units: millimetres and radians.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.linalg
+
+PER_JOINT = 7
+"""Parameters per joint of a chain robot."""
+ELEMENTS = ("off", "px", "py", "pz", "rx", "ry", "rz")
+"""Names of a joint's parameters (suffixed with the joint number, e.g. ``off1``, ``rx3``)."""
+GAUGE_POSES = 80
+GAUGE_SEED = 20170710
+GAUGE_RTOL = 1e-8
+"""Relative threshold of :func:`auto_gauge` on the residual norm of a unit column."""
+ZERO_COLUMN = 1e-9
+"""Columns shorter than this times the longest are zero (e.g. a joint that cannot move the reflector);
+normalising their round-off to unit length would count it as rank."""
+_GENERIC_TRACKER = np.array([2730.88, 4554.68, 1397.67])
+"""A tracker position for the rank test (any point in general position gives the same rank)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Chain:
+    """Nominal joint frames of a serial chain (mm).
+
+    Attributes:
+        R_PJ: (n, 3, 3) orientation of joint frame J_i in link i-1's frame (link 0 = W).
+        p_PJ: (n, 3) origin of J_i in link i-1's frame [mm].
+        axis: (n, 3) unit joint axis in J_i.
+        prismatic: (n,) True for prismatic joints (q in mm), False for revolute (q in rad).
+    """
+
+    R_PJ: np.ndarray
+    p_PJ: np.ndarray
+    axis: np.ndarray
+    prismatic: np.ndarray
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.prismatic.size)
+
+
+def param_names(n_joints: int) -> list[str]:
+    """``off1, px1, ..., rz1, off2, ...`` (7 per joint)."""
+    return [f"{e}{i}" for i in range(1, n_joints + 1) for e in ELEMENTS]
+
+
+def param_is_angle(chain: Chain) -> list[bool]:
+    """Per joint parameter: True for angles (revolute offsets, rotations), False for lengths."""
+    out = []
+    for pris in chain.prismatic:
+        out += [not pris, False, False, False, True, True, True]
+    return out
+
+
+def rot_axis(axis: np.ndarray, angle) -> np.ndarray:
+    """(..., 3, 3) rotation about the unit ``axis`` (3,) by ``angle`` (...) [rad] (Rodrigues)."""
+    a = np.asarray(axis, dtype=float)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    ang = np.asarray(angle, dtype=float)[..., None, None]
+    return np.eye(3) + np.sin(ang) * K + (1.0 - np.cos(ang)) * (K @ K)
+
+
+def _basic(k: int, angle: float) -> np.ndarray:
+    return rot_axis(np.eye(3)[k], angle)
+
+
+@dataclasses.dataclass
+class ChainFrames:
+    """Frames and elements of a chain for n poses (see :class:`kpioed_drake.robot.kinematics.Frames`)."""
+
+    R: np.ndarray  # (n, nj+1, 3, 3)
+    o: np.ndarray  # (n, nj+1, 3)
+    elem_u: np.ndarray  # (n, nj, 7, 3)
+    elem_o: np.ndarray  # (n, nj, 7, 3)
+    elem_rot: np.ndarray  # (nj, 7)
+    axes: np.ndarray  # (n, nj, 3) joint axes in W
+    points: np.ndarray  # (n, nj, 3) joint origins o_J in W [mm]
+    moved_by: np.ndarray  # (nj, 7) joints 1..moved_by move the element
+
+
+def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames:
+    """Forward kinematics of a chain with placement errors.
+
+    Args:
+        chain: nominal joint frames.
+        q: (n, nj) joint variables [rad or mm].
+        errors: (nj, 7) parameters ``off, px, py, pz, rx, ry, rz`` per joint [rad, mm].
+    """
+    n, nj = q.shape
+    R = np.empty((n, nj + 1, 3, 3))
+    o = np.empty((n, nj + 1, 3))
+    R[:, 0], o[:, 0] = np.eye(3), 0.0
+    eu = np.empty((n, nj, PER_JOINT, 3))
+    eo = np.empty((n, nj, PER_JOINT, 3))
+    rot = np.tile(np.array([True, False, False, False, True, True, True]), (nj, 1))
+    moved = np.tile(np.arange(nj)[:, None], (1, PER_JOINT))
+    moved[:, 0] += 1
+    axes = np.empty((n, nj, 3))
+    pts = np.empty((n, nj, 3))
+    for i in range(nj):
+        off, px, py, pz, rx, ry, rz = errors[i]
+        RA = R[:, i] @ chain.R_PJ[i]
+        oJ = o[:, i] + R[:, i] @ chain.p_PJ[i] + RA @ np.array([px, py, pz])
+        RB = RA @ _basic(0, rx)
+        RC = RB @ _basic(1, ry)
+        RJ = RC @ _basic(2, rz)
+        w = RJ @ chain.axis[i]
+        pris = bool(chain.prismatic[i])
+        rot[i, 0] = not pris
+        eu[:, i, 0] = w
+        eu[:, i, 1], eu[:, i, 2], eu[:, i, 3] = RA[..., 0], RA[..., 1], RA[..., 2]
+        eu[:, i, 4], eu[:, i, 5], eu[:, i, 6] = RA[..., 0], RB[..., 1], RC[..., 2]
+        eo[:, i] = oJ[:, None, :]
+        axes[:, i], pts[:, i] = w, oJ
+        s = q[:, i] + off
+        if pris:
+            R[:, i + 1] = RJ
+            o[:, i + 1] = oJ + s[:, None] * w
+        else:
+            R[:, i + 1] = RJ @ rot_axis(chain.axis[i], s)
+            o[:, i + 1] = oJ
+    return ChainFrames(R, o, eu, eo, rot, axes, pts, moved)
+
+
+def auto_gauge(
+    chain: Chain,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    p_FQ,
+    *,
+    n_poses: int = GAUGE_POSES,
+    seed: int = GAUGE_SEED,
+    rtol: float = GAUGE_RTOL,
+) -> tuple[str, ...]:
+    """Names of the joint parameters held at nominal: those that do not add to the rank.
+
+    The Jacobian of the reflector ``p_FQ`` [mm] ((3,), or (T, 3) for T targets each measured at
+    every pose) in W, with the tracker's six columns ``-I`` and ``(p - p_WT) x e_k`` and the
+    targets' three each, at ``n_poses`` seeded poses uniform in the limits is column-normalised;
+    columns are visited in the preference order of the module docstring and kept when their
+    residual after projection on the kept ones exceeds ``rtol``. The number kept equals the rank
+    of a column-pivoted QR (checked).
+    """
+    nj = chain.n_joints
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(lower, upper, size=(n_poses, nj))
+    fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
+    targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
+    T = targets.shape[0]
+    blocks = []
+    for t, p_t in enumerate(targets):
+        p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], p_t)
+        d = p[:, None, None, :] - fr.elem_o
+        cols = np.where(fr.elem_rot[None, :, :, None], np.cross(fr.elem_u, d), fr.elem_u)
+        joint_cols = cols.reshape(n_poses, nj * PER_JOINT, 3).transpose(0, 2, 1)
+        eye = np.broadcast_to(np.eye(3), (n_poses, 3, 3))
+        tracker_rot = np.cross((p - _GENERIC_TRACKER)[:, None, :], np.eye(3)[None]).transpose(0, 2, 1)
+        target_cols = np.zeros((n_poses, 3, 3 * T))
+        target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, nj]
+        blocks.append(np.concatenate([-eye, tracker_rot, target_cols, joint_cols], axis=2))
+    A = np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
+    norms = np.linalg.norm(A, axis=0)
+    live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
+    A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
+    basis: list[np.ndarray] = []
+    held = []
+    names = param_names(nj)
+    for k in range(A.shape[1]):
+        v = A[:, k].copy()
+        for _ in range(2):  # Gram-Schmidt, twice for orthogonality
+            for b in basis:
+                v -= (b @ v) * b
+        r = np.linalg.norm(v)
+        if r > rtol:
+            basis.append(v / r)
+        elif k >= 6 + 3 * T:
+            held.append(names[k - 6 - 3 * T])
+        else:
+            raise ValueError("tracker or target columns are dependent: reflector or chain degenerate")
+    _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)
+    dq = np.abs(np.diag(Rq))
+    rank = int(np.sum(dq > rtol * dq[0]))
+    if rank != len(basis):
+        raise ValueError(f"gauge selection found rank {len(basis)}, pivoted QR {rank}")
+    return tuple(held)

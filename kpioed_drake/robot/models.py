@@ -1,0 +1,496 @@
+"""Robot and cell descriptions: typed dataclasses loaded from the YAML files under ``models/``.
+
+This module is the single source of truth for geometry. The numpy kinematics
+(:mod:`kpioed_drake.robot.kinematics`) and the Drake MultibodyPlant (:mod:`kpioed_drake.robot.plant`) are both
+built from a :class:`Robot` and a :class:`Cell`; nothing else holds link lengths or obstacle
+positions.
+
+Files use millimetres and degrees (see ``models/README.md``). The loaded objects hold millimetres and
+radians (numpy arrays), the units used everywhere inside the code.
+
+Conventions (SPEC): classic Denavit-Hartenberg
+``T_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``; Hayati for nearly parallel joints
+``T_i = Rz(theta_i + q_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)``.
+"""
+
+import dataclasses
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RollPitchYaw
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot import chain as chainmod
+from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec
+from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas, re-exported)
+    CapsuleSpec,
+    CellSpec,
+    JointSpec,
+    LinkSpec,
+    ObstacleSpec,
+    RobotSpec,
+    rated_payload,
+)
+from kpioed_drake.robot.urdf import read_urdf_robot
+
+MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
+"""Folder holding ``cell.yaml`` and ``robots/*.yaml`` (override with ``KPIOED_MODELS``)."""
+
+N_JOINTS = 6
+"""Joints of the DH/Hayati YAML robots (a URDF robot has its own count: ``robot.n_joints``)."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Loaded, typed objects (millimetres and radians)
+# ----------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Capsule:
+    """A capsule attached to ``frame`` (-1 = world, 0 = base, i = link i) [mm]."""
+
+    name: str
+    frame: int
+    radius: float
+    a: np.ndarray  # (3,) [mm] in the frame
+    b: np.ndarray  # (3,) [mm]
+
+
+def joint_param_names(conventions) -> list[str]:
+    """Names of the joint parameters of rows of these conventions, e.g. ``theta1, d1, a1, alpha1``."""
+    names = []
+    for i, conv in enumerate(conventions, start=1):
+        kinds = ("theta", "d", "a", "alpha") if conv == "dh" else ("theta", "a", "alpha", "beta")
+        names += [f"{k}{i}" for k in kinds]
+    return names
+
+
+@dataclasses.dataclass(frozen=True)
+class Robot:
+    """A serial robot (internal units: mm, rad): a six-joint DH/Hayati table or a URDF chain.
+
+    Attributes:
+        name: model name, e.g. ``kr16`` or ``notional-850-800``.
+        conventions: (n_joints,) ``"dh"`` or ``"hayati"`` per joint of a table robot;
+            ``"revolute"`` or ``"prismatic"`` per joint of a chain (URDF) robot.
+        geometry: (n_joints, per_joint) nominal kinematic parameters per joint, in the joint's own
+            order: DH ``(theta, d, a, alpha)``, Hayati ``(theta, a, alpha, beta)`` [rad, mm]; a
+            chain's seven error parameters (:mod:`kpioed_drake.robot.chain`), nominally 0.
+        lower, upper: (n_joints,) joint limits [rad] (prismatic joints: [mm]).
+        capsules: link collision capsules (frames 0..n_joints).
+        masses: (n_joints + 1,) link masses [kg] (index 0 = base).
+        coms: (n_joints + 1, 3) centres of mass in the link frames [mm].
+        self_pairs: link index pairs checked against each other.
+        beam_links: links the laser beam must not touch.
+        q_work: (n_joints,) working configuration [rad, mm], or None.
+        car_shift_x: moves the car obstacles along x [mm].
+        joint_names: the joints' names.
+        source: the model file.
+        p_FQ: (3,) reflector offset in the flange frame [mm] overriding the cell's, or None.
+        targets: (T, 3) offsets of several targets in the flange frame [mm] (target 1 = ``p_FQ``),
+            or None (one target: the reflector).
+        X_WT: tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))`` overriding the cell's, or None.
+        joint_map: controller angles to model angles, or None (identity).
+        extra_gauge: parameter names held at nominal besides SPEC's gauge.
+        chain: the nominal joint frames of a chain (URDF) robot, None for a table robot.
+        gauge: the parameters held at nominal (None: SPEC's gauge of the six-joint tables; a
+            chain robot's is chosen by :func:`kpioed_drake.robot.chain.auto_gauge`).
+        urdf: for a URDF robot, what :mod:`kpioed_drake.robot.plant` needs to parse it (None otherwise).
+        compliant_base: the model file says the base or floor is compliant (``compliant_base:
+            true``): ``base_compliance`` is a diagnosis candidate.
+        rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
+    """
+
+    name: str
+    conventions: tuple[str, ...]
+    geometry: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    capsules: tuple[Capsule, ...]
+    masses: np.ndarray
+    coms: np.ndarray
+    self_pairs: tuple[tuple[int, int], ...]
+    beam_links: tuple[int, ...]
+    q_work: np.ndarray | None
+    car_shift_x: float = 0.0
+    joint_names: tuple[str, ...] = ("A1", "A2", "A3", "A4", "A5", "A6")
+    source: str = ""
+    p_FQ: np.ndarray | None = None
+    X_WT: tuple[np.ndarray, np.ndarray] | None = None
+    joint_map: JointMap | None = None
+    extra_gauge: tuple[str, ...] = ()
+    chain: chainmod.Chain | None = None
+    gauge: tuple[str, ...] | None = None
+    urdf: object | None = None
+    targets: np.ndarray | None = None
+    compliant_base: bool = False
+    rated_payload_kg: float | None = None
+
+    @property
+    def n_targets(self) -> int:
+        """Targets (reflectors) per pose: the model file's ``targets_mm``, else 1."""
+        return 1 if self.targets is None else int(self.targets.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return len(self.conventions)
+
+    @property
+    def per_joint(self) -> int:
+        """Kinematic parameters per joint: 4 (DH/Hayati) or 7 (chain)."""
+        return chainmod.PER_JOINT if self.chain is not None else 4
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n_joints,) True for prismatic joints (their q in mm)."""
+        return np.array([c == "prismatic" for c in self.conventions], dtype=bool)
+
+    def param_names(self) -> list[str]:
+        """Names of the joint parameters in storage order, e.g. ``theta1, d1, a1, alpha1``."""
+        if self.chain is not None:
+            return chainmod.param_names(self.n_joints)
+        return joint_param_names(self.conventions)
+
+    def param_is_angle(self) -> list[bool]:
+        """Per joint parameter: True for an angle [rad], False for a length [mm]."""
+        if self.chain is not None:
+            return chainmod.param_is_angle(self.chain)
+        return [n.startswith(("theta", "alpha", "beta")) for n in self.param_names()]
+
+    @property
+    def reach(self) -> float:
+        """Nominal reach [mm]: a1 + a2 + sqrt(d4^2 + a3^2) (SPEC's check); for a chain the sum of
+        the distances between successive joint frames (joint 1's placement, the base, excluded)."""
+        if self.chain is not None:
+            return float(np.sum(np.linalg.norm(self.chain.p_PJ[1:], axis=1)))
+        g = self.geometry
+        a = [g[i, 2] if c == "dh" else g[i, 1] for i, c in enumerate(self.conventions)]
+        d4 = g[3, 1] if self.conventions[3] == "dh" else 0.0
+        return float(abs(a[0]) + abs(a[1]) + np.hypot(d4, a[2]))
+
+
+@dataclasses.dataclass(frozen=True)
+class Obstacle:
+    """A world-fixed obstacle capsule [mm]."""
+
+    name: str
+    radius: float
+    a: np.ndarray
+    b: np.ndarray
+    moves_with_car: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """The measuring cell (internal units: mm, rad).
+
+    Attributes:
+        p_WT: (3,) laser tracker position in W [mm].
+        R_WT: (3, 3) nominal tracker orientation.
+        p_FQ: (3,) reflector (SMR) position in the flange frame [mm].
+        max_incidence: largest admitted incidence angle [rad] (paper eq. 4).
+        sigma: measurement noise standard deviation per coordinate [mm].
+        beam_radius: radius of the laser-beam capsule [mm].
+        floor_z, wall_x: floor height and wall position [mm].
+        obstacles: fixed capsules (mount, car body, car cabin).
+    """
+
+    p_WT: np.ndarray
+    R_WT: np.ndarray
+    p_FQ: np.ndarray
+    max_incidence: float
+    sigma: float
+    beam_radius: float
+    floor_z: float
+    wall_x: float
+    obstacles: tuple[Obstacle, ...]
+    work_height_above_cabin: float = 100.0
+    work_cabin_obstacle: str = "car_cabin"
+
+
+# ----------------------------------------------------------------------------------------------
+# Loading
+# ----------------------------------------------------------------------------------------------
+_NOTIONAL = re.compile(r"^notional-(\d+)-(\d+)$")
+
+
+def _load_yaml(path: Path, schema):
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a YAML file")
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:  # PyYAML first: its syntax errors carry the line and column
+        yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InputError(f"{path}: YAML syntax error{loc}: {what}") from None
+    try:
+        return yaml_load_typed(filename=str(path), schema=schema)
+    except AssertionError:
+        raise InputError(f"{path}: a field that must be a mapping (key: value) is not") from None
+    except Exception as exc:  # pydrake raises RuntimeError/ValueError with a terse text
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: {msg}") from None
+
+
+def load_yaml_typed(path: str | Path, schema):
+    """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
+    return _load_yaml(Path(path), schema)
+
+
+def _vec3(values, where: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: expected 3 finite numbers, got {values!r}")
+    return arr
+
+
+def robot_path(name: str) -> Path:
+    """Path of the model file for ``name`` (a model name or a path to a YAML or URDF file); a
+    shipped name without a YAML file but with a URDF file (e.g. ``lift7``) names the URDF."""
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml", ".urdf"):
+        return p
+    m = _NOTIONAL.match(name)
+    if m:
+        return MODELS_DIR / "robots" / "notional" / f"{name}.yaml"
+    path = MODELS_DIR / "robots" / f"{name}.yaml"
+    urdf = path.with_suffix(".urdf")
+    return urdf if not path.is_file() and urdf.is_file() else path
+
+
+def list_robots() -> list[str]:
+    """Names of all robots shipped under ``models/robots``."""
+    root = MODELS_DIR / "robots"
+    yamls = {p.stem for p in root.glob("*.yaml") if not p.name.endswith(".kpioed.yaml")}  # not sidecars
+    names = sorted(yamls | {p.stem for p in root.glob("*.urdf")})
+    names += sorted(p.stem for p in (root / "notional").glob("notional-*.yaml"))
+    return names
+
+
+def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
+    """Validate a :class:`RobotSpec` and convert it to a :class:`Robot` (mm, rad)."""
+    if len(spec.joints) != N_JOINTS:
+        raise InputError(f"{where}: 'joints' must have {N_JOINTS} rows, got {len(spec.joints)}")
+    conv, geom, lo, up = [], np.zeros((N_JOINTS, 4)), np.zeros(N_JOINTS), np.zeros(N_JOINTS)
+    for i, j in enumerate(spec.joints):
+        w = f"{where}: joints[{i}]"
+        if j.convention not in ("dh", "hayati"):
+            raise InputError(f"{w}: convention must be 'dh' or 'hayati', got {j.convention!r}")
+        conv.append(j.convention)
+        th, al, be = np.deg2rad([j.theta_deg, j.alpha_deg, j.beta_deg])
+        geom[i] = (th, j.d_mm, j.a_mm, al) if j.convention == "dh" else (th, j.a_mm, al, be)
+        if not (np.isfinite(j.lower_deg) and np.isfinite(j.upper_deg) and j.lower_deg < j.upper_deg):
+            raise InputError(
+                f"{w}: lower_deg and upper_deg must be finite with lower_deg < upper_deg, "
+                f"got {j.lower_deg!r}, {j.upper_deg!r}"
+            )
+        lo[i], up[i] = np.deg2rad([j.lower_deg, j.upper_deg])
+    if conv[0] != "dh":
+        raise InputError(f"{where}: joint 1 must use the 'dh' convention")
+    if not np.all(np.isfinite(geom)):
+        raise InputError(f"{where}: kinematic table has a non-finite value")
+    caps, masses, coms = [], np.zeros(N_JOINTS + 1), np.zeros((N_JOINTS + 1, 3))
+    seen = set()
+    for k, link in enumerate(spec.links):
+        w = f"{where}: links[{k}]"
+        if not 0 <= link.index <= N_JOINTS or link.index in seen:
+            raise InputError(f"{w}: index must be a unique integer in 0..6, got {link.index}")
+        seen.add(link.index)
+        if not (np.isfinite(link.mass_kg) and link.mass_kg >= 0):
+            raise InputError(f"{w}: mass_kg must be a finite number >= 0, got {link.mass_kg!r}")
+        masses[link.index] = link.mass_kg
+        coms[link.index] = _vec3(link.com_mm, f"{w}.com_mm")
+        for c, cap in enumerate(link.capsules):
+            wc = f"{w}.capsules[{c}]"
+            if not (np.isfinite(cap.radius_mm) and cap.radius_mm > 0):
+                raise InputError(f"{wc}: radius_mm must be a finite number > 0, got {cap.radius_mm!r}")
+            a, b = _vec3(cap.a_mm, f"{wc}.a_mm"), _vec3(cap.b_mm, f"{wc}.b_mm")
+            name = cap.name or f"link{link.index}_{c}"
+            caps.append(Capsule(name, link.index, float(cap.radius_mm), a, b))
+    pairs = []
+    for pr in spec.self_collision_pairs:
+        if len(pr) != 2 or not all(0 <= x <= N_JOINTS for x in pr) or abs(pr[0] - pr[1]) < 2:
+            raise InputError(f"{where}: self_collision_pairs entry {pr} must be two non-neighbour links")
+        pairs.append((int(min(pr)), int(max(pr))))
+    bad_beam = [x for x in spec.beam_links if not 0 <= x <= N_JOINTS]
+    if bad_beam:
+        raise InputError(f"{where}: beam_links must be link indices in 0..{N_JOINTS}, got {bad_beam}")
+    q_work = None
+    if spec.q_work_deg:
+        qw = np.asarray(spec.q_work_deg, dtype=float)
+        if qw.shape != (N_JOINTS,) or not np.all(np.isfinite(qw)):
+            raise InputError(
+                f"{where}: q_work_deg must have {N_JOINTS} finite values, got {spec.q_work_deg!r}"
+            )
+        q_work = np.deg2rad(qw)
+        outside = np.flatnonzero((q_work < lo) | (q_work > up))
+        if outside.size:
+            i = int(outside[0])
+            raise InputError(
+                f"{where}: q_work_deg[{i}] = {qw[i]:g} deg is outside joint {i + 1}'s limits "
+                f"[{np.rad2deg(lo[i]):g}, {np.rad2deg(up[i]):g}] deg"
+            )
+    if not np.isfinite(spec.car_shift_x_mm):
+        raise InputError(f"{where}: car_shift_x_mm must be finite, got {spec.car_shift_x_mm!r}")
+    p_FQ = (
+        _vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm")
+        if spec.reflector_position_mm
+        else None
+    )
+    targets = _targets(spec, where, p_FQ)
+    p_FQ = p_FQ if targets is None else targets[0]
+    X_WT = None
+    if spec.tracker_position_mm or spec.tracker_rpy_deg:
+        if not spec.tracker_position_mm:
+            raise InputError(f"{where}: tracker_rpy_deg needs tracker_position_mm")
+        rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{where}: tracker_rpy_deg"))
+        X_WT = (
+            _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm"),
+            RollPitchYaw(rpy).ToRotationMatrix().matrix(),
+        )
+    bad = sorted(set(spec.extra_gauge) - set(joint_param_names(conv)))
+    if bad:
+        raise InputError(f"{where}: extra_gauge names {bad} that are not joint parameters of this table")
+    return Robot(
+        name=spec.name,
+        conventions=tuple(conv),
+        geometry=geom,
+        lower=lo,
+        upper=up,
+        capsules=tuple(caps),
+        masses=masses,
+        coms=coms,
+        self_pairs=tuple(pairs),
+        beam_links=tuple(int(x) for x in spec.beam_links),
+        q_work=q_work,
+        car_shift_x=float(spec.car_shift_x_mm),
+        joint_names=tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints)),
+        source=where,
+        p_FQ=p_FQ,
+        X_WT=X_WT,
+        joint_map=joint_map_from_spec(spec.joint_map, where),
+        extra_gauge=tuple(spec.extra_gauge),
+        targets=targets,
+        compliant_base=bool(spec.compliant_base),
+        rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
+    )
+
+
+def _targets(spec: RobotSpec, where: str, p_FQ: np.ndarray | None) -> np.ndarray | None:
+    """(T, 3) target offsets of ``targets_mm`` [mm], or None when the file has none.
+
+    Raises:
+        InputError: a target that is not three finite numbers, or a ``reflector_position_mm`` that
+            differs from target 1.
+    """
+    if not spec.targets_mm:
+        return None
+    targets = np.array([_vec3(t, f"{where}: targets_mm[{k}]") for k, t in enumerate(spec.targets_mm)])
+    if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
+        raise InputError(
+            f"{where}: reflector_position_mm {p_FQ.tolist()} differs from targets_mm[0] "
+            f"{targets[0].tolist()}: target 1 is the reflector (give one of them, or equal values)"
+        )
+    return targets
+
+
+def load_robot(name: str) -> Robot:
+    """Load a robot by model name (``kr16``, ``notional-850-800``) or from a YAML or URDF file path
+    (a URDF with its optional sidecar ``<name>.kpioed.yaml``, :mod:`kpioed_drake.robot.urdf`).
+
+    Raises:
+        InputError: unknown robot, or a malformed file (the message names the file and field).
+    """
+    path = robot_path(name)
+    if path.suffix == ".urdf":
+        fields = read_urdf_robot(path, load_yaml=_load_yaml)
+        caps = tuple(Capsule(*c) for c in fields.pop("capsules"))
+        return Robot(capsules=caps, **fields)
+    if not path.is_file():
+        known = ", ".join(n for n in list_robots() if not n.startswith("notional-"))
+        raise InputError(
+            f"unknown robot {name!r}: no file {path} (known: {known}, notional-<lambda>-<mu> with "
+            "lambda in 650..1100 and mu in 600..1000 in steps of 50, or a path to a .yaml file)"
+        )
+    spec = _load_yaml(path, RobotSpec)
+    robot = robot_from_spec(spec, where=str(path))
+    if not robot.name:
+        robot = dataclasses.replace(robot, name=path.stem)
+    return robot
+
+
+def cell_from_spec(spec: CellSpec, where: str = "cell") -> Cell:
+    """Validate a :class:`CellSpec` and convert it to a :class:`Cell` (mm, rad)."""
+    p_WT = _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm")
+    rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg, f"{where}: tracker_rpy_deg"))
+    R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
+    if not (np.isfinite(spec.noise_sigma_mm) and spec.noise_sigma_mm > 0):
+        raise InputError(f"{where}: noise_sigma_mm must be a finite number > 0, got {spec.noise_sigma_mm!r}")
+    if not (np.isfinite(spec.beam_radius_mm) and spec.beam_radius_mm >= 0):
+        raise InputError(f"{where}: beam_radius_mm must be a finite number >= 0, got {spec.beam_radius_mm!r}")
+    if not 0 < spec.max_incidence_deg < 90:
+        raise InputError(f"{where}: max_incidence_deg must be in (0, 90), got {spec.max_incidence_deg!r}")
+    for field in ("floor_z_mm", "wall_x_mm", "work_height_above_cabin_mm"):
+        if not np.isfinite(getattr(spec, field)):
+            raise InputError(f"{where}: {field} must be finite, got {getattr(spec, field)!r}")
+    for k, o in enumerate(spec.obstacles):
+        if not (np.isfinite(o.radius_mm) and o.radius_mm >= 0):
+            raise InputError(
+                f"{where}: obstacles[{k}].radius_mm must be a finite number >= 0, got {o.radius_mm!r}"
+            )
+    obstacles = tuple(
+        Obstacle(
+            o.name or f"obstacle{k}",
+            float(o.radius_mm),
+            _vec3(o.a_mm, f"{where}: obstacles[{k}].a_mm"),
+            _vec3(o.b_mm, f"{where}: obstacles[{k}].b_mm"),
+            bool(o.moves_with_car),
+        )
+        for k, o in enumerate(spec.obstacles)
+    )
+    return Cell(
+        p_WT=p_WT,
+        R_WT=R_WT,
+        p_FQ=_vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm"),
+        max_incidence=float(np.deg2rad(spec.max_incidence_deg)),
+        sigma=float(spec.noise_sigma_mm),
+        beam_radius=float(spec.beam_radius_mm),
+        floor_z=float(spec.floor_z_mm),
+        wall_x=float(spec.wall_x_mm),
+        obstacles=obstacles,
+        work_height_above_cabin=float(spec.work_height_above_cabin_mm),
+        work_cabin_obstacle=spec.work_cabin_obstacle,
+    )
+
+
+def load_cell(path: str | Path | None = None, *, robot: Robot | None = None) -> Cell:
+    """Load the measuring cell (default ``models/cell.yaml``).
+
+    If ``robot`` is given, the car obstacles are shifted along x by the robot's ``car_shift_x_mm``
+    (SPEC: move the car for a robot that cannot reach a feasible region in the default cell), and
+    the robot file's optional ``reflector_position_mm`` and tracker pose replace the cell's (a
+    robot- or data-specific target, or a calibrated model's tracker frame).
+    """
+    path = Path(path) if path is not None else MODELS_DIR / "cell.yaml"
+    spec = _load_yaml(path, CellSpec)
+    cell = cell_from_spec(spec, where=str(path))
+    if robot is not None and robot.car_shift_x:
+        shift = np.array([robot.car_shift_x, 0.0, 0.0])
+        obs = tuple(
+            dataclasses.replace(o, a=o.a + shift, b=o.b + shift) if o.moves_with_car else o
+            for o in cell.obstacles
+        )
+        cell = dataclasses.replace(cell, obstacles=obs)
+    if robot is not None and robot.p_FQ is not None:
+        cell = dataclasses.replace(cell, p_FQ=robot.p_FQ)
+    if robot is not None and robot.X_WT is not None:
+        cell = dataclasses.replace(cell, p_WT=robot.X_WT[0], R_WT=robot.X_WT[1])
+    return cell

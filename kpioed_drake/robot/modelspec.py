@@ -1,0 +1,128 @@
+"""File schemas of the model files: what a robot or cell YAML file holds (millimetres, degrees).
+
+Drake's ``yaml_load_typed`` reads ``models/robots/*.yaml`` into :class:`RobotSpec` and
+``models/cell.yaml`` into :class:`CellSpec`; an unknown or misspelled field is an error.
+:mod:`kpioed_drake.robot.models` validates them and turns them into the typed objects (millimetres,
+radians) the rest of the package uses. Field meanings: ``models/README.md``.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.jointmap import JointMapSpec
+
+
+@dataclasses.dataclass
+class JointSpec:
+    """One row of the kinematic table [mm, deg]."""
+
+    name: str = ""
+    convention: str = "dh"  # "dh" or "hayati"
+    theta_deg: float = 0.0
+    d_mm: float = 0.0  # DH only
+    a_mm: float = 0.0
+    alpha_deg: float = 0.0
+    beta_deg: float = 0.0  # Hayati only
+    lower_deg: float = -180.0
+    upper_deg: float = 180.0
+
+
+@dataclasses.dataclass
+class CapsuleSpec:
+    """A capsule: segment ``a_mm``-``b_mm`` in the owning frame, swept by a sphere of ``radius_mm``."""
+
+    name: str = ""
+    radius_mm: float = 0.0
+    a_mm: list[float] = dataclasses.field(default_factory=list)
+    b_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class LinkSpec:
+    """Link ``index`` (0 = base fixed to the world, i = moved by joint i), in DH frame ``index``."""
+
+    index: int = 0
+    mass_kg: float = 0.0
+    com_mm: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    capsules: list[CapsuleSpec] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class RobotSpec:
+    """A robot model file."""
+
+    name: str = ""
+    description: str = ""
+    sources: str = ""
+    joints: list[JointSpec] = dataclasses.field(default_factory=list)
+    links: list[LinkSpec] = dataclasses.field(default_factory=list)
+    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+    beam_links: list[int] = dataclasses.field(default_factory=list)
+    q_work_deg: list[float] = dataclasses.field(default_factory=list)
+    car_shift_x_mm: float = 0.0
+    notes: str = ""
+    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
+    """Optional: the reflector (target) offset in the flange frame; overrides the cell's."""
+    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    """Optional: several targets (SMRs), one flange-frame offset each, target 1 first; target 1
+    is the reflector (``reflector_position_mm``, if also given, must equal it)."""
+    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
+    """Optional: the tracker position in W (e.g. as calibrated); overrides the cell's."""
+    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    """Optional, with ``tracker_position_mm``: the tracker orientation (roll, pitch, yaw)."""
+    joint_map: JointMapSpec | None = None
+    """Optional: controller angles to model angles (:mod:`kpioed_drake.robot.jointmap`)."""
+    extra_gauge: list[str] = dataclasses.field(default_factory=list)
+    """Optional: parameters held at nominal besides SPEC's gauge (e.g. ``theta5, alpha5`` when the
+    reflector lies on joint 6's axis and joint 6 cannot move it)."""
+    compliant_base: bool = False
+    """Optional: the base or floor is compliant (``base_compliance`` becomes a diagnosis candidate)."""
+    rated_payload_kg: float = 0.0
+    """Optional: the payload the robot may carry [kg] (0: not given); a discrimination design's payload
+    plan may not exceed it."""
+
+
+@dataclasses.dataclass
+class ObstacleSpec:
+    """A fixed obstacle capsule in the world frame W [mm]."""
+
+    name: str = ""
+    radius_mm: float = 0.0
+    a_mm: list[float] = dataclasses.field(default_factory=list)
+    b_mm: list[float] = dataclasses.field(default_factory=list)
+    moves_with_car: bool = False
+
+
+@dataclasses.dataclass
+class CellSpec:
+    """The measuring cell file."""
+
+    description: str = ""
+    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
+    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
+    max_incidence_deg: float = 30.0
+    noise_sigma_mm: float = 1.0
+    beam_radius_mm: float = 5.0
+    floor_z_mm: float = 0.0
+    wall_x_mm: float = -450.0
+    obstacles: list[ObstacleSpec] = dataclasses.field(default_factory=list)
+    work_height_above_cabin_mm: float = 100.0
+    work_cabin_obstacle: str = "car_cabin"
+
+
+def rated_payload(value, where: str) -> float | None:
+    """A model file's ``rated_payload_kg``: None for 0 (not given), else a finite number > 0 [kg].
+
+    Raises:
+        InputError: ``where`` (file and field) and what was expected.
+    """
+    try:
+        kg = float(value)
+    except (TypeError, ValueError):
+        kg = float("nan")
+    if not (np.isfinite(kg) and kg >= 0):
+        raise InputError(f"{where}: expected the rated payload in kg, a number >= 0, got {value!r}")
+    return kg if kg > 0 else None

@@ -1,0 +1,241 @@
+"""The parameter vector ``p`` of the measurement model: its layout, names, units and estimated subset.
+
+Paper eq. (3) writes the measurement ``h(p, q)`` as a function of one parameter vector; this module
+says where each parameter sits in it, so that no other module slices it by number. For a robot of
+``n_joints`` joints with ``per_joint`` kinematic parameters each and ``n_targets`` reflectors, the
+vector is, in this order:
+
+- the joint rows, joint-major, each joint in its own convention's order (DH ``theta, d, a, alpha``;
+  Hayati ``theta, a, alpha, beta``) [rad, mm]; the first parameter of every row (``theta``) is the
+  joint-angle offset, so its column is also the derivative with respect to the joint angle;
+- the tracker position ``p_WT`` in W (3) [mm];
+- the tracker's three small rotations ``r`` about its axes (3) [rad],
+  ``R_WT = R_WT_ref @ Rx(rx) @ Ry(ry) @ Rz(rz)``;
+- the target (reflector) offsets ``p_FQ`` in the flange frame F, 3 per target [mm].
+
+For the six-joint robots with one reflector that is 24 + 3 + 3 + 3 = 33 parameters. The gauge
+parameters (SPEC: theta1, d1 against the tracker pose; theta6, d6, a6, alpha6 against the reflector
+offset) trade exactly against others and are held at their nominal values; the others are *free*
+(estimated): 27. Effect parameters (:mod:`kpioed_drake.effects`) come after the free geometric ones
+in an estimation's unknown vector: ``n_effects`` of them.
+
+SPEC's scaling of the criteria to millimetres at the tool: lengths 1, angles times the reach.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kpioed_drake.robot.models import N_JOINTS, Robot
+
+PER_JOINT = 4
+"""Kinematic parameters per joint row (DH and Hayati alike)."""
+FIXED_NAMES = ("theta1", "d1", "theta6", "d6", "a6", "alpha6")
+"""The gauge of the six-joint robots: held at their nominal values."""
+TRACKER_POSITION_NAMES = ("tracker_x", "tracker_y", "tracker_z")
+TRACKER_ROTATION_NAMES = ("tracker_rx", "tracker_ry", "tracker_rz")
+TRACKER_NAMES = TRACKER_POSITION_NAMES + TRACKER_ROTATION_NAMES
+REFLECTOR_NAMES = ("reflector_x", "reflector_y", "reflector_z")
+ANGLE_PREFIXES = ("theta", "alpha", "beta", "tracker_r")
+
+
+def n_parameters(n_joints: int = N_JOINTS, *, per_joint: int = PER_JOINT, n_targets: int = 1) -> int:
+    """Length of the parameter vector: joint rows, tracker pose (6), 3 per target."""
+    return n_joints * per_joint + 6 + 3 * n_targets
+
+
+N_FULL = n_parameters()
+"""Length of the parameter vector of a six-joint robot with one reflector (33)."""
+
+
+def _target_names(n_targets: int) -> tuple[str, ...]:
+    if n_targets == 1:
+        return REFLECTOR_NAMES
+    return tuple(f"{n}{t + 1}" for t in range(n_targets) for n in REFLECTOR_NAMES)
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterLayout:
+    """Where every parameter sits in the vector, its name and unit, and which are estimated.
+
+    Attributes:
+        names: (n_full,) parameter names.
+        is_angle: (n_full,) True for angles [rad], False for lengths [mm].
+        free: (n_free,) indices of the estimated parameters into the full vector, ascending.
+        n_joints: joints of the robot.
+        per_joint: kinematic parameters per joint row.
+        n_targets: reflectors (each 3 offset coordinates in the flange frame).
+        n_effects: effect parameters estimated after the free geometric ones (0 for the
+            geometric model).
+    """
+
+    names: tuple[str, ...]
+    is_angle: np.ndarray
+    free: np.ndarray
+    n_joints: int = N_JOINTS
+    per_joint: int = PER_JOINT
+    n_targets: int = 1
+    n_effects: int = 0
+
+    # --- segments of the full vector --------------------------------------------------------
+    @property
+    def size(self) -> int:
+        """Length of the full (geometric) vector."""
+        return len(self.names)
+
+    @property
+    def joints(self) -> slice:
+        """The joint rows (``n_joints * per_joint`` entries)."""
+        return slice(0, self.n_joints * self.per_joint)
+
+    @property
+    def tracker_position(self) -> slice:
+        """``p_WT`` [mm]."""
+        j = self.joints.stop
+        return slice(j, j + 3)
+
+    @property
+    def tracker_rotation(self) -> slice:
+        """The three small rotations of the tracker frame [rad]."""
+        j = self.tracker_position.stop
+        return slice(j, j + 3)
+
+    @property
+    def tracker(self) -> slice:
+        """Tracker position and small rotations (6 entries)."""
+        return slice(self.tracker_position.start, self.tracker_rotation.stop)
+
+    @property
+    def tracker_names(self) -> frozenset[str]:
+        """Names of the tracker pose's six entries."""
+        return frozenset(self.names[self.tracker])
+
+    @property
+    def targets(self) -> slice:
+        """All target offsets (3 per target) [mm]."""
+        j = self.tracker_rotation.stop
+        return slice(j, j + 3 * self.n_targets)
+
+    def target(self, t: int = 0) -> slice:
+        """Offset ``p_FQ`` of target ``t`` (0-based) [mm]."""
+        j = self.targets.start + 3 * t
+        return slice(j, j + 3)
+
+    def joint_row(self, joint: int) -> slice:
+        """The parameters of ``joint`` (1-based)."""
+        return slice(self.per_joint * (joint - 1), self.per_joint * joint)
+
+    def joint_angle(self, joint: int) -> int:
+        """Index of the angle offset ``theta`` of ``joint`` (1-based); its column is dh/dq_joint."""
+        return self.per_joint * (joint - 1)
+
+    @property
+    def joint_angles(self) -> slice:
+        """Indices of every joint's angle offset, as a slice of the full vector."""
+        return slice(0, self.joints.stop, self.per_joint)
+
+    def geometry_shape(self) -> tuple[int, int]:
+        """Shape of the joint rows as a table: ``(n_joints, per_joint)``."""
+        return (self.n_joints, self.per_joint)
+
+    # --- the free (estimated) subset ---------------------------------------------------------
+    @property
+    def free_names(self) -> list[str]:
+        return [self.names[i] for i in self.free]
+
+    @property
+    def n_free(self) -> int:
+        """Estimated geometric parameters (27 for the six-joint robots)."""
+        return int(self.free.size)
+
+    @property
+    def n_unknowns(self) -> int:
+        """Estimated geometric plus effect parameters."""
+        return self.n_free + self.n_effects
+
+    def in_free(self, segment: slice) -> np.ndarray:
+        """Positions in the free vector of the free parameters of a segment of the full vector."""
+        idx = np.arange(self.size)[segment]
+        return np.flatnonzero(np.isin(self.free, idx))
+
+    @property
+    def free_tracker_position(self) -> np.ndarray:
+        """Positions of ``p_WT`` in the free vector."""
+        return self.in_free(self.tracker_position)
+
+    @property
+    def free_tracker_rotation(self) -> np.ndarray:
+        """Positions of the tracker's small rotations in the free vector."""
+        return self.in_free(self.tracker_rotation)
+
+    def free_target(self, t: int = 0) -> np.ndarray:
+        """Positions of target ``t``'s offset in the free vector."""
+        return self.in_free(self.target(t))
+
+    @property
+    def effects(self) -> slice:
+        """The effect parameters in the unknown vector (after the free geometric ones)."""
+        return slice(self.n_free, self.n_free + self.n_effects)
+
+    @property
+    def free_robot_side(self) -> np.ndarray:
+        """Full-vector indices of the free joint and target parameters (the tracker excluded)."""
+        tr = np.arange(self.size)[self.tracker]
+        return self.free[~np.isin(self.free, tr)]
+
+    def with_effects(self, n_effects: int) -> ParameterLayout:
+        """The same layout with ``n_effects`` effect parameters after the free ones."""
+        return dataclasses.replace(self, n_effects=int(n_effects))
+
+    def scale(self, reach: float) -> np.ndarray:
+        """(n_free,) SPEC's scaling to millimetres at the tool: lengths 1, angles times the reach [mm]."""
+        return np.where(self.is_angle[self.free], reach, 1.0)
+
+
+def default_fixed(robot: Robot) -> tuple[str, ...]:
+    """The robot's gauge: SPEC's :data:`FIXED_NAMES` for the six-joint tables, the automatic gauge
+    (:func:`kpioed_drake.robot.chain.auto_gauge`) of a chain robot (``robot.gauge``)."""
+    return FIXED_NAMES if robot.gauge is None else tuple(robot.gauge)
+
+
+def parameter_layout(
+    robot: Robot,
+    *,
+    fixed: tuple[str, ...] | None = None,
+    n_targets: int | None = None,
+    n_effects: int = 0,
+) -> ParameterLayout:
+    """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
+
+    Args:
+        robot: the robot; its model file's ``extra_gauge`` names are held at nominal too (e.g. a
+            target on joint 6's axis makes theta5 and alpha5 trade against the others).
+        fixed: the gauge, the parameters held at nominal (default :func:`default_fixed`).
+        n_targets: targets (reflectors) per pose (default: the robot's, ``robot.n_targets``; the
+            same gauge holds for any number: the joint-6 parameters trade against all target
+            offsets together); n_effects: effect parameters appended.
+
+    Raises:
+        ValueError: a fixed name that is not a parameter of the model.
+    """
+    fixed = (default_fixed(robot) if fixed is None else tuple(fixed)) + tuple(robot.extra_gauge)
+    n_targets = robot.n_targets if n_targets is None else int(n_targets)
+    n_joints = robot.n_joints
+    names = tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets)
+    tail = [n.startswith(ANGLE_PREFIXES) for n in names[len(robot.param_names()) :]]
+    is_angle = np.array(list(robot.param_is_angle()) + tail, dtype=bool)
+    unknown = set(fixed) - set(names)
+    if unknown:
+        raise ValueError(f"fixed parameters not in the model: {sorted(unknown)}")
+    free = np.array([i for i, n in enumerate(names) if n not in fixed])
+    return ParameterLayout(
+        names=names,
+        is_angle=is_angle,
+        free=free,
+        n_joints=n_joints,
+        per_joint=robot.per_joint,
+        n_targets=n_targets,
+        n_effects=n_effects,
+    )

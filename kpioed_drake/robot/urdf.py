@@ -1,0 +1,490 @@
+"""Robots from URDF: Drake's ``Parser`` reads the file into a MultibodyPlant; this module reads the
+serial chain, limits, inertias and collision geometry back out of it (plus a sidecar YAML file).
+
+The URDF's kinematic tree must be one serial chain of revolute, continuous (a revolute joint
+without limits) and prismatic joints; fixed joints are folded into the neighbouring links (a
+fixed side branch without movable joints, e.g. a ``tool0`` frame, is allowed). Link i of the robot
+is the child link of the i-th movable joint (its URDF frame is the joint frame, so the chain of
+:mod:`kpioed_drake.robot.chain` is Drake's own); link 0 is W, the base pose ``X_WB`` folded into joint 1's
+placement: the URDF's own weld to a link named ``world``, or the sidecar's ``base_xyz_mm`` /
+``base_rpy_deg`` (default identity). Gravity is Drake's, -z of W, so a base rotated about x loads
+joint 1.
+
+Collision geometry becomes capsules: a cylinder (or ``drake:capsule``) of radius r and length L
+the capsule of radius r along its axis from -L/2 to L/2 (it covers the cylinder); a sphere a
+capsule of zero length; a box the capsule along its longest side with the radius of the half
+diagonal of the other two; meshes are skipped (give capsules in the sidecar instead).
+
+The sidecar ``<name>.kpioed.yaml`` next to ``<name>.urdf`` (optional) holds what a URDF lacks
+(:class:`SidecarSpec`); ``models/README.md`` documents it. Units: the URDF metres and radians; the
+sidecar, as every model file, millimetres and degrees (prismatic joint values in millimetres).
+"""
+
+import dataclasses
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import PrismaticJoint
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
+from kpioed_drake.robot.jointmap import JointMapSpec, joint_map_from_spec
+from kpioed_drake.robot.modelspec import CapsuleSpec, rated_payload
+
+MM = 1e-3
+MOVABLE = ("revolute", "continuous", "prismatic")
+_GENERIC_REFLECTOR = np.array([80.0, -60.0, 150.0])
+"""Reflector offset [mm] for the automatic gauge when the sidecar gives none (off every axis)."""
+
+
+@dataclasses.dataclass
+class LimitSpec:
+    """A joint limit override: ``joint`` (URDF name), ``lower``, ``upper`` [deg; prismatic mm]."""
+
+    joint: str = ""
+    lower: float = 0.0
+    upper: float = 0.0
+
+
+@dataclasses.dataclass
+class LinkCapsuleSpec(CapsuleSpec):
+    """A capsule on robot link ``link`` (0 = base in W, i = child link of movable joint i) [mm]."""
+
+    link: int = 0
+
+
+@dataclasses.dataclass
+class LinkMassSpec:
+    """A mass override of robot link ``link`` (1..n): ``mass_kg`` and optionally ``com_mm`` (link frame);
+    the URDF's inertia tensor is scaled by the mass ratio."""
+
+    link: int = 0
+    mass_kg: float = 0.0
+    com_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class SidecarSpec:
+    """The sidecar YAML of a URDF robot (every field optional; mm, deg)."""
+
+    name: str = ""
+    description: str = ""
+    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
+    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
+    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
+    base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    limits: list[LimitSpec] = dataclasses.field(default_factory=list)
+    capsules: list[LinkCapsuleSpec] = dataclasses.field(default_factory=list)
+    masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
+    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+    beam_links: list[int] = dataclasses.field(default_factory=list)
+    q_work: list[float] = dataclasses.field(default_factory=list)
+    car_shift_x_mm: float = 0.0
+    extra_gauge: list[str] = dataclasses.field(default_factory=list)
+    joint_map: JointMapSpec | None = None
+    """Controller angles to model angles, as in the YAML files (six-joint robots only)."""
+    gauge: list[str] = dataclasses.field(default_factory=list)
+    """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
+    nominal robot's: its small errors make the exact dependencies only nearly exact)."""
+    compliant_base: bool = False
+    """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
+    rated_payload_kg: float = 0.0
+    """The payload the robot may carry [kg] (0: not given)."""
+    notes: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class UrdfSource:
+    """What :func:`add_urdf` needs to rebuild the robot in another plant."""
+
+    path: str
+    text: str  # the URDF without visual and collision elements
+    X_WB: RigidTransform | None  # weld of the root link (None: the URDF welds to "world")
+    root: str
+    joints: tuple[str, ...]  # the movable joints, base to flange
+
+
+def sidecar_path(path: Path) -> Path:
+    """``robot.urdf`` -> ``robot.kpioed.yaml`` beside it."""
+    return path.with_name(path.stem + ".kpioed.yaml")
+
+
+def _floats(el, attr: str, default: str, where: str) -> np.ndarray:
+    text = el.get(attr, default) if el is not None else default
+    try:
+        vals = np.array([float(x) for x in text.split()])
+    except ValueError:
+        raise InputError(f"{where}: {attr}={text!r} is not a list of numbers") from None
+    if not np.all(np.isfinite(vals)):
+        raise InputError(f"{where}: {attr}={text!r} is not finite")
+    return vals
+
+
+def _origin(el, where: str) -> RigidTransform:
+    o = el.find("origin")
+    xyz, rpy = _floats(o, "xyz", "0 0 0", where), _floats(o, "rpy", "0 0 0", where)
+    if xyz.shape != (3,) or rpy.shape != (3,):
+        raise InputError(f"{where}: origin needs three xyz and three rpy values")
+    return RigidTransform(RollPitchYaw(rpy), xyz)
+
+
+def _parse_xml(path: Path) -> ET.Element:
+    try:
+        root = ET.fromstring(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except ET.ParseError as exc:
+        line, col = exc.position
+        raise InputError(f"{path}: malformed URDF (XML error at line {line}, column {col + 1})") from None
+    if root.tag != "robot":
+        raise InputError(f"{path}: not a URDF (the root element is <{root.tag}>, expected <robot>)")
+    return root
+
+
+def _chain_joints(root: ET.Element, path: Path) -> tuple[list[ET.Element], str, bool]:
+    """The movable joints base to flange, the root link, and whether the URDF welds to "world"."""
+    joints = root.findall("joint")
+    children: dict[str, list[ET.Element]] = {}
+    child_links = set()
+    for j in joints:
+        name, kind = j.get("name", "?"), j.get("type", "")
+        if kind not in MOVABLE + ("fixed",):
+            raise InputError(
+                f"{path}: joint {name!r}: type {kind!r} is not supported (revolute, continuous, "
+                "prismatic or fixed)"
+            )
+        p, c = j.find("parent"), j.find("child")
+        if p is None or c is None or not p.get("link") or not c.get("link"):
+            raise InputError(f"{path}: joint {name!r}: needs <parent link=...> and <child link=...>")
+        children.setdefault(p.get("link"), []).append(j)
+        child_links.add(c.get("link"))
+    links = [lk.get("name") for lk in root.findall("link")]
+    roots = [lk for lk in links if lk not in child_links]
+    if len(roots) != 1:
+        raise InputError(f"{path}: expected one root link, found {roots or 'none'} (not a tree)")
+
+    def movable_below(link: str) -> int:
+        below = children.get(link, [])
+        return sum((j.get("type") != "fixed") + movable_below(j.find("child").get("link")) for j in below)
+
+    chain, link = [], roots[0]
+    while True:
+        branches = [
+            j
+            for j in children.get(link, [])
+            if j.get("type") != "fixed" or movable_below(j.find("child").get("link"))
+        ]
+        if len(branches) > 1:
+            raise InputError(
+                f"{path}: link {link!r}: the tree branches ({', '.join(j.get('name') for j in branches)}); "
+                "only serial chains are supported"
+            )
+        if not branches:
+            break
+        if branches[0].get("type") != "fixed":
+            chain.append(branches[0])
+        link = branches[0].find("child").get("link")
+    if not chain:
+        raise InputError(f"{path}: no revolute or prismatic joint")
+    return chain, roots[0], roots[0] == "world"
+
+
+def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
+    """The URDF text without visual and collision elements, with the sidecar's mass overrides."""
+    root = ET.fromstring(ET.tostring(root))
+    links = {lk.get("name"): lk for lk in root.findall("link")}
+    for k, m in enumerate(masses):
+        w = f"{where}: masses[{k}]"
+        if not 1 <= m.link <= len(chain):
+            raise InputError(f"{w}: link must be in 1..{len(chain)}, got {m.link}")
+        if not (np.isfinite(m.mass_kg) and m.mass_kg > 0):
+            raise InputError(f"{w}: mass_kg must be a finite number > 0, got {m.mass_kg!r}")
+        lk = links[chain[m.link - 1].find("child").get("link")]
+        inertial = lk.find("inertial")
+        if inertial is None:
+            inertial = ET.SubElement(lk, "inertial")
+            ET.SubElement(inertial, "inertia", {k: "0" for k in ("ixy", "ixz", "iyz")})
+        mass = inertial.find("mass")
+        old = float(mass.get("value")) if mass is not None else 0.0
+        mass = ET.SubElement(inertial, "mass") if mass is None else mass
+        mass.set("value", repr(float(m.mass_kg)))
+        tensor = inertial.find("inertia")
+        for key in ("ixx", "iyy", "izz"):  # scaled, or a 50 mm solid sphere without a URDF mass
+            v = float(tensor.get(key, "0")) * m.mass_kg / old if old > 0 else 0.001 * m.mass_kg
+            tensor.set(key, repr(v))
+        if m.com_mm:
+            o = inertial.find("origin")
+            o = ET.SubElement(inertial, "origin") if o is None else o
+            o.set("xyz", " ".join(repr(float(x) * MM) for x in _vec(m.com_mm, f"{w}.com_mm")))
+    for lk in root.findall("link"):
+        for tag in ("visual", "collision"):
+            for el in lk.findall(tag):
+                lk.remove(el)
+    return ET.tostring(root, encoding="unicode")
+
+
+def add_urdf(plant: MultibodyPlant, source: UrdfSource):
+    """Parse the robot into ``plant`` (not finalized) and weld its root; returns the model instance."""
+    try:
+        (inst,) = Parser(plant).AddModelsFromString(source.text, "urdf")
+    except Exception as exc:  # Drake's parser raises RuntimeError with its diagnostic
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{source.path}: Drake could not parse the URDF: {msg}") from None
+    if source.X_WB is not None:
+        root = plant.GetBodyByName(source.root, inst)
+        plant.WeldFrames(plant.world_frame(), root.body_frame(), source.X_WB)
+    return inst
+
+
+def movable_joints(plant: MultibodyPlant, inst, source: UrdfSource) -> list:
+    """The plant's joints of the chain, base to flange."""
+    return [plant.GetJointByName(n, inst) for n in source.joints]
+
+
+def read_urdf_robot(path: Path, load_yaml) -> dict:
+    """The fields of a :class:`kpioed_drake.robot.models.Robot` of a URDF file and its sidecar.
+
+    Args:
+        path: the URDF file.
+        load_yaml: ``(path, schema) -> spec`` (the model files' YAML loader, errors name the file).
+
+    Returns:
+        the Robot fields; ``capsules`` as tuples ``(name, link, radius, a, b)`` [mm].
+
+    Raises:
+        InputError: malformed XML, an unsupported joint type, a branching tree, a bad sidecar.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    xml = _parse_xml(path)
+    side_path = sidecar_path(path)
+    side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
+    sw = str(side_path)
+    chain_xml, root, welded = _chain_joints(xml, path)
+    X_WB = None
+    if side.base_xyz_mm or side.base_rpy_deg:
+        if welded:
+            raise InputError(f"{sw}: base_xyz_mm/base_rpy_deg given, but {path} welds its root to 'world'")
+        xyz = _vec(side.base_xyz_mm or [0, 0, 0], f"{sw}: base_xyz_mm") * MM
+        rpy = np.deg2rad(_vec(side.base_rpy_deg or [0, 0, 0], f"{sw}: base_rpy_deg"))
+        X_WB = RigidTransform(RollPitchYaw(rpy), xyz)
+    elif not welded:
+        X_WB = RigidTransform()
+    names = tuple(j.get("name") for j in chain_xml)
+    source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
+    plant = MultibodyPlant(0.0)
+    inst = add_urdf(plant, source)
+    plant.Finalize()
+    ctx = plant.CreateDefaultContext()
+    joints = movable_joints(plant, inst, source)
+    n = len(joints)
+    R_PJ, p_PJ, axis = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    pris = np.array([isinstance(j, PrismaticJoint) for j in joints])
+    lo, up = np.zeros(n), np.zeros(n)
+    bodies = [plant.world_body()]
+    for i, j in enumerate(joints):
+        X_P = plant.EvalBodyPoseInWorld(ctx, bodies[-1])
+        X_PJ = X_P.inverse().multiply(j.frame_on_parent().CalcPoseInWorld(ctx))
+        R_PJ[i], p_PJ[i] = X_PJ.rotation().matrix(), X_PJ.translation() / MM
+        a = j.translation_axis() if pris[i] else j.revolute_axis()
+        axis[i] = np.asarray(a) / np.linalg.norm(a)
+        s = 1.0 / MM if pris[i] else 1.0
+        lo[i], up[i] = j.position_lower_limits()[0] * s, j.position_upper_limits()[0] * s
+        bodies.append(j.child_body())
+        X_CM = j.frame_on_child().CalcPose(ctx, j.child_body().body_frame())
+        if not X_CM.IsNearlyIdentity(1e-12):
+            raise InputError(f"{path}: joint {j.name()!r}: the child link's frame is not the joint frame")
+    lo, up = _limits(side, names, pris, lo, up, sw, path)
+    chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris)
+    masses, coms, owner = _inertia(plant, ctx, bodies)
+    if side.capsules:
+        caps = _side_capsules(side, n, sw)
+    else:
+        caps = _capsules(xml, plant, ctx, inst, bodies, owner, path)
+    p_FQ, targets = None, None
+    if side.reflector_position_mm:
+        p_FQ = _vec(side.reflector_position_mm, f"{sw}: reflector_position_mm")
+    if side.targets_mm:  # several targets: target 1 is the reflector (as targets_mm of a YAML robot)
+        targets = np.array([_vec(t, f"{sw}: targets_mm[{k}]") for k, t in enumerate(side.targets_mm)])
+        if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
+            raise InputError(
+                f"{sw}: reflector_position_mm differs from targets_mm[0] (target 1 is the reflector)"
+            )
+        p_FQ = targets[0]
+    q_work = _q_work(side, pris, lo, up, sw)
+    X_WT = None
+    if side.tracker_position_mm:
+        rpy = np.deg2rad(_vec(side.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{sw}: tracker_rpy_deg"))
+        R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
+        X_WT = (_vec(side.tracker_position_mm, f"{sw}: tracker_position_mm"), R_WT)
+    pairs = []
+    for pr in side.self_collision_pairs:
+        if len(pr) != 2 or not all(0 <= x <= n for x in pr) or abs(pr[0] - pr[1]) < 2:
+            raise InputError(
+                f"{sw}: self_collision_pairs entry {pr} must be two non-neighbour links in 0..{n}"
+            )
+        pairs.append((int(min(pr)), int(max(pr))))
+    if any(not 0 <= x <= n for x in side.beam_links):
+        raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
+    gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
+    if side.joint_map is not None and n != 6:
+        raise InputError(f"{sw}: joint_map is available for six-joint robots only ({path} has {n} joints)")
+    return dict(
+        name=side.name or path.stem,
+        conventions=tuple("prismatic" if p else "revolute" for p in pris),
+        geometry=np.zeros((n, 7)),
+        lower=lo,
+        upper=up,
+        capsules=caps,
+        masses=masses,
+        coms=coms,
+        self_pairs=tuple(pairs),
+        beam_links=tuple(int(x) for x in side.beam_links),
+        q_work=q_work,
+        car_shift_x=float(side.car_shift_x_mm),
+        joint_names=names,
+        source=str(path),
+        p_FQ=p_FQ,
+        X_WT=X_WT,
+        extra_gauge=tuple(side.extra_gauge),
+        joint_map=joint_map_from_spec(side.joint_map, sw),
+        targets=targets,
+        chain=chain,
+        gauge=gauge,
+        urdf=source,
+        compliant_base=bool(side.compliant_base),
+        rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
+    )
+
+
+def _gauge(side, chain, lo, up, p_FQ, sw, path) -> tuple[str, ...]:
+    if side.gauge:
+        unknown = sorted(set(side.gauge) - set(param_names(chain.n_joints)))
+        if unknown:
+            raise InputError(f"{sw}: gauge names {unknown}, not joint parameters of {path}")
+        return tuple(side.gauge)
+    try:
+        return auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ)
+    except ValueError as exc:
+        msg = f"{path}: automatic gauge: {exc}; name the parameters to hold in {sw} (gauge:)"
+        raise InputError(msg) from None
+
+
+def _vec(values, where: str, size: int = 3) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (size,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: expected {size} finite numbers, got {values!r}")
+    return arr
+
+
+def _limits(side, names, pris, lo, up, sw, path):
+    lo, up = lo.copy(), up.copy()
+    by_name = {lim.joint: lim for lim in side.limits}
+    unknown = sorted(set(by_name) - set(names))
+    if unknown:
+        raise InputError(f"{sw}: limits: unknown joints {unknown} (joints: {', '.join(names)})")
+    for i, name in enumerate(names):
+        if name in by_name:
+            lim = by_name[name]
+            if not (np.isfinite(lim.lower) and np.isfinite(lim.upper) and lim.lower < lim.upper):
+                raise InputError(f"{sw}: limits of joint {name!r}: need finite lower < upper")
+            lo[i], up[i] = (lim.lower, lim.upper) if pris[i] else np.deg2rad([lim.lower, lim.upper])
+        elif not (np.isfinite(lo[i]) and np.isfinite(up[i])):
+            if pris[i]:
+                raise InputError(f"{path}: prismatic joint {name!r} has no limits; give them in {sw}")
+            lo[i], up[i] = -2.0 * np.pi, 2.0 * np.pi  # a continuous joint: one turn either way
+    return lo, up
+
+
+def _q_work(side, pris, lo, up, sw):
+    if not side.q_work:
+        return None
+    qw = _vec(side.q_work, f"{sw}: q_work", size=len(pris))
+    q = np.where(pris, qw, np.deg2rad(qw))
+    bad = np.flatnonzero((q < lo) | (q > up))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"{sw}: q_work[{k}] = {qw[k]:g} is outside joint {k + 1}'s limits")
+    return q
+
+
+def _inertia(plant, ctx, bodies):
+    """Masses (n+1,) [kg], centres of mass (n+1, 3) [mm] per link (welded bodies merged), owner map."""
+    n = len(bodies) - 1
+    masses, coms, owner = np.zeros(n + 1), np.zeros((n + 1, 3)), {}
+    for i, body in enumerate(bodies):
+        X_WL = plant.EvalBodyPoseInWorld(ctx, body)
+        mc = np.zeros(3)
+        for b in plant.GetBodiesWeldedTo(body):
+            owner[int(b.index())] = i
+            if i == 0 and b.index() == plant.world_body().index():
+                continue
+            m = b.default_mass()
+            X_LB = X_WL.inverse().multiply(plant.EvalBodyPoseInWorld(ctx, b))
+            masses[i] += m
+            mc += m * (X_LB @ np.asarray(b.default_com())) / MM
+        coms[i] = mc / masses[i] if masses[i] > 0 else 0.0
+    return masses, coms, owner
+
+
+def _capsules(xml, plant, ctx, inst, bodies, owner, path):
+    out = []
+    for lk in xml.findall("link"):
+        name = lk.get("name")
+        if name == "world":
+            continue
+        body = plant.GetBodyByName(name, inst)
+        i = owner[int(body.index())]
+        X_WO = plant.EvalBodyPoseInWorld(ctx, bodies[i])
+        X_OL = X_WO.inverse().multiply(plant.EvalBodyPoseInWorld(ctx, body))
+        for k, col in enumerate(lk.findall("collision")):
+            where = f"{path}: link {name!r} collision {k}"
+            geo = _capsule_geometry(col, where)
+            if geo is None:
+                continue
+            r, a, b = geo
+            X = X_OL.multiply(_origin(col, where))
+            out.append((col.get("name") or f"{name}_{k}", i, r / MM, (X @ a) / MM, (X @ b) / MM))
+    return tuple(out)
+
+
+def _capsule_geometry(col, where):
+    """Radius [m] and end points (3,) [m] in the collision origin frame, or None (a mesh)."""
+    g = col.find("geometry")
+    shape = None if g is None or not len(g) else g[0]
+    if shape is None:
+        raise InputError(f"{where}: no geometry")
+    tag = shape.tag.split("}")[-1]
+    if tag in ("cylinder", "capsule"):
+        r, length = (_floats(shape, k, "nan", where)[0] for k in ("radius", "length"))
+        half = np.array([0.0, 0.0, 0.5 * length])
+        return r, -half, half
+    if tag == "sphere":
+        return _floats(shape, "radius", "nan", where)[0], np.zeros(3), np.zeros(3)
+    if tag == "box":
+        size = _floats(shape, "size", "nan nan nan", where)
+        k = int(np.argmax(size))
+        half = np.zeros(3)
+        half[k] = 0.5 * size[k]
+        return 0.5 * float(np.linalg.norm(np.delete(size, k))), -half, half
+    return None
+
+
+def _side_capsules(side, n, sw):
+    out = []
+    for k, c in enumerate(side.capsules):
+        w = f"{sw}: capsules[{k}]"
+        if not 0 <= c.link <= n:
+            raise InputError(f"{w}: link must be in 0..{n}, got {c.link}")
+        if not (np.isfinite(c.radius_mm) and c.radius_mm > 0):
+            raise InputError(f"{w}: radius_mm must be a finite number > 0, got {c.radius_mm!r}")
+        a, b = _vec(c.a_mm, f"{w}.a_mm"), _vec(c.b_mm, f"{w}.b_mm")
+        out.append((c.name or f"link{c.link}_{k}", c.link, float(c.radius_mm), a, b))
+    return tuple(out)

@@ -1,0 +1,100 @@
+"""A calibrated URDF robot as a URDF file plus its sidecar (``kpioed calibrate --out NAME.urdf``).
+
+The estimated errors of joint i (:mod:`kpioed_drake.robot.chain`: offset, three translations, three small
+rotations) are folded into the URDF joint's ``<origin>``:
+``X' = X Trans(px, py, pz) Rx(rx) Ry(ry) Rz(rz) M(off)``, with ``M(off)`` the joint's own motion
+by its offset (a rotation about, or a translation along, its axis), so that the new file's link i
+frame at ``q`` is the calibrated model's. Everything else of the URDF (links, inertias, collision
+and visual geometry, the root weld) is copied unchanged. The sidecar ``NAME.kpioed.yaml`` gets the
+original sidecar's fields plus the estimated reflector offset and tracker pose, so ``--robot
+NAME.urdf`` carries the whole calibrated model (as a calibrated YAML file does).
+"""
+
+import dataclasses
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.chain import rot_axis
+from kpioed_drake.robot.models import Robot, load_yaml_typed
+from kpioed_drake.robot.urdf import MM, SidecarSpec, sidecar_path
+
+URDF_SUFFIX = ".urdf"
+
+
+def check_out_path(robot: Robot, out) -> None:
+    """A URDF robot's calibrated model must be written as ``.urdf``, a table robot's as YAML.
+
+    Raises:
+        InputError: a mismatching suffix.
+    """
+    if out is None:
+        return
+    is_urdf = Path(str(out)).suffix == URDF_SUFFIX
+    if robot.urdf is not None and not is_urdf:
+        raise InputError(
+            f"--out {out}: {robot.name} is a URDF robot; its calibrated model is a URDF file: use "
+            f"--out NAME{URDF_SUFFIX} (its sidecar NAME.kpioed.yaml is written beside it)"
+        )
+    if robot.urdf is None and is_urdf:
+        raise InputError(f"--out {out}: {robot.name} is a YAML robot; write its calibrated model as .yaml")
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{(0.0 if abs(x) < 1e-15 else float(x)):.17g}" for x in v)
+
+
+def calibrated_urdf(robot: Robot, geometry: np.ndarray, note: str = "") -> str:
+    """URDF text of ``robot`` with the errors ``geometry`` (n_joints, 7) [rad, mm] in its joints."""
+    src = Path(robot.urdf.path)
+    root = ET.fromstring(src.read_text(encoding="utf-8"))
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    for i, name in enumerate(robot.urdf.joints):
+        el = joints[name]
+        o = el.find("origin")
+        if o is None:
+            o = ET.SubElement(el, "origin")
+        xyz = np.array([float(x) for x in o.get("xyz", "0 0 0").split()])
+        rpy = np.array([float(x) for x in o.get("rpy", "0 0 0").split()])
+        off, px, py, pz, rx, ry, rz = geometry[i]
+        R = RotationMatrix.MakeXRotation(rx) @ RotationMatrix.MakeYRotation(ry)
+        R = R @ RotationMatrix.MakeZRotation(rz)
+        X = RigidTransform(RollPitchYaw(rpy), xyz) @ RigidTransform(R, np.array([px, py, pz]) * MM)
+        axis = robot.chain.axis[i]
+        if robot.prismatic[i]:
+            X = X @ RigidTransform(axis * off * MM)
+        else:
+            X = X @ RigidTransform(RotationMatrix(rot_axis(axis, off)))
+        o.set("xyz", _fmt(X.translation()))
+        o.set("rpy", _fmt(RollPitchYaw(X.rotation()).vector()))
+    text = ET.tostring(root, encoding="unicode")
+    comment = f"<!-- {note} -->\n" if note else ""
+    return '<?xml version="1.0"?>\n' + comment + text + "\n"
+
+
+def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: str = "") -> str:
+    """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, and the
+    nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
+    src = sidecar_path(Path(robot.urdf.path))
+    side = load_yaml_typed(src, SidecarSpec) if src.is_file() else SidecarSpec()
+    side = dataclasses.replace(
+        side,
+        name=f"{robot.name}-calibrated",
+        reflector_position_mm=np.asarray(p_FQ, dtype=float).tolist(),
+        tracker_position_mm=np.asarray(p_WT, dtype=float).tolist(),
+        tracker_rpy_deg=np.rad2deg(RollPitchYaw(RotationMatrix(R_WT)).vector()).tolist(),
+        gauge=list(robot.gauge),
+        targets_mm=[] if targets is None else np.asarray(targets, dtype=float).tolist(),
+        notes=(side.notes + " " if side.notes else "") + note,
+    )
+    header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"
+    return header + yaml_dump_typed(side)
+
+
+def sidecar_of(out) -> Path:
+    """The sidecar path written beside ``out`` (``NAME.urdf`` -> ``NAME.kpioed.yaml``)."""
+    return sidecar_path(Path(str(out)))

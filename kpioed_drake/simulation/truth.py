@@ -1,0 +1,240 @@
+"""Simulated laser-tracker measurements of a robot whose true geometry differs from the nominal one.
+
+:func:`simulate` draws a "true" robot: the nominal model plus random geometric errors on the 27
+estimated parameters (SPEC sizes: standard deviation 0.5 mm for lengths, 0.05 deg for angles; the 6
+gauge parameters stay nominal) and an arbitrary tracker frame (uniformly random orientation,
+position within +-100 mm of the cell's tracker position): :func:`true_model`, which the synthetic
+harness of :mod:`kpioed_drake.diagnosis` shares. It then measures the commanded poses, optionally
+with non-geometric effects (:mod:`kpioed_drake.effects`), and adds N(0, sigma^2) noise per
+coordinate. The result is a table in the measurement-file format of SPEC ("Measured data and model
+discrepancy") plus the truth.
+
+Defaults for the environment columns (always written): ``time_s`` = 30 s per pose from 0;
+``temperature_C`` = 20 C drifting linearly from 18 to 22 C over the run (plus 0.05 C jitter).
+``payload_kg`` is written when a payload is given. A design CSV with a measurement plan (``kpioed
+design --discriminate`` for a temperature, time or payload pair) has ``temperature_offset_K`` /
+``time_offset_s`` / ``payload_offset_kg`` per row: :func:`simulate_file` adds them to these columns
+(block 2 measured after the planned temperature change or pause, or with the planned payload).
+
+Several targets (SMRs): every pose measures the first ``n_targets`` targets of the robot model
+file (``targets_mm``; default all of them), one row per target, pose-major, with a ``target``
+column (1..T) when there is more than one; the true robot has random errors on every target
+offset. The environment columns are per pose (a pose's rows share them).
+
+Units: files mm/deg; inside mm/rad.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from kpioed_drake.effects import parse_effect, resolve, true_measurements
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.tracker.csvio import (
+    OFFSET_COLUMNS,
+    q_columns,
+    q_from_file,
+    q_to_file,
+)
+from kpioed_drake.tracker.data import TARGET_COLUMN, per_pose
+from kpioed_drake.tracker.measurement import TrackerModel, measure, nominal_model
+
+LENGTH_ERROR_MM = 0.5
+ANGLE_ERROR_DEG = 0.05
+TRACKER_POSITION_SPREAD_MM = 100.0
+SECONDS_PER_POSE = 30.0
+Q_DECIMALS = 8  # joint angles written with 1e-8 deg resolution; the simulation uses those values
+XYZ_DECIMALS = 6
+
+
+def random_rotation(rng: np.random.Generator, *, scalar_first: bool = True) -> np.ndarray:
+    """(3, 3) rotation uniformly distributed on SO(3): the unit quaternion of four standard normals.
+
+    Args:
+        rng: the generator (four normals are drawn).
+        scalar_first: read the normals as (w, x, y, z) (:func:`simulate`) or as (x, y, z, w), which
+            is ``scipy.spatial.transform.Rotation.random`` (the diagnosis' synthetic harness). Both
+            are uniform; the flag keeps seeded results as they were.
+    """
+    return Rotation.from_quat(rng.standard_normal(4), scalar_first=scalar_first).as_matrix()
+
+
+def true_model(
+    nominal: TrackerModel,
+    rng: np.random.Generator,
+    *,
+    geometric_errors: bool = True,
+    tracker_spread_mm: float = TRACKER_POSITION_SPREAD_MM,
+    scalar_first: bool = True,
+) -> TrackerModel:
+    """A "true" robot: nominal + random geometric errors + an arbitrary tracker frame.
+
+    Errors: N(0, ``LENGTH_ERROR_MM``) on the free lengths, N(0, ``ANGLE_ERROR_DEG``) on the free
+    angles of the joints and the reflector (the gauge parameters stay nominal); the tracker origin
+    uniform within +-``tracker_spread_mm`` of the nominal one per axis; its orientation uniform
+    (:func:`random_rotation` with ``scalar_first``). Draws in this order from ``rng``.
+    """
+    lay = nominal.layout
+    p = nominal.p.copy()
+    if geometric_errors:
+        size = np.where(lay.is_angle, np.deg2rad(ANGLE_ERROR_DEG), LENGTH_ERROR_MM)
+        robot_side = lay.free_robot_side
+        p[robot_side] += size[robot_side] * rng.standard_normal(robot_side.size)
+    p[lay.tracker_position] = nominal.p_WT + rng.uniform(-tracker_spread_mm, tracker_spread_mm, 3)
+    p[lay.tracker_rotation] = 0.0
+    return dataclasses.replace(nominal, p=p, R_WT_ref=random_rotation(rng, scalar_first=scalar_first))
+
+
+def parameters_table(model: TrackerModel) -> list[dict]:
+    """The 33 parameters of a model in file units (mm, deg), with names and units."""
+    lay = model.layout
+    out = []
+    for i, name in enumerate(lay.names):
+        ang = bool(lay.is_angle[i])
+        out.append(
+            {
+                "name": name,
+                "value": float(np.rad2deg(model.p[i]) if ang else model.p[i]),
+                "unit": "deg" if ang else "mm",
+                "estimated": bool(i in set(lay.free.tolist())),
+            }
+        )
+    return out
+
+
+def simulate(
+    robot: str | Robot,
+    q,
+    *,
+    sigma_mm: float = 0.02,
+    seed: int = 0,
+    effects=(),
+    geometric_errors: bool = True,
+    payload_kg=0.0,
+    temperature_C=None,
+    time_s=None,
+    condition_offsets: dict | None = None,
+    cell_path=None,
+    n_targets: int | None = None,
+) -> tuple[pd.DataFrame, dict]:
+    """Simulated measurement table of the poses ``q``.
+
+    Args:
+        robot: model name, YAML path or :class:`Robot`.
+        q: (n, 6) commanded joint angles [rad].
+        sigma_mm: noise per coordinate [mm] (0 = noise free).
+        seed: seed of ``numpy.random.default_rng`` (geometric errors, tracker frame, effects, noise).
+        effects: effect specifications (strings parsed by ``effects.parse_effect``, or effect
+            objects); empty = purely geometric model.
+        geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
+        payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
+        temperature_C, time_s: per pose; defaults see the module docstring.
+        condition_offsets: a measurement plan's offsets per pose added to them,
+            ``{"temperature_C": [K], "time_s": [s], "payload_kg": [kg]}`` (any of them; a design
+            CSV's ``temperature_offset_K`` / ``time_offset_s`` / ``payload_offset_kg``,
+            :func:`~kpioed_drake.tracker.csvio.read_condition_offsets`).
+        n_targets: targets measured at every pose, the first ones of the model file's
+            ``targets_mm`` (default: all; 1 for a model with one reflector).
+
+    Returns:
+        (table, truth): the table has columns ``q1_deg``..``q6_deg``, ``x_mm``, ``y_mm``, ``z_mm``,
+        ``temperature_C``, ``time_s`` [, ``payload_kg``]; ``truth`` holds ``model`` (the true
+        :class:`TrackerModel`), ``parameters`` (33 entries, mm/deg), ``R_WT``, ``p_WT_mm``,
+        ``effects``, ``sigma_mm``, ``seed``.
+    """
+    rob = load_robot(robot) if isinstance(robot, str) else robot
+    cell = load_cell(cell_path, robot=rob)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[0]
+    nj = rob.n_joints
+    if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
+        raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
+    if not (np.isfinite(sigma_mm) and sigma_mm >= 0):
+        raise InputError(f"--sigma-mm must be a non-negative number of millimetres, got {sigma_mm!r}")
+    n_t = rob.n_targets if n_targets is None else n_targets
+    if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
+        raise InputError(
+            f"--targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
+            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}"
+        )
+    # the simulation uses exactly the joint values that the file will hold
+    q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)
+    q = q_from_file(rob, q_deg)
+
+    rng = np.random.default_rng(seed)
+    model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
+    t = np.arange(n) * SECONDS_PER_POSE if time_s is None else per_pose(time_s, n, "time_s")
+    if temperature_C is None:
+        frac = t / t[-1] if n > 1 and t[-1] > 0 else np.zeros(n)
+        temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
+    else:
+        temp = per_pose(temperature_C, n, "temperature_C")
+    offsets = condition_offsets or {}
+    unknown = set(offsets) - set(OFFSET_COLUMNS)
+    if unknown:
+        raise InputError(
+            f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
+        )
+    # after the defaults, so a plan leaves every seeded draw as it was; the payload offset is the
+    # mass a plan adds at the reflector in its block 2
+    cond = {"time_s": t, "temperature_C": temp, "payload_kg": per_pose(payload_kg, n, "payload_kg")}
+    for c in cond:
+        if c in offsets:
+            cond[c] = cond[c] + per_pose(offsets[c], n, OFFSET_COLUMNS[c])
+    t, temp, payload = cond["time_s"], cond["temperature_C"], cond["payload_kg"]
+    if "payload_kg" in offsets and (bad := np.flatnonzero(payload < 0)).size:
+        raise InputError(
+            f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
+            f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
+        )
+    # one row per (pose, target), pose-major; one target: the rows are the poses
+    target = None if n_t == 1 else np.tile(np.arange(n_t), n)
+    q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))
+
+    effect_objs = []
+    if effects:
+        for e in effects:
+            e = parse_effect(e, rng, model=model) if isinstance(e, str) else e
+            effect_objs.append(resolve(e, model))
+        keys = [e.key for e in effect_objs]
+        for k, e in zip(keys, effect_objs, strict=True):
+            if keys.count(k) > 1:
+                raise InputError(f"effect {e.name!r} given more than once")
+        eta = true_measurements(
+            model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload, target=target
+        )
+        eta = np.asarray(eta, dtype=float)
+        if eta.shape != (n * n_t, 3):
+            raise RuntimeError(
+                f"effects.true_measurements returned shape {eta.shape}, expected {(n * n_t, 3)}"
+            )
+    else:
+        eta = measure(model, q, target)
+    eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
+
+    cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
+    cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
+    if np.any(payload != 0):
+        cols["payload_kg"] = payload
+    if target is not None:
+        cols[TARGET_COLUMN] = target + 1
+    table = pd.DataFrame(cols)
+    truth = {
+        "robot": rob.name,
+        "model": model,
+        "parameters": parameters_table(model),
+        "R_WT": model.R_WT.copy(),
+        "p_WT_mm": model.p_WT.copy(),
+        "effects": effect_objs,
+        "sigma_mm": float(sigma_mm),
+        "seed": int(seed),
+        "geometric_errors": bool(geometric_errors),
+        "n_targets": int(n_t),
+        "condition_offsets": sorted(offsets),
+    }
+    return table, truth

@@ -1,0 +1,361 @@
+"""Measured laser-tracker data: one type, its file format, reading and validation.
+
+The measurement file of SPEC ("Measured data and model discrepancy") is a CSV with one pose per
+row: the commanded joint angles ``q1_deg`` ... ``q6_deg`` [deg], the reflector position ``x_mm``,
+``y_mm``, ``z_mm`` in the tracker frame T [mm] (the measurements eta of paper eq. 3), and optional
+``temperature_C``, ``time_s``, ``payload_kg``. Inside, angles are radians.
+
+Several targets (SMRs) per pose: an optional integer ``target`` column numbers the targets 1..T
+in the file (no gaps; the robot model file's ``targets_mm`` defines them, target 1 being its
+reflector); a pose measuring T targets has T rows with the same joint angles. Inside, targets are
+0-based (:attr:`Measurements.target`); without the column every row measures target 1.
+
+Files of other layouts (other column names, units, separators, base-frame positions, controller
+angles through the robot's joint map) are read by :mod:`kpioed_drake.tracker.formats` into the same
+:class:`Measurements` type, with ``frame`` saying in which frame the positions are given.
+
+Row numbers in messages and reports are CSV record numbers, header = row 1, so the k-th data row
+is row k + 1 (blank lines are skipped and not counted).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.models import Robot
+from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.tracker.csvio import (
+    Q_COLUMNS,
+    check_joint_angles,
+    parse_float_column,
+    q_columns,
+    q_from_file,
+    q_to_file,
+    read_csv_table,
+    row_numbers,
+)
+
+XYZ_COLUMNS = ("x_mm", "y_mm", "z_mm")
+REQUIRED_COLUMNS = Q_COLUMNS + XYZ_COLUMNS
+OPTIONAL_COLUMNS = ("temperature_C", "time_s", "payload_kg")
+TARGET_COLUMN = "target"
+"""Optional integer column: the target (SMR) of the row, 1..T in files, 0-based inside."""
+FRAMES = ("tracker", "base")
+"""Frames measured positions can be given in: the tracker frame T, or the robot base frame W."""
+ROW_CONVENTION = "CSV record number, header = row 1 (data row k is row k + 1; blank lines not counted)"
+
+
+@dataclasses.dataclass(frozen=True)
+class Measurements:
+    """A validated measurement table in internal units.
+
+    Build it with :func:`read_measurements` (a file), :meth:`from_table` (a DataFrame in the file
+    format) or :meth:`from_arrays` (arrays in internal units); each validates.
+
+    Attributes:
+        q: (n, 6) commanded joint angles [rad].
+        eta: (n, 3) reflector positions in the tracker frame [mm] (``frame`` = ``"tracker"``), or
+            already in the base frame W (``frame`` = ``"base"``; a small residual frame error is
+            still estimated as the tracker pose).
+        temperature_C: (n,) [C] or None when the column is absent.
+        time_s: (n,) [s] or None.
+        payload_kg: (n,) [kg] or None.
+        source: the file (or a label for in-memory data), for messages and reports.
+        rows: (n,) row numbers as in :data:`ROW_CONVENTION` (default 2, 3, ...).
+        frame: ``"tracker"`` or ``"base"``, the frame of ``eta`` (:data:`FRAMES`).
+        target: (n,) 0-based target (reflector) of each row, or None (every row target 0).
+    """
+
+    q: np.ndarray
+    eta: np.ndarray
+    temperature_C: np.ndarray | None = None
+    time_s: np.ndarray | None = None
+    payload_kg: np.ndarray | None = None
+    source: str = "data"
+    rows: np.ndarray | None = None
+    frame: str = "tracker"
+    target: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.rows is None:
+            object.__setattr__(self, "rows", np.arange(2, self.q.shape[0] + 2))
+
+    @property
+    def n(self) -> int:
+        """Number of poses."""
+        return int(self.q.shape[0])
+
+    @property
+    def n_targets(self) -> int:
+        """Targets the rows use: the largest target index + 1 (1 without a target column)."""
+        return 1 if self.target is None or self.target.size == 0 else int(self.target.max()) + 1
+
+    @property
+    def path(self) -> str:
+        """The source (a file path for read data)."""
+        return self.source
+
+    @classmethod
+    def from_arrays(
+        cls,
+        q,
+        eta,
+        *,
+        temperature_C=None,
+        time_s=None,
+        payload_kg=None,
+        source: str = "data",
+        rows=None,
+        frame: str = "tracker",
+        target=None,
+    ) -> Measurements:
+        """Validated measurements from arrays in internal units (q [rad], eta [mm]).
+
+        ``target``: (n,) 0-based target index of each row (None: all target 0).
+
+        Raises:
+            InputError: shapes other than (n, 6), (n, 3) and (n,), a non-finite value, a
+                frame other than ``"tracker"`` and ``"base"``, or target indices that are not
+                integers >= 0.
+        """
+
+        def arr(x):
+            return None if x is None else np.asarray(x, dtype=float)
+
+        data = cls(
+            q=np.asarray(q, dtype=float),
+            eta=np.asarray(eta, dtype=float),
+            temperature_C=arr(temperature_C),
+            time_s=arr(time_s),
+            payload_kg=arr(payload_kg),
+            source=str(source),
+            rows=None if rows is None else np.asarray(rows),
+            frame=frame,
+            target=None if target is None else np.asarray(target),
+        )
+        data.check()
+        if data.target is not None:
+            object.__setattr__(data, "target", data.target.astype(int))
+        return data
+
+    @classmethod
+    def from_table(cls, table, robot: Robot | None = None, *, source: str = "data") -> Measurements:
+        """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`.
+
+        Raises:
+            InputError: a missing column, a non-finite value, angles outside the robot's limits.
+        """
+        qcols = q_columns(robot)
+        for c in qcols + XYZ_COLUMNS:
+            if c not in table:
+                raise InputError(f"{source}: missing column {c!r} (SPEC measurement format)")
+        q_deg = np.column_stack([np.asarray(table[c], dtype=float) for c in qcols])
+        eta = np.column_stack([np.asarray(table[c], dtype=float) for c in XYZ_COLUMNS])
+        if not (np.all(np.isfinite(q_deg)) and np.all(np.isfinite(eta))):
+            raise InputError(f"{source}: non-finite joint angle or position")
+        if robot is not None:
+            check_joint_angles(source, q_deg, robot)
+        opt = {c: np.asarray(table[c], dtype=float) if c in table else None for c in OPTIONAL_COLUMNS}
+        target = None
+        if TARGET_COLUMN in table:
+            rows = np.arange(2, len(q_deg) + 2)
+            target = parse_targets(source, np.asarray(table[TARGET_COLUMN], dtype=float), rows, robot=robot)
+        return cls.from_arrays(q_from_file(robot, q_deg), eta, source=source, target=target, **opt)
+
+    def check(self) -> None:
+        """Shapes and finiteness.
+
+        Raises:
+            InputError: naming the source and the column.
+        """
+        n = self.n
+        if self.frame not in FRAMES:
+            raise InputError(f"{self.source}: frame must be one of {', '.join(FRAMES)}, got {self.frame!r}")
+        if self.q.ndim != 2 or self.q.shape[0] != n or not self.q.shape[1] or self.eta.shape != (n, 3):
+            raise InputError(f"{self.source}: expected q (n, n_joints) and positions (n, 3)")
+        for name in ("q", "eta") + OPTIONAL_COLUMNS:
+            v = getattr(self, name)
+            if v is not None and v.shape != (n,) and name in OPTIONAL_COLUMNS:
+                raise InputError(f"{self.source}: column {name} must have one value per pose")
+            if v is not None and not np.all(np.isfinite(v)):
+                raise InputError(f"{self.source}: column {name} has a non-finite value")
+        t = self.target
+        if t is not None:
+            ok = t.shape == (n,) and np.all(np.isfinite(t)) and np.all(t == np.round(t)) and np.all(t >= 0)
+            if not ok:
+                raise InputError(f"{self.source}: target: expected (n,) integer indices >= 0 (0-based)")
+
+    def subset(self, idx) -> Measurements:
+        """The poses ``idx`` (indices or a boolean mask), rows kept."""
+
+        def pick(x):
+            return None if x is None else x[idx]
+
+        return dataclasses.replace(
+            self,
+            q=self.q[idx],
+            eta=self.eta[idx],
+            temperature_C=pick(self.temperature_C),
+            time_s=pick(self.time_s),
+            payload_kg=pick(self.payload_kg),
+            rows=self.rows[idx],
+            target=pick(self.target),
+        )
+
+    def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
+        """A DataFrame in the file format (degrees, mm; ``robot``'s joint columns, default six revolute)."""
+        q = q_to_file(robot, self.q)
+        cols = {c: q[:, i] for i, c in enumerate(q_columns(robot))}
+        cols.update({c: self.eta[:, i] for i, c in enumerate(XYZ_COLUMNS)})
+        for c in OPTIONAL_COLUMNS:
+            if getattr(self, c) is not None:
+                cols[c] = getattr(self, c)
+        if self.target is not None:
+            cols[TARGET_COLUMN] = self.target + 1
+        return pd.DataFrame(cols)
+
+
+def per_pose(value, n: int, name: str) -> np.ndarray:
+    """(n,) values of a per-pose quantity given as one number or one per pose.
+
+    Raises:
+        InputError: another shape or a non-finite value (``name`` says which quantity).
+    """
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: expected one finite number or {n} (one per pose)")
+    return arr
+
+
+def _near_name(a: str, b: str) -> bool:
+    """Case/underscore-insensitive equality or one edit apart (a likely misspelling)."""
+    a2, b2 = a.lower().replace(" ", "").replace("-", "_"), b.lower()
+    if a2 == b2:
+        return True
+    if abs(len(a2) - len(b2)) > 1:
+        return False
+    if len(a2) == len(b2):
+        return sum(x != y for x, y in zip(a2, b2, strict=True)) <= 1
+    short, long_ = (a2, b2) if len(a2) < len(b2) else (b2, a2)
+    return any(long_[:i] + long_[i + 1 :] == short for i in range(len(long_)))
+
+
+def parse_targets(path, values: np.ndarray, rows, *, column: str = TARGET_COLUMN, robot: Robot | None = None):
+    """(n,) 0-based target indices of a file's target column (numbered 1..T without gaps).
+
+    Args:
+        path: the file (for messages); values: (n,) the column as read; rows: (n,) row numbers.
+        column: the column's name in the file; robot: the model whose targets the rows must name.
+
+    Raises:
+        InputError: naming the file, row and column: a value that is not a whole number >= 1, a
+            gap in the numbering, or a target beyond the model's ``targets_mm``.
+    """
+    values = np.asarray(values, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values) | (values != np.round(values)) | (values < 1))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: {values[k]:g} is not a target number "
+            "(whole numbers 1, 2, ..., T)"
+        )
+    t = values.astype(int)
+    missing = sorted(set(range(1, int(t.max()) + 1)) - set(t.tolist())) if t.size else []
+    if missing:
+        k = int(np.flatnonzero(t > missing[0])[0])
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: target {t[k]} is used but target {missing[0]} "
+            f"is not: targets are numbered 1..T without gaps"
+        )
+    if robot is not None and t.size and t.max() > robot.n_targets:
+        k = int(np.argmax(t))
+        raise InputError(
+            f"{path}: row {rows[k]}, column {column!r}: target {t[k]}, but the robot model "
+            f"{robot.source or robot.name} defines {robot.n_targets} target(s) (field targets_mm)"
+        )
+    return t - 1
+
+
+def _check_header(path: Path, header: list[str]) -> None:
+    for h in header:
+        if h in REQUIRED_COLUMNS or h in OPTIONAL_COLUMNS or h == TARGET_COLUMN:
+            continue
+        for known in OPTIONAL_COLUMNS:
+            if _near_name(h, known):
+                raise InputError(
+                    f"{path}: row 1 (header): unknown column {h!r}; did you mean {known!r}? "
+                    f"(optional columns: {', '.join(OPTIONAL_COLUMNS)})"
+                )
+
+
+def check_pose_count(path, n: int, robot: Robot) -> None:
+    """Enough poses for the robot's estimated parameters (27 parameters: 9 poses).
+
+    Raises:
+        InputError: naming the file, the poses and the parameters.
+    """
+    n_free = parameter_layout(robot).n_free
+    need = int(np.ceil(n_free / 3))
+    if n < need:
+        raise InputError(
+            f"{path}: {n} poses (data rows 2..{n + 1}) are too few: the {n_free} estimated "
+            f"parameters need at least {need} poses (3 coordinates each), and more than {need} for a "
+            "goodness-of-fit test; about 60 are usual"
+        )
+
+
+def read_measurements(path: str | Path, robot: Robot) -> Measurements:
+    """Read and validate a measurement CSV.
+
+    Raises:
+        InputError: naming the file, row (header = row 1) and column: missing file, empty file,
+            duplicated or missing (misspelled) column, text/NaN/infinity in a number field, joint
+            angles that look like radians or lie outside the robot's limits, negative payload,
+            a target column that is not numbered 1..T without gaps or names a target the robot
+            model does not define, fewer poses than the estimated parameters need (27
+            parameters: 9 poses).
+    """
+    path = Path(path)
+    qcols = q_columns(robot)
+    header, data = read_csv_table(path, qcols + XYZ_COLUMNS)
+    _check_header(path, header)
+    if not data:
+        raise InputError(f"{path}: no data rows (the file has only a header)")
+    rows = np.asarray(row_numbers(data))
+    q_deg = np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1)
+    eta = np.stack([parse_float_column(path, header, data, c) for c in XYZ_COLUMNS], axis=1)
+    opt = {c: parse_float_column(path, header, data, c) if c in header else None for c in OPTIONAL_COLUMNS}
+    if TARGET_COLUMN in header:
+        opt["target"] = parse_targets(
+            path, parse_float_column(path, header, data, TARGET_COLUMN), rows, robot=robot
+        )
+    if opt["payload_kg"] is not None and np.any(opt["payload_kg"] < 0):
+        row = rows[int(np.flatnonzero(opt["payload_kg"] < 0)[0])]
+        raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")
+    check_joint_angles(path, q_deg, robot, rows=rows)
+    check_pose_count(path, len(data), robot)
+    return Measurements.from_arrays(q_from_file(robot, q_deg), eta, source=str(path), rows=rows, **opt)
+
+
+def as_measurements(data, robot: Robot) -> Measurements:
+    """``data`` itself if it is :class:`Measurements`, else the file it names (:func:`read_measurements`).
+
+    Raises:
+        InputError: anything else (build other data with :meth:`Measurements.from_arrays` or
+            :meth:`Measurements.from_table`).
+    """
+    if isinstance(data, Measurements):
+        return data
+    if isinstance(data, str | Path):
+        return read_measurements(data, robot)
+    raise InputError(
+        f"data: expected Measurements or a measurement CSV path, got {type(data).__name__} "
+        "(use Measurements.from_table or Measurements.from_arrays)"
+    )

@@ -1,0 +1,214 @@
+"""Measurement files of other layouts: a small YAML *format file* says how to read them.
+
+Other tools write laser-tracker data with their own column names, units, separators and frames.
+A format file (documented in ``docs/data-formats.md``) maps such a file onto the one
+:class:`~kpioed_drake.tracker.data.Measurements` type (the measurements eta of paper eq. 3):
+
+- ``joints``: the six joint-angle columns, in ``angle_unit`` (``deg`` or ``rad``); with
+  ``angles: controller`` (the default) the robot file's ``joint_map``
+  (:mod:`kpioed_drake.robot.jointmap`) turns them into model angles, so controller angles go in
+  unchanged;
+- ``position``: ``x``, ``y``, ``z``, each a column or a sum/difference of columns written with
+  spaces around the operator (``x_t - x_dif``: target minus difference), in ``length_unit``
+  (``mm``, ``m`` or ``um``);
+- ``frame``: ``tracker`` (positions in the tracker frame) or ``base`` (already in the robot base
+  frame W; the residual frame error is still estimated as a rigid tracker pose);
+- ``separator`` and ``decimal`` (``,`` or ``.``; a decimal comma needs another separator);
+- optional ``time`` (with ``time_unit`` ``s``, ``min``, ``h`` or ``order``: an order number, one
+  unit per pose, taken as seconds), ``temperature`` [C] and ``payload`` [kg] columns;
+- optional ``target``: the column of the target (SMR) number, 1..T (several targets per pose).
+
+:func:`read_data` reads either layout: the SPEC file without a format, a foreign one with it.
+"""
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.models import N_JOINTS, Robot, load_yaml_typed
+from kpioed_drake.tracker.csvio import check_joint_angles, q_to_file, read_csv_table
+from kpioed_drake.tracker.data import FRAMES, Measurements, check_pose_count, parse_targets, read_measurements
+
+LENGTH_UNITS = {"mm": 1.0, "m": 1000.0, "um": 1e-3}
+"""Length units of a format file and their size in millimetres."""
+ANGLE_UNITS = {"deg": np.pi / 180.0, "rad": 1.0}
+"""Angle units and their size in radians."""
+TIME_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "order": 1.0}
+"""Time units and their size in seconds (``order``: a measurement order number, 1 per pose)."""
+ANGLE_SOURCES = ("controller", "model")
+"""``controller``: apply the robot's joint map; ``model``: the angles are the model's already."""
+_OPERATOR = re.compile(r"\s+([+-])\s+")
+
+
+@dataclasses.dataclass
+class PositionSpec:
+    """The three position expressions of a format file."""
+
+    x: str = ""
+    y: str = ""
+    z: str = ""
+
+
+@dataclasses.dataclass
+class DataFormat:
+    """A format file (``--format F.yaml``); fields as in ``docs/data-formats.md``."""
+
+    description: str = ""
+    separator: str = ","
+    decimal: str = "."
+    length_unit: str = "mm"
+    angle_unit: str = "deg"
+    frame: str = "tracker"
+    angles: str = "controller"
+    joints: list[str] = dataclasses.field(default_factory=list)
+    position: PositionSpec = dataclasses.field(default_factory=PositionSpec)
+    time: str = ""
+    time_unit: str = "s"
+    temperature: str = ""
+    payload: str = ""
+    target: str = ""
+
+
+def _one_of(where: str, field: str, value: str, allowed) -> None:
+    if value not in allowed:
+        raise InputError(f"{where}: field {field!r}: {value!r} is not one of {', '.join(allowed)}")
+
+
+def check_format(fmt: DataFormat, where: str = "format") -> DataFormat:
+    """Validate a :class:`DataFormat`.
+
+    Raises:
+        InputError: naming ``where`` and the field: unknown unit, frame or angle source, not six
+            joint columns, an empty position expression, a separator that is not one character,
+            a decimal mark other than ``.``/``,`` or equal to the separator.
+    """
+    _one_of(where, "length_unit", fmt.length_unit, LENGTH_UNITS)
+    _one_of(where, "angle_unit", fmt.angle_unit, ANGLE_UNITS)
+    _one_of(where, "time_unit", fmt.time_unit, TIME_UNITS)
+    _one_of(where, "frame", fmt.frame, FRAMES)
+    _one_of(where, "angles", fmt.angles, ANGLE_SOURCES)
+    _one_of(where, "decimal", fmt.decimal, (".", ","))
+    if len(fmt.separator) != 1 or fmt.separator in "\"'\r\n" or fmt.separator == fmt.decimal:
+        raise InputError(
+            f"{where}: field 'separator': {fmt.separator!r} must be one character other than a quote "
+            f"and other than the decimal mark {fmt.decimal!r}"
+        )
+    if not fmt.joints or not all(c.strip() for c in fmt.joints):
+        raise InputError(f"{where}: field 'joints': expected {N_JOINTS} column names, got {fmt.joints!r}")
+    for axis in "xyz":
+        if not getattr(fmt.position, axis).strip():
+            raise InputError(f"{where}: field 'position.{axis}': missing (a column or e.g. 'x_t - x_dif')")
+    return fmt
+
+
+def load_format(path: str | Path) -> DataFormat:
+    """Read and validate a format file (YAML; an unknown field is an error naming the file).
+
+    Raises:
+        InputError: naming the file and the field.
+    """
+    path = Path(path)
+    return check_format(load_yaml_typed(path, DataFormat), where=str(path))
+
+
+class _Columns:
+    """Numeric columns of a table, parsed on demand with the format's decimal mark."""
+
+    def __init__(self, path: Path, header, data, lines, decimal: str):
+        self.path, self.header, self.data, self.lines, self.decimal = path, header, data, lines, decimal
+
+    def column(self, name: str, field: str) -> np.ndarray:
+        if name not in self.header:
+            raise InputError(
+                f"{self.path}: format field {field!r} names column {name!r}, which the file does not have "
+                f"(columns: {', '.join(self.header)})"
+            )
+        j = self.header.index(name)
+        out = np.empty(len(self.data))
+        for i, (line, r) in enumerate(zip(self.lines, self.data, strict=True)):
+            cell = r[j].strip()
+            text = cell.replace(",", ".") if self.decimal == "," else cell
+            try:
+                out[i] = float(text)
+            except ValueError:
+                raise InputError(
+                    f"{self.path}: row {line}, column {name!r}: {cell!r} is not a number"
+                ) from None
+            if not np.isfinite(out[i]):
+                raise InputError(f"{self.path}: row {line}, column {name!r}: {cell!r} is not a finite number")
+        return out
+
+    def expression(self, expr: str, field: str) -> np.ndarray:
+        """A column, or columns joined by `` + `` / `` - `` (spaces around the operator)."""
+        parts = _OPERATOR.split(expr.strip())
+        value = self.column(parts[0], field)
+        for op, name in zip(parts[1::2], parts[2::2], strict=True):
+            value = value + self.column(name, field) if op == "+" else value - self.column(name, field)
+        return value
+
+
+def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -> Measurements:
+    """Read a measurement file of another layout, described by a format file.
+
+    Args:
+        path: the data file.
+        robot: the robot (its joint map, limits and parameter count).
+        fmt: a :class:`DataFormat` or the path of a format file.
+
+    Returns:
+        :class:`Measurements` in internal units (model angles [rad], positions [mm]) with
+        ``frame`` as the format says.
+
+    Raises:
+        InputError: naming the file, row and column or format field: a column the file does not
+            have, text in a number field, angles outside the limits after the joint map (or
+            degrees given as radians), a negative payload, too few poses.
+    """
+    path = Path(path)
+    fmt = check_format(fmt) if isinstance(fmt, DataFormat) else load_format(fmt)
+    header, data = read_csv_table(path, (), delimiter=fmt.separator)
+    if not data:
+        raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
+    if len(fmt.joints) != robot.n_joints:
+        raise InputError(
+            f"{path}: the format's field 'joints' names {len(fmt.joints)} columns, {robot.name} has "
+            f"{robot.n_joints} joints"
+        )
+    cols = _Columns(path, header, data, data.lines, fmt.decimal)
+    J = np.stack([cols.column(c, f"joints[{i}]") for i, c in enumerate(fmt.joints)], axis=1)
+    # a prismatic joint's column is a length (the format's length unit)
+    q = J * np.where(robot.prismatic, LENGTH_UNITS[fmt.length_unit], ANGLE_UNITS[fmt.angle_unit])
+    if fmt.angles == "controller" and robot.joint_map is not None:
+        q = robot.joint_map.to_model(q)
+    rows = np.asarray(cols.lines)
+    check_joint_angles(path, q_to_file(robot, q), robot, rows=rows)
+    eta = np.stack([cols.expression(getattr(fmt.position, a), f"position.{a}") for a in "xyz"], axis=1)
+    eta = eta * LENGTH_UNITS[fmt.length_unit]
+    extra = {}
+    if fmt.time:
+        extra["time_s"] = cols.column(fmt.time, "time") * TIME_UNITS[fmt.time_unit]
+    if fmt.temperature:
+        extra["temperature_C"] = cols.column(fmt.temperature, "temperature")
+    if fmt.payload:
+        extra["payload_kg"] = cols.column(fmt.payload, "payload")
+        if np.any(extra["payload_kg"] < 0):
+            row = rows[int(np.flatnonzero(extra["payload_kg"] < 0)[0])]
+            raise InputError(f"{path}: row {row}, column {fmt.payload!r}: a payload cannot be negative")
+    if fmt.target:
+        extra["target"] = parse_targets(
+            path, cols.column(fmt.target, "target"), rows, column=fmt.target, robot=robot
+        )
+    check_pose_count(path, len(rows), robot)
+    return Measurements.from_arrays(q, eta, source=str(path), rows=rows, frame=fmt.frame, **extra)
+
+
+def read_data(
+    path: str | Path, robot: Robot, data_format: DataFormat | str | Path | None = None
+) -> Measurements:
+    """A measurement file of the SPEC layout (no ``data_format``) or of another layout (with it)."""
+    if data_format is None:
+        return read_measurements(path, robot)
+    return read_foreign(path, robot, data_format)
