@@ -168,13 +168,43 @@ def simulate(
 
     rng = np.random.default_rng(seed)
     model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
+    offsets = condition_offsets or {}
+    t, temp, payload = _conditions(
+        n, rng, time_s=time_s, temperature_C=temperature_C, payload_kg=payload_kg, offsets=offsets
+    )
+    # one row per (pose, target), pose-major; one target: the rows are the poses
+    target = None if n_t == 1 else np.tile(np.arange(n_t), n)
+    q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))
+
+    eta, effect_objs = _measured(model, q, effects, rng, temp=temp, t=t, payload=payload, target=target)
+    eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
+
+    table = _table(rob, q_deg, eta, t=t, temp=temp, payload=payload, target=target)
+    truth = {
+        "robot": rob.name,
+        "model": model,
+        "parameters": parameters_table(model),
+        "R_WT": model.R_WT.copy(),
+        "p_WT_mm": model.p_WT.copy(),
+        "effects": effect_objs,
+        "sigma_mm": float(sigma_mm),
+        "seed": int(seed),
+        "geometric_errors": bool(geometric_errors),
+        "n_targets": int(n_t),
+        "condition_offsets": sorted(offsets),
+    }
+    return table, truth
+
+
+def _conditions(n: int, rng: np.random.Generator, *, time_s, temperature_C, payload_kg, offsets: dict):
+    """Time [s], temperature [C] and payload [kg] of the n poses: the given ones or the defaults (module
+    docstring), plus a measurement plan's ``offsets`` (``simulate``'s ``condition_offsets``)."""
     t = np.arange(n) * SECONDS_PER_POSE if time_s is None else per_pose(time_s, n, "time_s")
     if temperature_C is None:
         frac = t / t[-1] if n > 1 and t[-1] > 0 else np.zeros(n)
         temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
     else:
         temp = per_pose(temperature_C, n, "temperature_C")
-    offsets = condition_offsets or {}
     unknown = set(offsets) - set(OFFSET_COLUMNS)
     if unknown:
         raise InputError(
@@ -192,10 +222,12 @@ def simulate(
             f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
             f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
         )
-    # one row per (pose, target), pose-major; one target: the rows are the poses
-    target = None if n_t == 1 else np.tile(np.arange(n_t), n)
-    q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))
+    return t, temp, payload
 
+
+def _measured(model: TrackerModel, q, effects, rng: np.random.Generator, *, temp, t, payload, target):
+    """(rows, 3) noise-free measurements [mm] of the true ``model`` at ``q`` (one row per measurement)
+    with the ``effects`` (texts drawn from ``rng`` or effect objects), and the resolved effects."""
     effect_objs = []
     if effects:
         for e in effects:
@@ -209,32 +241,22 @@ def simulate(
             model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload, target=target
         )
         eta = np.asarray(eta, dtype=float)
-        if eta.shape != (n * n_t, 3):
+        if eta.shape != (len(q), 3):
             raise RuntimeError(
-                f"effects.true_measurements returned shape {eta.shape}, expected {(n * n_t, 3)}"
+                f"effects.true_measurements returned shape {eta.shape}, expected {(len(q), 3)}"
             )
     else:
         eta = measure(model, q, target)
-    eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
+    return eta, effect_objs
 
+
+def _table(rob: Robot, q_deg, eta, *, t, temp, payload, target) -> pd.DataFrame:
+    """The measurement table: joint columns [deg, mm], x/y/z [mm], temperature and time, the payload
+    if any is nonzero and the 1-based target if there are several."""
     cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
     cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
     if np.any(payload != 0):
         cols["payload_kg"] = payload
     if target is not None:
         cols[TARGET_COLUMN] = target + 1
-    table = pd.DataFrame(cols)
-    truth = {
-        "robot": rob.name,
-        "model": model,
-        "parameters": parameters_table(model),
-        "R_WT": model.R_WT.copy(),
-        "p_WT_mm": model.p_WT.copy(),
-        "effects": effect_objs,
-        "sigma_mm": float(sigma_mm),
-        "seed": int(seed),
-        "geometric_errors": bool(geometric_errors),
-        "n_targets": int(n_t),
-        "condition_offsets": sorted(offsets),
-    }
-    return table, truth
+    return pd.DataFrame(cols)

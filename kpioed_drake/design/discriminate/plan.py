@@ -205,15 +205,7 @@ def plan_design(
             separate (naming the span an even ramp would need).
     """
     pair = checked_pair(problem, pair_text, alpha)
-    spans_user = parse_condition_span(condition_span, pair)
-    if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
-        del spans_user[PAYLOAD]
-    rated = problem.robot.rated_payload_kg
-    if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
-        raise InputError(
-            f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
-            f"{rated:g} kg (rated_payload_kg in its model file)"
-        )
+    spans_user = _user_spans(problem, pair, condition_span)
     conds = plan_conditions(pair, spans_user)
     if not conds:
         res, base = discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
@@ -224,6 +216,40 @@ def plan_design(
         raise InputError(f"{OPTION}: a measurement plan for {pair_text!r} takes one target per pose")
     start = heuristic_start(options)
     seed, collision = int(options.get("seed", 0)), options.get("collision", True)
+    base = _extended(problem, pair)
+    q_start = heuristic_design(base, n=n, seed=seed, collision=collision)
+    plan, spans = _sized_plan(
+        base, pair, q_start, spans_user, given=given, given_conditions=given_conditions, alpha=alpha
+    )
+    res = optimize_discrimination(plan, n=n, given=given, start=start, **options)
+    tests = _assessments(plan, base, pair, q_start, res.q, given=given, conds=conds, alpha=alpha)
+    criterion = (
+        "the larger of v_A, v_B over the planned rows (each pose in block 1 and block 2); 1/v_h <= "
+        "lambda_h (kpioed_drake.design.discriminate.conditions)"
+    )
+    record = discrimination_record(pair, alpha, criterion, res, tests["before"], tests["after"])
+    record["plan"] = _plan_record(res, plan, pair, spans, spans_user, conds, tests)
+    return _result(res, plan, base, given, spans, record)
+
+
+def _user_spans(problem: Problem, pair, condition_span) -> dict:
+    """The spans ``--condition-span`` asks for (a 0 kg payload dropped: the poses alone), checked
+    against the robot's rated payload."""
+    spans_user = parse_condition_span(condition_span, pair)
+    if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
+        del spans_user[PAYLOAD]
+    rated = problem.robot.rated_payload_kg
+    if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
+        raise InputError(
+            f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
+            f"{rated:g} kg (rated_payload_kg in its model file)"
+        )
+    return spans_user
+
+
+def _extended(problem: Problem, pair) -> Problem:
+    """``problem`` with the pair's two effects as further extensions (values unknown), after checking
+    that each changes the measurements at all."""
     zero = [dataclasses.replace(h.effect, values=None) for h in pair]
     base = dataclasses.replace(problem, extensions=(*problem.extensions, *zero))
     probe = heuristic_design(base, n=base.min_poses(), seed=0, collision=False)
@@ -234,7 +260,12 @@ def plan_design(
             raise InputError(
                 f"{OPTION}: {h.effect.name} does not change the measurements of {base.robot.name}"
             )
-    q_start = heuristic_design(base, n=n, seed=seed, collision=collision)
+    return base
+
+
+def _sized_plan(base: Problem, pair, q_start, spans_user: dict, *, given, given_conditions, alpha: float):
+    """The plan with its spans: the user's, and for the others the span the start poses ``q_start``
+    need for the target power, rounded up. Returns (plan, spans)."""
     forbidden = [c for c, s in spans_user.items() if s == 0]
     if forbidden:
         raise _no_plan(base, pair, q_start, alpha, f"{SPAN_OPTION} forbids a {forbidden[0]} span")
@@ -246,9 +277,17 @@ def plan_design(
     if not all(np.isfinite(list(need_start.values()))):
         raise _no_plan(base, pair, q_start, alpha, "no span of the plan reaches the power")
     spans = {**spans_user, **{c: nice_ceil(s) if s > 0 else 0.0 for c, s in need_start.items()}}
-    plan = with_spans(plan, spans)
-    res = optimize_discrimination(plan, n=n, given=given, start=start, **options)
-    q_all = np.concatenate([g, res.q])
+    return with_spans(plan, spans), spans
+
+
+def _assessments(
+    plan: PlanProblem, base: Problem, pair, q_start, q_new, *, given, conds, alpha: float
+) -> dict:
+    """Both tests under the plan: ``before`` (the given poses, else the heuristic start), ``after``
+    (with the designed poses ``q_new``) and ``heuristic`` (with the start poses instead); and the
+    spans the designed and the start poses need, ``need_after`` and ``need_final``."""
+    g = np.zeros((0, base.robot.n_joints)) if given is None else given
+    q_all = np.concatenate([g, q_new])
     after = plan_assessment(plan, base, pair, q_all, alpha=alpha)
     after["poses"] = "given + plan" if given is not None else "plan"
     if given is not None:
@@ -260,12 +299,17 @@ def plan_design(
     heuristic = plan_assessment(plan, base, pair, np.concatenate([g, q_start]), alpha=alpha)
     need_after = required_spans(plan, base, pair, q_all, conditions=conds, alpha=alpha)
     need_final = required_spans(plan, base, pair, np.concatenate([g, q_start]), conditions=conds, alpha=alpha)
-    criterion = (
-        "the larger of v_A, v_B over the planned rows (each pose in block 1 and block 2); 1/v_h <= "
-        "lambda_h (kpioed_drake.design.discriminate.conditions)"
-    )
-    record = discrimination_record(pair, alpha, criterion, res, before, after)
-    record["plan"] = {
+    return dict(before=before, after=after, heuristic=heuristic, need_after=need_after, need_final=need_final)
+
+
+def _plan_record(
+    res: DesignResult, plan: PlanProblem, pair, spans: dict, spans_user: dict, conds, tests: dict
+) -> dict:
+    """The JSON record's ``plan``: the blocks, the spans with where they come from and what the start
+    and the designed poses need (``tests`` of :func:`_assessments`), and the heuristic poses under
+    the same plan."""
+    need_final, need_after, heuristic = tests["need_final"], tests["need_after"], tests["heuristic"]
+    return {
         "model": "each designed pose measured twice: block 1 at the first data's condition (mean "
         "temperature, after its last time, no payload), block 2 after the span (warmer, later, or "
         "with the payload at the reflector)",
@@ -287,7 +331,6 @@ def plan_design(
         "target_power": TARGET_POWER,
         "heuristic": {h.effect.name: heuristic[h.effect.name] for h in pair},
     }
-    return _result(res, plan, base, given, spans, record)
 
 
 def _result(
