@@ -59,7 +59,7 @@ def random_rotation(rng: np.random.Generator, *, scalar_first: bool = True) -> n
         rng: the generator (four normals are drawn).
         scalar_first: read the normals as (w, x, y, z) (:func:`simulate`) or as (x, y, z, w), which
             is ``scipy.spatial.transform.Rotation.random`` (the diagnosis' synthetic harness). Both
-            are uniform; the flag keeps seeded results as they were.
+            are uniform; each caller keeps its convention, so its seeded results reproduce.
     """
     return Rotation.from_quat(rng.standard_normal(4), scalar_first=scalar_first).as_matrix()
 
@@ -210,7 +210,7 @@ def _conditions(n: int, rng: np.random.Generator, *, time_s, temperature_C, payl
         raise InputError(
             f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
         )
-    # after the defaults, so a plan leaves every seeded draw as it was; the payload offset is the
+    # after the defaults, so a plan does not change the seeded draws; the payload offset is the
     # mass a plan adds at the reflector in its block 2
     cond = {"time_s": t, "temperature_C": temp, "payload_kg": per_pose(payload_kg, n, "payload_kg")}
     for c in cond:

@@ -5,16 +5,16 @@
 :func:`~kpioed_drake.design.discriminate.design.discrimination_design` (poses only); a pair with
 ``thermal_expansion``, ``tracker_scale`` or ``tracker_drift`` (or a gravity-torque effect with a
 payload span, ``--condition-span 10kg``) gets a measurement plan of
-:mod:`~kpioed_drake.design.discriminate.conditions`: ``n`` poses, each measured in block 1 and again in block 2
-after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
+:mod:`~kpioed_drake.design.discriminate.conditions`: ``n`` poses, each measured in block 1 and again in
+block 2 after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
 the first data and the plan together. The result's rows are the measurements in order (block 1,
 then block 2: 2n rows) with their block and planned condition offset (:attr:`PlanResult.plan_columns`,
 the design CSV's ``block``, ``temperature_offset_K`` / ``time_offset_s``); its ``discrimination``
 record has ``before``, ``after`` and the ``plan`` (spans, where they come from, the span the designed
 poses need, and the heuristic poses under the same plan for comparison). Its KPI values (tr(Cs)/3,
 scaled tr(Cp)) are those of the extended model with the first data and the plan, each measurement
-at its condition (:class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`, also the problem returned
-for the JSON record and the 3-D page).
+at its condition (:class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`, also the problem
+returned for the JSON record and the 3-D page).
 """
 
 from __future__ import annotations
@@ -187,8 +187,9 @@ def plan_design(
         given: (m, 6) [rad] the first data set's poses, held fixed; None: none ("before" is then
             the heuristic start under the same plan).
         given_conditions: {``temperature_C``: (m,), ``time_s``: (m,), ``payload_kg``: (m,)} of the
-            given poses, where known (:func:`~kpioed_drake.design.discriminate.conditions.read_given_conditions`);
-            missing: one constant condition (no payload).
+            given poses, where known
+            (:func:`~kpioed_drake.design.discriminate.conditions.read_given_conditions`); missing: one
+            constant condition (no payload).
         condition_span: ``--condition-span`` text (``"3K"``, ``"600s"``, ``"3K,600s"``, ``"10kg"``) or None
             (the span for power :data:`TARGET_POWER` on the start poses, rounded up).
         alpha: level of the tests.
@@ -197,8 +198,8 @@ def plan_design(
 
     Returns:
         the result (:class:`PlanResult`, or the poses-only result for a pair of joint effects) and
-        the extended problem (for a plan: its :class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`
-        of the 2n measurements).
+        the extended problem (for a plan: its
+        :class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem` of the 2n measurements).
 
     Raises:
         InputError: bad pair or span (naming the option), a span of 0 or a pair no span can
