@@ -77,8 +77,8 @@ def hold_undetermined(
 
     A tracker-pose parameter found only through its correlation with another (not rank deficient)
     is not held, with a warning: the value it would be held at is the rigid registration, which the
-    robot's own errors bias (lift7, base-compliance seed 91: ``tracker_z`` 8 mm off the truth held,
-    chi2/dof 47.5 against 4.8 estimated). It is estimated with the others; ``calibrate`` tests it
+    robot's own errors bias (by millimetres on a compliant lift, docs/design.md). It is estimated
+    with the others; ``calibrate`` tests it
     again at the solution (:func:`hold_at_solution` keeps a tracker parameter's estimate).
     """
     lay = nominal.layout

@@ -32,8 +32,8 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.approximate.design`: the approximate KPI design (weights on poses) by column
   generation with a Clarabel cone program, its efficient rounding to n poses
   (:func:`approximate_start`, the optimiser's ``start="approximate"``);
-- :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on tr(Cs)/3 of
-  any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
+- :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on
+  tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
 - :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
 - :mod:`~kpioed_drake.design.optimize`: :func:`optimize_design`, the entry point (also with poses
@@ -48,8 +48,9 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.evaluate`: ``kpioed evaluate`` (:func:`evaluate_file`), a given design's
   KPI variance, criteria and feasibility.
 
-Every returned design is checked independently by :class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`
-(Drake signed-distance queries), never by the optimiser's own constraint functions.
+Every returned design is checked independently by
+:class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker` (Drake signed-distance queries), never
+by the optimiser's own constraint functions.
 
 Units: millimetres and radians inside; degrees in files and on the command line.
 """
@@ -100,7 +101,7 @@ from kpioed_drake.design.workflow import demo, read_working_poses, run_design
 from kpioed_drake.estimation.criteria import CRITERIA
 
 DESIGN_CRITERIA = DESIGN_METHODS
-"""Alias of :data:`DESIGN_METHODS` (the name before the heuristic was told apart from the criteria)."""
+"""Alias of :data:`DESIGN_METHODS`, kept for callers of the older name."""
 
 __all__ = [
     "ACTIVE_ROWS_PER_POSE",

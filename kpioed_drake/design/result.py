@@ -88,9 +88,9 @@ class DesignResult:
     """Wall time of making the starts [s] (not in ``solve_s``; for ``approximate`` the column
     generation and the rounding; in the printed summary, not in the JSON record)."""
     certificate: dict | None = None
-    """The optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`): a lower bound
-    ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how the
-    bound was found. None: not asked for."""
+    """The optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`): a lower
+    bound ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how
+    the bound was found. None: not asked for."""
     target: dict | None = None
     """The search for the fewest poses reaching a target variance
     (:func:`~kpioed_drake.design.target.design_for_target`): ``target_var_mm2``, ``n_poses``,
@@ -104,8 +104,9 @@ class DesignResult:
 
     def summary(self) -> dict:
         """JSON-ready record (angles in degrees); ``given``, ``target``, ``values.kpi_vars_mm2`` and
-        only when set; the certificate's fields (:func:`~kpioed_drake.design.approximate.certificate.certificate_fields`)
-        always (null when not computed)."""
+        only when set; the certificate's fields
+        (:func:`~kpioed_drake.design.approximate.certificate.certificate_fields`) always (null when not
+        computed)."""
         out = {
             "robot": self.robot,
             "criterion": self.criterion,

@@ -25,7 +25,7 @@ family (``parse_effect``)     model                                         para
 ============================  ============================================  ====================
 
 The first four (:data:`FAMILIES`) are SPEC's; the next four (:data:`EXTRA_FAMILIES`) are further
-diagnosis candidates (issue 13) and work in simulation and ``--extend``; the gravity basis
+diagnosis candidates and work in simulation and ``--extend``; the gravity basis
 (``joint_elasticity_basis``, also in :data:`EXTRA_FAMILIES`) works in ``--extend`` and in the
 diagnosis's upgrade of a named elasticity (:mod:`kpioed_drake.diagnosis.elastic_basis`), it has no
 size to draw for simulation. ``joint_scale``,

@@ -1,7 +1,7 @@
 """Compliance of a lifting column or of the robot's base: the robot above turns under its own weight.
 
-Two effect families (issue 13, "compliance of a column or base for robots on a lift or a soft
-floor"), each one parameter ``c`` and each a small rigid rotation ``omega(q) = c m(q)`` [rad] of
+Two effect families for robots on a lift or a soft floor, each one parameter ``c`` and each a
+small rigid rotation ``omega(q) = c m(q)`` [rad] of
 everything the compliant part carries about a pivot ``o(q)``: a point ``p`` it carries moves by
 ``omega x (p - o)`` (first order in omega: ``omega`` is 1e-4 rad at realistic sizes, the second
 order term is below 1e-8 of the lever).

@@ -54,8 +54,8 @@ _RANK_TOL = 1e-7
 """Relative singular value below which a direction of the moments is not seen by tau_j."""
 _CACHE: dict = {}
 MASS_PRIOR_SPREAD = 0.3
-"""Assumed uncertainty of the model file's link masses and centres of mass (issue 13: each
-+-30 %, uniform): mass ``m (1 + a)``, centre of mass shifted by ``d`` times its distance from the
+"""Assumed uncertainty of the model file's link masses and centres of mass (each +-30 %, uniform):
+mass ``m (1 + a)``, centre of mass shifted by ``d`` times its distance from the
 link frame (100 mm when the file puts it at the origin), ``a, d ~ U(-s, s)``."""
 COM_SCALE_AT_ORIGIN_MM = 100.0
 """The centre-of-mass shift scale of a link whose file centre of mass is at its frame origin [mm]."""

@@ -215,29 +215,50 @@ def augmented_jacobian(
     n = q.shape[0]
     effects = list(effects)
     jd = joint_deltas(model, q, effects, payload_kg=payload_kg, with_dq=with_dq, tau=tau, side=side)
-    delta, factors = jd[0], jd[1]
+    delta = jd[0]
     q_act = q + delta
     frames = model.frames(q_act)
     out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
-    p_WQ, JW = out[0], out[1]
     lay = model.layout
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
     rots = _rotations(model, q, effects, pay_c, with_dq=with_dq)
-    p_raw, theta_raw = p_WQ, JW[:, :, lay.joint_angles]
-    if rots:  # the compliances turn the reflector and its columns: (I + [w]x)
-        p_WQ, w = _turned(effects, rots, p_raw)
-        JW = JW + cross(w[:, None, :], JW.transpose(0, 2, 1)).transpose(0, 2, 1)
-        if with_dq:
-            dJW = out[2]
-            out = (
-                p_WQ,
-                JW,
-                dJW + cross(w[:, None, None, :], dJW.transpose(0, 1, 3, 2)).transpose(0, 1, 3, 2),
-            )
+    p_raw, theta_raw = out[0], out[1][:, :, lay.joint_angles]
+    out = _compliance_turned(effects, rots, out, with_dq)
+    p_WQ, JW = out[0], out[1]
     s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
     R_TW = model.R_WT.T
     h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift, target=target)
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
+    _add_payload_point_columns(
+        H, model, q, effects, rots, payload_kg, s=s, R_TW=R_TW, theta=theta, p_raw=p_raw
+    )
+    E, dE, dp_dq = _effect_columns(
+        model, effects, jd, rots, out, p_raw, theta_raw, s=s, R_TW=R_TW, temp=temp, tvec=tvec, with_dq=with_dq
+    )
+    h, H, E, dE = _tracker_scaled(effects, h, H, E, dE, dp_dq, s=s, s_T=s_T, temp=temp, R_TW=R_TW)
+    if with_dq:
+        return h, H, E, dE
+    return h, H, E
+
+
+def _compliance_turned(effects, rots: dict, out: tuple, with_dq: bool) -> tuple:
+    """``out`` of :func:`point_jacobian` (the reflector point (n, 3), its Jacobian (n, 3, n_full) and
+    with ``with_dq`` its derivative) turned by the compliances at their values, ``(I + [w]x)``."""
+    if not rots:
+        return out
+    p_WQ, w = _turned(effects, rots, out[0])
+    JW = out[1]
+    JW = JW + cross(w[:, None, :], JW.transpose(0, 2, 1)).transpose(0, 2, 1)
+    if not with_dq:
+        return p_WQ, JW
+    dJW = out[2]
+    return p_WQ, JW, dJW + cross(w[:, None, None, :], dJW.transpose(0, 1, 3, 2)).transpose(0, 1, 3, 2)
+
+
+def _add_payload_point_columns(H, model, q, effects, rots: dict, payload_kg, *, s, R_TW, theta, p_raw):
+    """Add to ``H``'s reflector columns (target 0, in place) what a payload there changes with them:
+    its torque on the elastic joints and its moment on the compliances."""
+    lay = model.layout
     if payload_kg is not None and np.any(np.asarray(payload_kg) != 0):
         # the payload sits at p_FQ: its torque, hence an elastic deflection, depends on p_FQ
         c_el = np.zeros(model.robot.n_joints)
@@ -254,8 +275,20 @@ def augmented_jacobian(
             v = effects[i].value_array()[0]
             dp = v * cross(r.dm_dp.transpose(0, 2, 1), (p_raw - r.pivot)[:, None, :])  # (n, 3 d, 3)
             H[:, :, lay.target(0)] += s[:, None, None] * np.einsum("ab,ndb->nad", R_TW, dp)
+
+
+def _effect_columns(model, effects, jd, rots: dict, out, p_raw, theta_raw, *, s, R_TW, temp, tvec, with_dq):
+    """The effects' columns E (n, 3, k) before the tracker scale, with ``with_dq`` also dE
+    (n, 6, 3, k) and the reflector's derivative dp_dq (n, 6, 3) w.r.t. the commanded angles (else
+    None, None)."""
+    lay = model.layout
+    p_WQ, JW = out[0], out[1]
+    n = p_WQ.shape[0]
+    theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act
+    factors = jd[1]
     k = sum(e.n_params for e in effects)
     E = np.zeros((n, 3, k))
+    dE = dp_dq = None
     if with_dq:
         dJW = out[2]
         A = np.eye(model.robot.n_joints)[None] + jd[2]  # d q_act / d q_cmd
@@ -288,19 +321,23 @@ def augmented_jacobian(
         elif e.family == "tracker_drift":
             E[:, :, col : col + 3] = -R_TW[None] * tvec[:, None, None]
         col += m
-    # the tracker's distance scale multiplies everything: h = s_T h_0
+    return E, dE, dp_dq
+
+
+def _tracker_scaled(effects, h, H, E, dE, dp_dq, *, s, s_T, temp, R_TW):
+    """``h``, ``H``, ``E`` and ``dE`` times the tracker's distance scale ``s_T`` (it multiplies
+    everything: ``h = s_T h_0``) and the tracker scale's own column; unchanged without one."""
     ts = [k for k, e in enumerate(effects) if e.family == "tracker_scale"]
     if ts:
+        k = E.shape[2]
         col = sum(e.n_params for e in effects[: ts[0]])
         E[:, :, col] = h * temp[:, None]
-        if with_dq:
+        if dE is not None:
             dE *= s_T[:, None, None, None]
             dE[:, :, :, col] = (dp_dq @ R_TW.T) * (s * temp)[:, None, None]
         h, H = s_T[:, None] * h, s_T[:, None, None] * H
         E[:, :, np.arange(k) != col] *= s_T[:, None, None]
-    if with_dq:
-        return h, H, E, dE
-    return h, H, E
+    return h, H, E, dE
 
 
 def true_measurements(

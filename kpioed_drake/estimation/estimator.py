@@ -343,6 +343,68 @@ def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
     return q, eta, mask, w
 
 
+def _levenberg_marquardt(prob: _Problem, model: TrackerModel, effects, free, *, max_iter: int, tol: float):
+    """Levenberg-Marquardt from ``model`` and ``effects`` (steps in Jacobian-scaled units, the damping
+    raised after a rejected step and lowered by the gain ratio after an accepted one; stops as
+    :func:`estimate`'s ``tol`` says).
+
+    Returns:
+        (model, effects, J, cost, converged, message, iterations) at the last accepted point: J the
+        weighted Jacobian (3m, n_free + k), cost ``|r|^2`` of the weighted residuals.
+    """
+    r, J = prob.weighted(model, effects)
+    cost = float(r @ r)
+    lam = LM_LAMBDA0
+    nu = 2.0
+    converged, message, it = False, "maximum number of iterations reached", 0
+    while it < max_iter:
+        it += 1
+        D = np.linalg.norm(J, axis=0)
+        D[D == 0] = 1.0
+        Js = J / D
+        g = Js.T @ r
+        A = Js.T @ Js
+        if np.max(np.abs(g)) <= 1e-14 * max(1.0, np.sqrt(cost)):
+            converged, message = True, "gradient is zero"
+            break
+        if _gauss_newton_decrease(A, g) <= tol * cost:
+            converged, message = True, "predicted cost decrease below tol"
+            break
+        try:
+            dxs = np.linalg.solve(A + lam * np.eye(A.shape[0]), g)
+        except np.linalg.LinAlgError:
+            lam *= nu
+            nu *= 2.0
+            continue
+        dx = dxs / D
+        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
+        trial, trial_effects = apply_step(model, effects, dx)
+        r_new = prob.weighted(trial, trial_effects, jac=False)
+        cost_new = float(r_new @ r_new)
+        actual = cost - cost_new
+        rho = actual / pred if pred > 0 else -1.0
+        x_scaled = D * np.concatenate([model.p[free], *(e.value_array() for e in effects)])
+        if actual > 0 and rho > 0:
+            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol)
+            small_cost = actual <= tol * cost
+            model, effects = trial.rebased(), trial_effects
+            r, J = prob.weighted(model, effects)
+            cost = float(r @ r)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if small_step or small_cost:
+                converged = True
+                message = "relative step below tol" if small_step else "relative cost decrease below tol"
+                break
+        else:
+            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol):
+                converged, message = True, "no further decrease possible (step below tol)"
+                break
+            lam *= nu
+            nu *= 2.0
+    return model, effects, J, cost, converged, message, it
+
+
 def estimate(
     model: TrackerModel,
     q,
@@ -396,56 +458,9 @@ def estimate(
     if register:
         model = registered_model(model, prob.q, prob.eta, prob.conditions.target)
 
-    r, J = prob.weighted(model, effects)
-    cost = float(r @ r)
-    lam = LM_LAMBDA0
-    nu = 2.0
-    converged, message, it = False, "maximum number of iterations reached", 0
-    while it < max_iter:
-        it += 1
-        D = np.linalg.norm(J, axis=0)
-        D[D == 0] = 1.0
-        Js = J / D
-        g = Js.T @ r
-        A = Js.T @ Js
-        if np.max(np.abs(g)) <= 1e-14 * max(1.0, np.sqrt(cost)):
-            converged, message = True, "gradient is zero"
-            break
-        if _gauss_newton_decrease(A, g) <= tol * cost:
-            converged, message = True, "predicted cost decrease below tol"
-            break
-        try:
-            dxs = np.linalg.solve(A + lam * np.eye(A.shape[0]), g)
-        except np.linalg.LinAlgError:
-            lam *= nu
-            nu *= 2.0
-            continue
-        dx = dxs / D
-        pred = float(dxs @ (2.0 * g - A @ dxs))  # predicted decrease of |r|^2 (Gauss-Newton model)
-        trial, trial_effects = apply_step(model, effects, dx)
-        r_new = prob.weighted(trial, trial_effects, jac=False)
-        cost_new = float(r_new @ r_new)
-        actual = cost - cost_new
-        rho = actual / pred if pred > 0 else -1.0
-        x_scaled = D * np.concatenate([model.p[free], *(e.value_array() for e in effects)])
-        if actual > 0 and rho > 0:
-            small_step = np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol)
-            small_cost = actual <= tol * cost
-            model, effects = trial.rebased(), trial_effects
-            r, J = prob.weighted(model, effects)
-            cost = float(r @ r)
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            nu = 2.0
-            if small_step or small_cost:
-                converged = True
-                message = "relative step below tol" if small_step else "relative cost decrease below tol"
-                break
-        else:
-            if np.linalg.norm(dxs) <= tol * (np.linalg.norm(x_scaled) + tol):
-                converged, message = True, "no further decrease possible (step below tol)"
-                break
-            lam *= nu
-            nu *= 2.0
+    model, effects, J, cost, converged, message, it = _levenberg_marquardt(
+        prob, model, effects, free, max_iter=max_iter, tol=tol
+    )
 
     # covariance at the solution (a priori, with the given sigma)
     try:

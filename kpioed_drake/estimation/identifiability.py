@@ -25,10 +25,9 @@ from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
 
 NEAR_RANK_RTOL = 1e-3
 """Relative threshold on the diagonal of R (QR with column pivoting of the column-normalised
-Jacobian): columns whose diagonal is below this times the largest are not determined. Measured on
-the kr16 (27 free parameters): the 60-pose KPI design gives 5.6e-2 at least (60 random poses
-1.2e-1), a reflector on joint 6's axis 4e-16, 0.1 mm off the axis 1e-4, 1.8 mm off 1.8e-3 (that one
-is caught by the correlation test: |r| = 0.999997)."""
+Jacobian): columns whose diagonal is below this times the largest are not determined. On the kr16
+a design's determined columns lie decades above it and a reflector on joint 6's axis decades below;
+a reflector slightly off the axis is left to the correlation test (docs/design.md)."""
 MAX_CORRELATION = 0.999
 """Pairs of parameters whose a-priori correlation exceeds this in magnitude are not separable."""
 

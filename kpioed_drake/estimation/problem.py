@@ -18,7 +18,7 @@ F1 are the stacked rows of its targets (3T rows: target 1's x, y, z, then target
 Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
 add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
 columns to Js, so that a design for the extended model estimates them too and its KPI variance
-includes them (paper outlook; issue "model discrepancy").
+includes them (paper outlook; SPEC "Measured data and model discrepancy").
 """
 
 from __future__ import annotations

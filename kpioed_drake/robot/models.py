@@ -14,8 +14,6 @@ Conventions (SPEC): classic Denavit-Hartenberg
 """
 
 import dataclasses
-import os
-import re
 from pathlib import Path
 
 import numpy as np
@@ -26,19 +24,19 @@ from pydrake.math import RollPitchYaw
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot import chain as chainmod
 from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec
-from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas, re-exported)
+from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and locations, re-exported)
+    MODELS_DIR,
     CapsuleSpec,
     CellSpec,
     JointSpec,
     LinkSpec,
     ObstacleSpec,
     RobotSpec,
+    list_robots,
     rated_payload,
+    robot_path,
 )
 from kpioed_drake.robot.urdf import read_urdf_robot
-
-MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
-"""Folder holding ``cell.yaml`` and ``robots/*.yaml`` (override with ``KPIOED_MODELS``)."""
 
 N_JOINTS = 6
 """Joints of the DH/Hayati YAML robots (a URDF robot has its own count: ``robot.n_joints``)."""
@@ -214,9 +212,6 @@ class Cell:
 # ----------------------------------------------------------------------------------------------
 # Loading
 # ----------------------------------------------------------------------------------------------
-_NOTIONAL = re.compile(r"^notional-(\d+)-(\d+)$")
-
-
 def _load_yaml(path: Path, schema):
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a YAML file")
@@ -252,31 +247,8 @@ def _vec3(values, where: str) -> np.ndarray:
     return arr
 
 
-def robot_path(name: str) -> Path:
-    """Path of the model file for ``name`` (a model name or a path to a YAML or URDF file); a
-    shipped name without a YAML file but with a URDF file (e.g. ``lift7``) names the URDF."""
-    p = Path(name)
-    if p.suffix in (".yaml", ".yml", ".urdf"):
-        return p
-    m = _NOTIONAL.match(name)
-    if m:
-        return MODELS_DIR / "robots" / "notional" / f"{name}.yaml"
-    path = MODELS_DIR / "robots" / f"{name}.yaml"
-    urdf = path.with_suffix(".urdf")
-    return urdf if not path.is_file() and urdf.is_file() else path
-
-
-def list_robots() -> list[str]:
-    """Names of all robots shipped under ``models/robots``."""
-    root = MODELS_DIR / "robots"
-    yamls = {p.stem for p in root.glob("*.yaml") if not p.name.endswith(".kpioed.yaml")}  # not sidecars
-    names = sorted(yamls | {p.stem for p in root.glob("*.urdf")})
-    names += sorted(p.stem for p in (root / "notional").glob("notional-*.yaml"))
-    return names
-
-
-def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
-    """Validate a :class:`RobotSpec` and convert it to a :class:`Robot` (mm, rad)."""
+def _joint_table(spec: RobotSpec, where: str):
+    """The joint rows' conventions, geometry (6, 4) [rad, mm] and limits lower, upper (6,) [rad]."""
     if len(spec.joints) != N_JOINTS:
         raise InputError(f"{where}: 'joints' must have {N_JOINTS} rows, got {len(spec.joints)}")
     conv, geom, lo, up = [], np.zeros((N_JOINTS, 4)), np.zeros(N_JOINTS), np.zeros(N_JOINTS)
@@ -297,6 +269,11 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         raise InputError(f"{where}: joint 1 must use the 'dh' convention")
     if not np.all(np.isfinite(geom)):
         raise InputError(f"{where}: kinematic table has a non-finite value")
+    return conv, geom, lo, up
+
+
+def _links(spec: RobotSpec, where: str):
+    """The links' capsules (list of :class:`Capsule`), masses (7,) [kg], centres of mass (7, 3) [mm]."""
     caps, masses, coms = [], np.zeros(N_JOINTS + 1), np.zeros((N_JOINTS + 1, 3))
     seen = set()
     for k, link in enumerate(spec.links):
@@ -315,6 +292,11 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
             a, b = _vec3(cap.a_mm, f"{wc}.a_mm"), _vec3(cap.b_mm, f"{wc}.b_mm")
             name = cap.name or f"link{link.index}_{c}"
             caps.append(Capsule(name, link.index, float(cap.radius_mm), a, b))
+    return caps, masses, coms
+
+
+def _link_pairs(spec: RobotSpec, where: str) -> list[tuple[int, int]]:
+    """The self-collision pairs (lower link first), after checking them and the beam links."""
     pairs = []
     for pr in spec.self_collision_pairs:
         if len(pr) != 2 or not all(0 <= x <= N_JOINTS for x in pr) or abs(pr[0] - pr[1]) < 2:
@@ -323,6 +305,11 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
     bad_beam = [x for x in spec.beam_links if not 0 <= x <= N_JOINTS]
     if bad_beam:
         raise InputError(f"{where}: beam_links must be link indices in 0..{N_JOINTS}, got {bad_beam}")
+    return pairs
+
+
+def _q_work(spec: RobotSpec, where: str, lo: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+    """The working configuration (6,) [rad] within the limits ``lo``, ``up`` [rad], or None."""
     q_work = None
     if spec.q_work_deg:
         qw = np.asarray(spec.q_work_deg, dtype=float)
@@ -338,6 +325,15 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
                 f"{where}: q_work_deg[{i}] = {qw[i]:g} deg is outside joint {i + 1}'s limits "
                 f"[{np.rad2deg(lo[i]):g}, {np.rad2deg(up[i]):g}] deg"
             )
+    return q_work
+
+
+def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
+    """Validate a :class:`RobotSpec` and convert it to a :class:`Robot` (mm, rad)."""
+    conv, geom, lo, up = _joint_table(spec, where)
+    caps, masses, coms = _links(spec, where)
+    pairs = _link_pairs(spec, where)
+    q_work = _q_work(spec, where, lo, up)
     if not np.isfinite(spec.car_shift_x_mm):
         raise InputError(f"{where}: car_shift_x_mm must be finite, got {spec.car_shift_x_mm!r}")
     p_FQ = (

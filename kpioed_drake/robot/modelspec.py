@@ -1,17 +1,50 @@
-"""File schemas of the model files: what a robot or cell YAML file holds (millimetres, degrees).
+"""The model files: where they are and their schemas, what a robot or cell YAML file or a URDF
+robot's sidecar holds (millimetres, degrees).
 
-Drake's ``yaml_load_typed`` reads ``models/robots/*.yaml`` into :class:`RobotSpec` and
-``models/cell.yaml`` into :class:`CellSpec`; an unknown or misspelled field is an error.
-:mod:`kpioed_drake.robot.models` validates them and turns them into the typed objects (millimetres,
-radians) the rest of the package uses. Field meanings: ``models/README.md``.
+Drake's ``yaml_load_typed`` reads ``models/robots/*.yaml`` into :class:`RobotSpec`,
+``models/cell.yaml`` into :class:`CellSpec` and a URDF's ``<name>.kpioed.yaml`` into
+:class:`SidecarSpec`; an unknown or misspelled field is an error. :mod:`kpioed_drake.robot.models`
+(and :mod:`kpioed_drake.robot.urdf` for the sidecar) validates them and turns them into the typed
+objects (millimetres, radians) the rest of the package uses. Field meanings: ``models/README.md``.
 """
 
 import dataclasses
+import os
+import re
+from pathlib import Path
 
 import numpy as np
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.jointmap import JointMapSpec
+
+MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
+"""Folder holding ``cell.yaml`` and ``robots/*.yaml`` (override with ``KPIOED_MODELS``)."""
+
+_NOTIONAL = re.compile(r"^notional-(\d+)-(\d+)$")
+
+
+def robot_path(name: str) -> Path:
+    """Path of the model file for ``name`` (a model name or a path to a YAML or URDF file); a
+    shipped name without a YAML file but with a URDF file (e.g. ``lift7``) names the URDF."""
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml", ".urdf"):
+        return p
+    m = _NOTIONAL.match(name)
+    if m:
+        return MODELS_DIR / "robots" / "notional" / f"{name}.yaml"
+    path = MODELS_DIR / "robots" / f"{name}.yaml"
+    urdf = path.with_suffix(".urdf")
+    return urdf if not path.is_file() and urdf.is_file() else path
+
+
+def list_robots() -> list[str]:
+    """Names of all robots shipped under ``models/robots``."""
+    root = MODELS_DIR / "robots"
+    yamls = {p.stem for p in root.glob("*.yaml") if not p.name.endswith(".kpioed.yaml")}  # not sidecars
+    names = sorted(yamls | {p.stem for p in root.glob("*.urdf")})
+    names += sorted(p.stem for p in (root / "notional").glob("notional-*.yaml"))
+    return names
 
 
 @dataclasses.dataclass
@@ -111,6 +144,64 @@ class CellSpec:
     obstacles: list[ObstacleSpec] = dataclasses.field(default_factory=list)
     work_height_above_cabin_mm: float = 100.0
     work_cabin_obstacle: str = "car_cabin"
+
+
+@dataclasses.dataclass
+class LimitSpec:
+    """A joint limit override: ``joint`` (URDF name), ``lower``, ``upper`` [deg; prismatic mm]."""
+
+    joint: str = ""
+    lower: float = 0.0
+    upper: float = 0.0
+
+
+@dataclasses.dataclass
+class LinkCapsuleSpec(CapsuleSpec):
+    """A capsule on robot link ``link`` (0 = base in W, i = child link of movable joint i) [mm]."""
+
+    link: int = 0
+
+
+@dataclasses.dataclass
+class LinkMassSpec:
+    """A mass override of robot link ``link`` (1..n): ``mass_kg`` and optionally ``com_mm`` (link frame);
+    the URDF's inertia tensor is scaled by the mass ratio."""
+
+    link: int = 0
+    mass_kg: float = 0.0
+    com_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class SidecarSpec:
+    """The sidecar YAML of a URDF robot (every field optional; mm, deg)."""
+
+    name: str = ""
+    description: str = ""
+    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
+    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
+    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
+    base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    limits: list[LimitSpec] = dataclasses.field(default_factory=list)
+    capsules: list[LinkCapsuleSpec] = dataclasses.field(default_factory=list)
+    masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
+    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+    beam_links: list[int] = dataclasses.field(default_factory=list)
+    q_work: list[float] = dataclasses.field(default_factory=list)
+    car_shift_x_mm: float = 0.0
+    extra_gauge: list[str] = dataclasses.field(default_factory=list)
+    joint_map: JointMapSpec | None = None
+    """Controller angles to model angles, as in the YAML files (six-joint robots only)."""
+    gauge: list[str] = dataclasses.field(default_factory=list)
+    """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
+    nominal robot's: its small errors make the exact dependencies only nearly exact)."""
+    compliant_base: bool = False
+    """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
+    rated_payload_kg: float = 0.0
+    """The payload the robot may carry [kg] (0: not given)."""
+    notes: str = ""
 
 
 def rated_payload(value, where: str) -> float | None:

@@ -32,71 +32,13 @@ from pydrake.multibody.tree import PrismaticJoint
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
-from kpioed_drake.robot.jointmap import JointMapSpec, joint_map_from_spec
-from kpioed_drake.robot.modelspec import CapsuleSpec, rated_payload
+from kpioed_drake.robot.jointmap import joint_map_from_spec
+from kpioed_drake.robot.modelspec import SidecarSpec, rated_payload
 
 MM = 1e-3
 MOVABLE = ("revolute", "continuous", "prismatic")
 _GENERIC_REFLECTOR = np.array([80.0, -60.0, 150.0])
 """Reflector offset [mm] for the automatic gauge when the sidecar gives none (off every axis)."""
-
-
-@dataclasses.dataclass
-class LimitSpec:
-    """A joint limit override: ``joint`` (URDF name), ``lower``, ``upper`` [deg; prismatic mm]."""
-
-    joint: str = ""
-    lower: float = 0.0
-    upper: float = 0.0
-
-
-@dataclasses.dataclass
-class LinkCapsuleSpec(CapsuleSpec):
-    """A capsule on robot link ``link`` (0 = base in W, i = child link of movable joint i) [mm]."""
-
-    link: int = 0
-
-
-@dataclasses.dataclass
-class LinkMassSpec:
-    """A mass override of robot link ``link`` (1..n): ``mass_kg`` and optionally ``com_mm`` (link frame);
-    the URDF's inertia tensor is scaled by the mass ratio."""
-
-    link: int = 0
-    mass_kg: float = 0.0
-    com_mm: list[float] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class SidecarSpec:
-    """The sidecar YAML of a URDF robot (every field optional; mm, deg)."""
-
-    name: str = ""
-    description: str = ""
-    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
-    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
-    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
-    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
-    base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
-    base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
-    limits: list[LimitSpec] = dataclasses.field(default_factory=list)
-    capsules: list[LinkCapsuleSpec] = dataclasses.field(default_factory=list)
-    masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
-    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
-    beam_links: list[int] = dataclasses.field(default_factory=list)
-    q_work: list[float] = dataclasses.field(default_factory=list)
-    car_shift_x_mm: float = 0.0
-    extra_gauge: list[str] = dataclasses.field(default_factory=list)
-    joint_map: JointMapSpec | None = None
-    """Controller angles to model angles, as in the YAML files (six-joint robots only)."""
-    gauge: list[str] = dataclasses.field(default_factory=list)
-    """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
-    nominal robot's: its small errors make the exact dependencies only nearly exact)."""
-    compliant_base: bool = False
-    """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
-    rated_payload_kg: float = 0.0
-    """The payload the robot may carry [kg] (0: not given)."""
-    notes: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -268,15 +210,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
     sw = str(side_path)
     chain_xml, root, welded = _chain_joints(xml, path)
-    X_WB = None
-    if side.base_xyz_mm or side.base_rpy_deg:
-        if welded:
-            raise InputError(f"{sw}: base_xyz_mm/base_rpy_deg given, but {path} welds its root to 'world'")
-        xyz = _vec(side.base_xyz_mm or [0, 0, 0], f"{sw}: base_xyz_mm") * MM
-        rpy = np.deg2rad(_vec(side.base_rpy_deg or [0, 0, 0], f"{sw}: base_rpy_deg"))
-        X_WB = RigidTransform(RollPitchYaw(rpy), xyz)
-    elif not welded:
-        X_WB = RigidTransform()
+    X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
     source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
     plant = MultibodyPlant(0.0)
@@ -285,22 +219,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     ctx = plant.CreateDefaultContext()
     joints = movable_joints(plant, inst, source)
     n = len(joints)
-    R_PJ, p_PJ, axis = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-    pris = np.array([isinstance(j, PrismaticJoint) for j in joints])
-    lo, up = np.zeros(n), np.zeros(n)
-    bodies = [plant.world_body()]
-    for i, j in enumerate(joints):
-        X_P = plant.EvalBodyPoseInWorld(ctx, bodies[-1])
-        X_PJ = X_P.inverse().multiply(j.frame_on_parent().CalcPoseInWorld(ctx))
-        R_PJ[i], p_PJ[i] = X_PJ.rotation().matrix(), X_PJ.translation() / MM
-        a = j.translation_axis() if pris[i] else j.revolute_axis()
-        axis[i] = np.asarray(a) / np.linalg.norm(a)
-        s = 1.0 / MM if pris[i] else 1.0
-        lo[i], up[i] = j.position_lower_limits()[0] * s, j.position_upper_limits()[0] * s
-        bodies.append(j.child_body())
-        X_CM = j.frame_on_child().CalcPose(ctx, j.child_body().body_frame())
-        if not X_CM.IsNearlyIdentity(1e-12):
-            raise InputError(f"{path}: joint {j.name()!r}: the child link's frame is not the joint frame")
+    R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, path)
     lo, up = _limits(side, names, pris, lo, up, sw, path)
     chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris)
     masses, coms, owner = _inertia(plant, ctx, bodies)
@@ -308,31 +227,10 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         caps = _side_capsules(side, n, sw)
     else:
         caps = _capsules(xml, plant, ctx, inst, bodies, owner, path)
-    p_FQ, targets = None, None
-    if side.reflector_position_mm:
-        p_FQ = _vec(side.reflector_position_mm, f"{sw}: reflector_position_mm")
-    if side.targets_mm:  # several targets: target 1 is the reflector (as targets_mm of a YAML robot)
-        targets = np.array([_vec(t, f"{sw}: targets_mm[{k}]") for k, t in enumerate(side.targets_mm)])
-        if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
-            raise InputError(
-                f"{sw}: reflector_position_mm differs from targets_mm[0] (target 1 is the reflector)"
-            )
-        p_FQ = targets[0]
+    p_FQ, targets = _reflector(side, sw)
     q_work = _q_work(side, pris, lo, up, sw)
-    X_WT = None
-    if side.tracker_position_mm:
-        rpy = np.deg2rad(_vec(side.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{sw}: tracker_rpy_deg"))
-        R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
-        X_WT = (_vec(side.tracker_position_mm, f"{sw}: tracker_position_mm"), R_WT)
-    pairs = []
-    for pr in side.self_collision_pairs:
-        if len(pr) != 2 or not all(0 <= x <= n for x in pr) or abs(pr[0] - pr[1]) < 2:
-            raise InputError(
-                f"{sw}: self_collision_pairs entry {pr} must be two non-neighbour links in 0..{n}"
-            )
-        pairs.append((int(min(pr)), int(max(pr))))
-    if any(not 0 <= x <= n for x in side.beam_links):
-        raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
+    X_WT = _tracker_pose(side, sw)
+    pairs = _link_pairs(side, n, sw)
     gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
     if side.joint_map is not None and n != 6:
         raise InputError(f"{sw}: joint_map is available for six-joint robots only ({path} has {n} joints)")
@@ -362,6 +260,87 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         compliant_base=bool(side.compliant_base),
         rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
     )
+
+
+def _base_pose(side, welded: bool, sw: str, path: Path) -> RigidTransform | None:
+    """The root link's weld ``X_WB`` from the sidecar's ``base_xyz_mm`` / ``base_rpy_deg`` (identity
+    when neither is given), or None when the URDF welds its root to "world" itself."""
+    X_WB = None
+    if side.base_xyz_mm or side.base_rpy_deg:
+        if welded:
+            raise InputError(f"{sw}: base_xyz_mm/base_rpy_deg given, but {path} welds its root to 'world'")
+        xyz = _vec(side.base_xyz_mm or [0, 0, 0], f"{sw}: base_xyz_mm") * MM
+        rpy = np.deg2rad(_vec(side.base_rpy_deg or [0, 0, 0], f"{sw}: base_rpy_deg"))
+        X_WB = RigidTransform(RollPitchYaw(rpy), xyz)
+    elif not welded:
+        X_WB = RigidTransform()
+    return X_WB
+
+
+def _joint_frames(plant: MultibodyPlant, ctx, joints, path: Path):
+    """The chain read from the finalized plant: per joint its placement ``R_PJ`` (n, 3, 3), ``p_PJ``
+    (n, 3) [mm] in the parent link's frame, unit ``axis`` (n, 3), ``prismatic`` (n,) and the URDF's
+    limits ``lo``, ``up`` (n,) [rad; prismatic mm]; and the bodies, world first, then each joint's
+    child link."""
+    n = len(joints)
+    R_PJ, p_PJ, axis = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    pris = np.array([isinstance(j, PrismaticJoint) for j in joints])
+    lo, up = np.zeros(n), np.zeros(n)
+    bodies = [plant.world_body()]
+    for i, j in enumerate(joints):
+        X_P = plant.EvalBodyPoseInWorld(ctx, bodies[-1])
+        X_PJ = X_P.inverse().multiply(j.frame_on_parent().CalcPoseInWorld(ctx))
+        R_PJ[i], p_PJ[i] = X_PJ.rotation().matrix(), X_PJ.translation() / MM
+        a = j.translation_axis() if pris[i] else j.revolute_axis()
+        axis[i] = np.asarray(a) / np.linalg.norm(a)
+        s = 1.0 / MM if pris[i] else 1.0
+        lo[i], up[i] = j.position_lower_limits()[0] * s, j.position_upper_limits()[0] * s
+        bodies.append(j.child_body())
+        X_CM = j.frame_on_child().CalcPose(ctx, j.child_body().body_frame())
+        if not X_CM.IsNearlyIdentity(1e-12):
+            raise InputError(f"{path}: joint {j.name()!r}: the child link's frame is not the joint frame")
+    return R_PJ, p_PJ, axis, pris, lo, up, bodies
+
+
+def _reflector(side, sw: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The reflector offset ``p_FQ`` (3,) and the targets (T, 3) in the flange frame [mm], None where
+    the sidecar gives none."""
+    p_FQ, targets = None, None
+    if side.reflector_position_mm:
+        p_FQ = _vec(side.reflector_position_mm, f"{sw}: reflector_position_mm")
+    if side.targets_mm:  # several targets: target 1 is the reflector (as targets_mm of a YAML robot)
+        targets = np.array([_vec(t, f"{sw}: targets_mm[{k}]") for k, t in enumerate(side.targets_mm)])
+        if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
+            raise InputError(
+                f"{sw}: reflector_position_mm differs from targets_mm[0] (target 1 is the reflector)"
+            )
+        p_FQ = targets[0]
+    return p_FQ, targets
+
+
+def _tracker_pose(side, sw: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The sidecar's tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))``, or None."""
+    X_WT = None
+    if side.tracker_position_mm:
+        rpy = np.deg2rad(_vec(side.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{sw}: tracker_rpy_deg"))
+        R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
+        X_WT = (_vec(side.tracker_position_mm, f"{sw}: tracker_position_mm"), R_WT)
+    return X_WT
+
+
+def _link_pairs(side, n: int, sw: str) -> list[tuple[int, int]]:
+    """The self-collision pairs (lower link first) of links 0..n, after checking them and the
+    beam links."""
+    pairs = []
+    for pr in side.self_collision_pairs:
+        if len(pr) != 2 or not all(0 <= x <= n for x in pr) or abs(pr[0] - pr[1]) < 2:
+            raise InputError(
+                f"{sw}: self_collision_pairs entry {pr} must be two non-neighbour links in 0..{n}"
+            )
+        pairs.append((int(min(pr)), int(max(pr))))
+    if any(not 0 <= x <= n for x in side.beam_links):
+        raise InputError(f"{sw}: beam_links must be link indices in 0..{n}, got {side.beam_links}")
+    return pairs
 
 
 def _gauge(side, chain, lo, up, p_FQ, sw, path) -> tuple[str, ...]:

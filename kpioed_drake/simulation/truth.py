@@ -59,7 +59,7 @@ def random_rotation(rng: np.random.Generator, *, scalar_first: bool = True) -> n
         rng: the generator (four normals are drawn).
         scalar_first: read the normals as (w, x, y, z) (:func:`simulate`) or as (x, y, z, w), which
             is ``scipy.spatial.transform.Rotation.random`` (the diagnosis' synthetic harness). Both
-            are uniform; the flag keeps seeded results as they were.
+            are uniform; each caller keeps its convention, so its seeded results reproduce.
     """
     return Rotation.from_quat(rng.standard_normal(4), scalar_first=scalar_first).as_matrix()
 
@@ -168,62 +168,18 @@ def simulate(
 
     rng = np.random.default_rng(seed)
     model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
-    t = np.arange(n) * SECONDS_PER_POSE if time_s is None else per_pose(time_s, n, "time_s")
-    if temperature_C is None:
-        frac = t / t[-1] if n > 1 and t[-1] > 0 else np.zeros(n)
-        temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
-    else:
-        temp = per_pose(temperature_C, n, "temperature_C")
     offsets = condition_offsets or {}
-    unknown = set(offsets) - set(OFFSET_COLUMNS)
-    if unknown:
-        raise InputError(
-            f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
-        )
-    # after the defaults, so a plan leaves every seeded draw as it was; the payload offset is the
-    # mass a plan adds at the reflector in its block 2
-    cond = {"time_s": t, "temperature_C": temp, "payload_kg": per_pose(payload_kg, n, "payload_kg")}
-    for c in cond:
-        if c in offsets:
-            cond[c] = cond[c] + per_pose(offsets[c], n, OFFSET_COLUMNS[c])
-    t, temp, payload = cond["time_s"], cond["temperature_C"], cond["payload_kg"]
-    if "payload_kg" in offsets and (bad := np.flatnonzero(payload < 0)).size:
-        raise InputError(
-            f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
-            f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
-        )
+    t, temp, payload = _conditions(
+        n, rng, time_s=time_s, temperature_C=temperature_C, payload_kg=payload_kg, offsets=offsets
+    )
     # one row per (pose, target), pose-major; one target: the rows are the poses
     target = None if n_t == 1 else np.tile(np.arange(n_t), n)
     q_deg, q, t, temp, payload = (np.repeat(x, n_t, axis=0) for x in (q_deg, q, t, temp, payload))
 
-    effect_objs = []
-    if effects:
-        for e in effects:
-            e = parse_effect(e, rng, model=model) if isinstance(e, str) else e
-            effect_objs.append(resolve(e, model))
-        keys = [e.key for e in effect_objs]
-        for k, e in zip(keys, effect_objs, strict=True):
-            if keys.count(k) > 1:
-                raise InputError(f"effect {e.name!r} given more than once")
-        eta = true_measurements(
-            model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload, target=target
-        )
-        eta = np.asarray(eta, dtype=float)
-        if eta.shape != (n * n_t, 3):
-            raise RuntimeError(
-                f"effects.true_measurements returned shape {eta.shape}, expected {(n * n_t, 3)}"
-            )
-    else:
-        eta = measure(model, q, target)
+    eta, effect_objs = _measured(model, q, effects, rng, temp=temp, t=t, payload=payload, target=target)
     eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
 
-    cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
-    cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
-    if np.any(payload != 0):
-        cols["payload_kg"] = payload
-    if target is not None:
-        cols[TARGET_COLUMN] = target + 1
-    table = pd.DataFrame(cols)
+    table = _table(rob, q_deg, eta, t=t, temp=temp, payload=payload, target=target)
     truth = {
         "robot": rob.name,
         "model": model,
@@ -238,3 +194,69 @@ def simulate(
         "condition_offsets": sorted(offsets),
     }
     return table, truth
+
+
+def _conditions(n: int, rng: np.random.Generator, *, time_s, temperature_C, payload_kg, offsets: dict):
+    """Time [s], temperature [C] and payload [kg] of the n poses: the given ones or the defaults (module
+    docstring), plus a measurement plan's ``offsets`` (``simulate``'s ``condition_offsets``)."""
+    t = np.arange(n) * SECONDS_PER_POSE if time_s is None else per_pose(time_s, n, "time_s")
+    if temperature_C is None:
+        frac = t / t[-1] if n > 1 and t[-1] > 0 else np.zeros(n)
+        temp = 18.0 + 4.0 * frac + rng.normal(0.0, 0.05, n)
+    else:
+        temp = per_pose(temperature_C, n, "temperature_C")
+    unknown = set(offsets) - set(OFFSET_COLUMNS)
+    if unknown:
+        raise InputError(
+            f"simulate: condition offsets for {sorted(unknown)}; expected {sorted(OFFSET_COLUMNS)}"
+        )
+    # after the defaults, so a plan does not change the seeded draws; the payload offset is the
+    # mass a plan adds at the reflector in its block 2
+    cond = {"time_s": t, "temperature_C": temp, "payload_kg": per_pose(payload_kg, n, "payload_kg")}
+    for c in cond:
+        if c in offsets:
+            cond[c] = cond[c] + per_pose(offsets[c], n, OFFSET_COLUMNS[c])
+    t, temp, payload = cond["time_s"], cond["temperature_C"], cond["payload_kg"]
+    if "payload_kg" in offsets and (bad := np.flatnonzero(payload < 0)).size:
+        raise InputError(
+            f"simulate: pose {bad[0] + 1}: payload {payload[bad[0]]:g} kg after the plan's "
+            f"{OFFSET_COLUMNS['payload_kg']}; expected >= 0"
+        )
+    return t, temp, payload
+
+
+def _measured(model: TrackerModel, q, effects, rng: np.random.Generator, *, temp, t, payload, target):
+    """(rows, 3) noise-free measurements [mm] of the true ``model`` at ``q`` (one row per measurement)
+    with the ``effects`` (texts drawn from ``rng`` or effect objects), and the resolved effects."""
+    effect_objs = []
+    if effects:
+        for e in effects:
+            e = parse_effect(e, rng, model=model) if isinstance(e, str) else e
+            effect_objs.append(resolve(e, model))
+        keys = [e.key for e in effect_objs]
+        for k, e in zip(keys, effect_objs, strict=True):
+            if keys.count(k) > 1:
+                raise InputError(f"effect {e.name!r} given more than once")
+        eta = true_measurements(
+            model, q, effect_objs, temperature_C=temp, time_s=t, payload_kg=payload, target=target
+        )
+        eta = np.asarray(eta, dtype=float)
+        if eta.shape != (len(q), 3):
+            raise RuntimeError(
+                f"effects.true_measurements returned shape {eta.shape}, expected {(len(q), 3)}"
+            )
+    else:
+        eta = measure(model, q, target)
+    return eta, effect_objs
+
+
+def _table(rob: Robot, q_deg, eta, *, t, temp, payload, target) -> pd.DataFrame:
+    """The measurement table: joint columns [deg, mm], x/y/z [mm], temperature and time, the payload
+    if any is nonzero and the 1-based target if there are several."""
+    cols = {c: q_deg[:, j] for j, c in enumerate(q_columns(rob))}
+    cols.update(x_mm=eta[:, 0], y_mm=eta[:, 1], z_mm=eta[:, 2], temperature_C=temp, time_s=t)
+    if np.any(payload != 0):
+        cols["payload_kg"] = payload
+    if target is not None:
+        cols[TARGET_COLUMN] = target + 1
+    return pd.DataFrame(cols)

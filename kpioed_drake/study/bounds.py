@@ -1,9 +1,9 @@
-"""The study's lower bounds joined into its rows: each design's efficiency (issue 14).
+"""The study's lower bounds joined into its rows: each design's efficiency.
 
 A :class:`~kpioed_drake.study.tasks.BoundTask` gives, per robot (and variant, n), the dual matrix
 ``Y`` (k, 3) of the approximate KPI design over the poses its search evaluated, ``tr(K^T Y)^2``
-and ``g_max`` = the largest ``||F_x Y||_F^2`` found (:mod:`kpioed_drake.design.approximate.certificate`). For a
-design of n poses ``x_1..x_n`` with collision avoidance,
+and ``g_max`` = the largest ``||F_x Y||_F^2`` found (:mod:`kpioed_drake.design.approximate.certificate`).
+For a design of n poses ``x_1..x_n`` with collision avoidance,
 
     bound = tr(K^T Y)^2 / (n max(g_max, max_i ||F_{x_i} Y||_F^2))
 

@@ -216,7 +216,7 @@ def kpi_error(case: SyntheticCase, fit: Fit) -> float | None:
 
 CASE_KINDS = ("single", "pair", "clean")
 RATE_FAMILIES = fx.FAMILIES + ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
-"""The families of the rate study (SPEC's four and the further four of issue 13)."""
+"""The families of the rate study (SPEC's four and four of :data:`~kpioed_drake.effects.EXTRA_FAMILIES`)."""
 NEAR_THRESHOLD = (15.0, 150.0)
 """Range of the hidden signal's non-centrality lambda (log-uniform) in ``near_threshold`` cases."""
 PAYLOAD_KG = (2.0, 15.0)
@@ -249,7 +249,7 @@ def run_synthetic_case(
     simulate, diagnose, compare. Used by ``tests/test_diagnosis.py`` and
     ``studies/diagnosis_rates.py``. ``families`` restricts the draw (e.g. to ``("gear_cyclic",)``).
 
-    The harder harness (defaults off, so the old cases stay the same): ``mass_spread`` (true link
+    The harder harness (off by default): ``mass_spread`` (true link
     masses and centres of mass off the file's, :func:`perturbed_masses`); ``payload="changes"``
     (each pose carries 0 kg or a second level uniform in :data:`PAYLOAD_KG`, recorded in the data);
     ``near_threshold`` (each hidden effect rescaled so that its lambda is log-uniform in

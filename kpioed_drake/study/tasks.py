@@ -53,11 +53,10 @@ QUICK_NOTIONAL = (
 """Notional robots of the quick study, spread over the lambda-mu grid."""
 
 STUDY_START = "heuristic"
-"""The optimiser's start in the study: the paper's random start, as when the committed results
-(``studies/results``, ``studies/sensitivity``) were made, so that task ids keep meaning the same
-design and the study replicates the paper's method. The package's default for the ``kpi``
-criterion is the approximate design (docs/certificate.md: efficiency 0.94-0.98 against
-0.82-0.92)."""
+"""The optimiser's start in the study: the paper's random start, so that the study replicates the
+paper's method and a task id names the design of the committed results (``studies/results``,
+``studies/sensitivity``). The package's default for the ``kpi`` criterion is the approximate
+design (docs/certificate.md)."""
 
 _NOTIONAL = re.compile(r"^notional-(\d+)-(\d+)$")
 

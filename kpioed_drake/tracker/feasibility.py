@@ -30,8 +30,7 @@ TOL_MM = 1e-3
 TOL_DEG = 1e-4
 """An angle counts as beyond its limit by more than this [deg]. Not tighter than the solver: SNOPT's
 feasibility tolerance 1e-7 on the incidence row ``cos(beta) - cos(beta_max)`` allows 1.1e-5 deg at
-beta_max = 30 deg (until 2026-12-02 the check took 1e-6 deg and failed a SNOPT-optimal design of
-``--discriminate "joint_elasticity:2|joint_scale:2" --n 12`` by 7.2e-6 deg, exit 3)."""
+beta_max = 30 deg, so a tighter check would reject SNOPT-optimal designs (docs/design.md)."""
 
 
 @dataclasses.dataclass

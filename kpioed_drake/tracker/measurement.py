@@ -180,7 +180,8 @@ def tracker_jacobian(model: TrackerModel, p_WQ, JW, *, scale=None, offset=None, 
     Args:
         model: the model (tracker pose, layout).
         p_WQ: (n, 3) reflector points in W [mm].
-        JW: (n, 3, n_joint_params + 3) their Jacobian from :func:`~kpioed_drake.robot.kinematics.point_jacobian`.
+        JW: (n, 3, n_joint_params + 3) their Jacobian from
+            :func:`~kpioed_drake.robot.kinematics.point_jacobian`.
         scale: (n,) length scale s (default 1).
         offset: (n, 3) shift of the tracker origin in W [mm] (default 0).
         target: (n,) 0-based target of each row, whose offset columns the flange columns of

@@ -24,8 +24,8 @@ What is rigorous and what is not:
   :data:`DESIGN_REFINEMENTS`). So ``bound_mm2 <= tr(Cs)/3`` of the design certified is rigorous
   (efficiency <= 1). That it bounds every feasible n-pose design holds only if no feasible pose
   has a larger ``||F_x Y||`` than the largest found: the maximum over the continuous feasible set
-  is a search (SNOPT from many starts), not a proof. It is known to miss poses: designs of the
-  optimiser have had poses 2-39 % above it (``design_beyond_search``).
+  is a search (SNOPT from many starts), not a proof. It can miss poses: an optimised design's
+  poses may lie above it (``design_beyond_search`` > 1).
 
 Units: millimetres and radians; variances in mm^2.
 """
@@ -68,16 +68,15 @@ VERIFY_POOL = 5000
 """Random feasible poses (a fresh seed) on which ``g`` is evaluated after the column generation."""
 CORNER_VARIANTS = 10
 """Variants (joints at limits; random moves of :data:`PERTURB_RAD`) tried per leading candidate in
-:func:`verify_search` (on kr16 design poses near candidates, with joint 5 at its limit or several
-clearances active, had ``g`` 13-20 % above the largest found from random poses)."""
+:func:`verify_search`: the maxima of ``g`` sit on constraint boundaries (a joint at its limit,
+several clearances active) that random poses rarely reach (docs/certificate.md, design notes)."""
 DESIGN_STARTS = 8
 """Local maximisations of ``g`` from a certified design's poses (:func:`certify`)."""
 DESIGN_REFINEMENTS = 2
 """Most times :func:`certify` continues the column generation with the feasible poses it found near
 the design with ``g`` above the search's maximum, each followed by :func:`verify_search`. Without
-it, in one benchmark run the 60-pose designs on notional-650-600, notional-1100-600 and
-notional-950-700, which had reached poses 14-39 % beyond the search, got efficiencies 0.66-0.85
-(their bound lowered by that factor); with it 0.82-0.97 (bench/bound_results.md)."""
+it, a design that reaches poses beyond the search gets a valid but loose bound, lowered by that
+factor (docs/certificate.md)."""
 PERTURB_RAD = 0.25
 """Standard deviation of those random moves per joint [rad]."""
 VERIFY_STARTS = 48

@@ -59,10 +59,9 @@ START_ROUNDS = 4
 """Its column-generation rounds."""
 START_SEARCHES = 12
 """Its local maximisations of ``g`` per round, :data:`START_RANDOM` of them from random candidates.
-Screened on kr16, kr300 and notional-850-800 (60 poses, seeds 0-2, docs/certificate.md): the column
-generation took 1.0-1.4 s against 2.4-3.2 s with :data:`POOL_POSES`, :data:`ROUNDS` and
-:data:`SEARCH_STARTS`. Fewer rounds (2-3) or fewer first working poses (300) ended up to 4 %
-higher after SNOPT on notional-850-800, and SNOPT often took longer from the poorer start."""
+With :data:`START_POOL` and :data:`START_ROUNDS`, the start's column generation costs about half of
+one with :data:`POOL_POSES`, :data:`ROUNDS` and :data:`SEARCH_STARTS`; less work gives a poorer
+start, from which SNOPT ends higher and often takes longer (docs/certificate.md, design notes)."""
 START_RANDOM = 4
 EXCHANGE_ITER = 200
 """Most exchange steps (:func:`exchange_counts`) after the rounding of the optimiser's start."""
@@ -84,12 +83,12 @@ CLARABEL_TOL = 1e-11
 the pool optimum near 1e-6)."""
 RETRY_TOLS = (1e-9, 1e-7)
 """Looser tolerances tried in turn when Clarabel stops short of the asked one ("insufficient
-progress": 3 of 93 robots of the study at 1e-11). The bound stays rigorous (``phi`` and ``dual`` are
+progress", on a few robots at 1e-11, docs/studies.md). The bound stays rigorous (``phi`` and ``dual`` are
 evaluated in numpy); only its tightness depends on the tolerance."""
 START_CONE_TOL = 1e-8
-"""Clarabel's tolerances in the optimiser's start (Clarabel's default; it needs no certificate):
-on kr16 the start took 1.5 s of CPU against 1.7-1.9 s with :data:`CLARABEL_TOL`, its value 0.03 %
-apart; on notional-950-700 the same time."""
+"""Clarabel's tolerances in the optimiser's start (Clarabel's default; it needs no certificate): a
+little faster than :data:`CLARABEL_TOL` for a start of the same value to a few 1e-4
+(docs/certificate.md, design notes)."""
 
 
 def kpi_factor(problem: Problem) -> np.ndarray:

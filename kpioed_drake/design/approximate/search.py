@@ -2,17 +2,16 @@
 
 ``g`` is the pricing function of the approximate design's column generation and the quantity whose
 maximum over the feasible poses (paper eq. 24b) makes the certificate's bound
-(:mod:`kpioed_drake.design.approximate.design`, :mod:`kpioed_drake.design.approximate.certificate`); ``F_x`` is the
-pose's 3 rows of the weighted identification Jacobian (paper eq. 24d) and ``Y`` (k, 3) a dual
-matrix. Up to a factor, ``g`` is the directional derivative ``d(x, w) = tr(A M^-1 M_x M^-1)`` of the
-general equivalence theorem.
+(:mod:`kpioed_drake.design.approximate.design`, :mod:`kpioed_drake.design.approximate.certificate`);
+``F_x`` is the pose's 3 rows of the weighted identification Jacobian (paper eq. 24d) and ``Y``
+(k, 3) a dual matrix. Up to a factor, ``g`` is the directional derivative
+``d(x, w) = tr(A M^-1 M_x M^-1)`` of the general equivalence theorem.
 
 - :func:`maximize_dual`: local maxima by SNOPT under the design's own constraint rows (a
   :class:`DesignProgram` of a few poses whose objective is ``-sum g``);
 - :func:`corner_poses`: starting poses with joints at their limits. Maxima of ``g`` sit on the
   constraint boundaries (incidence limit, clearances, joint limits), which uniform random poses
-  almost never reach; on kr16 a design pose with joints 5 and 6 at their limits had ``g`` 13 %
-  above every local maximum found from uniform poses.
+  almost never reach (docs/certificate.md, design notes).
 
 This is a search: it does not prove that no feasible pose has a larger ``g``.
 
@@ -31,8 +30,8 @@ from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.estimation.problem import Problem
 
 SEARCH_BATCH = 8
-"""Starts per SNOPT solve of the local maximisation (kr16, 48 starts: 8 per solve 0.7 s; 1 per
-solve 1.6 s; 48 per solve 1.5 s, most ending infeasible)."""
+"""Starts per SNOPT solve of the local maximisation: faster than one start per solve or all starts in
+one, which mostly ends infeasible (docs/certificate.md, design notes)."""
 SEARCH_OPTIONS = {
     "Major optimality tolerance": 1e-5,
     "Major feasibility tolerance": 1e-7,

@@ -29,8 +29,8 @@ pose and not a joint effect's (:func:`plan_conditions`; the design CSV's ``paylo
 
 The span of each condition is the user's (``--condition-span 3K``, ``600s``, ``10min``,
 ``2h``, or both ``3K,600s``) or, by default, the span at which each condition explanation's test
-reaches power :data:`~kpioed_drake.design.discriminate.explanations.TARGET_POWER` on the start poses under this
-plan (:func:`required_spans`), rounded up to two significant digits. A span of 0 forbids the
+reaches power :data:`~kpioed_drake.design.discriminate.explanations.TARGET_POWER` on the start poses
+under this plan (:func:`required_spans`), rounded up to two significant digits. A span of 0 forbids the
 condition: no plan can help, and the command exits 2 naming the span the data would need. The
 design itself is :func:`~kpioed_drake.design.discriminate.plan.plan_design`.
 """

@@ -5,16 +5,16 @@
 :func:`~kpioed_drake.design.discriminate.design.discrimination_design` (poses only); a pair with
 ``thermal_expansion``, ``tracker_scale`` or ``tracker_drift`` (or a gravity-torque effect with a
 payload span, ``--condition-span 10kg``) gets a measurement plan of
-:mod:`~kpioed_drake.design.discriminate.conditions`: ``n`` poses, each measured in block 1 and again in block 2
-after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
+:mod:`~kpioed_drake.design.discriminate.conditions`: ``n`` poses, each measured in block 1 and again in
+block 2 after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
 the first data and the plan together. The result's rows are the measurements in order (block 1,
 then block 2: 2n rows) with their block and planned condition offset (:attr:`PlanResult.plan_columns`,
 the design CSV's ``block``, ``temperature_offset_K`` / ``time_offset_s``); its ``discrimination``
 record has ``before``, ``after`` and the ``plan`` (spans, where they come from, the span the designed
 poses need, and the heuristic poses under the same plan for comparison). Its KPI values (tr(Cs)/3,
 scaled tr(Cp)) are those of the extended model with the first data and the plan, each measurement
-at its condition (:class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`, also the problem returned
-for the JSON record and the 3-D page).
+at its condition (:class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`, also the problem
+returned for the JSON record and the 3-D page).
 """
 
 from __future__ import annotations
@@ -187,8 +187,9 @@ def plan_design(
         given: (m, 6) [rad] the first data set's poses, held fixed; None: none ("before" is then
             the heuristic start under the same plan).
         given_conditions: {``temperature_C``: (m,), ``time_s``: (m,), ``payload_kg``: (m,)} of the
-            given poses, where known (:func:`~kpioed_drake.design.discriminate.conditions.read_given_conditions`);
-            missing: one constant condition (no payload).
+            given poses, where known
+            (:func:`~kpioed_drake.design.discriminate.conditions.read_given_conditions`); missing: one
+            constant condition (no payload).
         condition_span: ``--condition-span`` text (``"3K"``, ``"600s"``, ``"3K,600s"``, ``"10kg"``) or None
             (the span for power :data:`TARGET_POWER` on the start poses, rounded up).
         alpha: level of the tests.
@@ -197,23 +198,15 @@ def plan_design(
 
     Returns:
         the result (:class:`PlanResult`, or the poses-only result for a pair of joint effects) and
-        the extended problem (for a plan: its :class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`
-        of the 2n measurements).
+        the extended problem (for a plan: its
+        :class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem` of the 2n measurements).
 
     Raises:
         InputError: bad pair or span (naming the option), a span of 0 or a pair no span can
             separate (naming the span an even ramp would need).
     """
     pair = checked_pair(problem, pair_text, alpha)
-    spans_user = parse_condition_span(condition_span, pair)
-    if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
-        del spans_user[PAYLOAD]
-    rated = problem.robot.rated_payload_kg
-    if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
-        raise InputError(
-            f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
-            f"{rated:g} kg (rated_payload_kg in its model file)"
-        )
+    spans_user = _user_spans(problem, pair, condition_span)
     conds = plan_conditions(pair, spans_user)
     if not conds:
         res, base = discrimination_design(problem, pair_text, n=n, given=given, alpha=alpha, **options)
@@ -224,6 +217,40 @@ def plan_design(
         raise InputError(f"{OPTION}: a measurement plan for {pair_text!r} takes one target per pose")
     start = heuristic_start(options)
     seed, collision = int(options.get("seed", 0)), options.get("collision", True)
+    base = _extended(problem, pair)
+    q_start = heuristic_design(base, n=n, seed=seed, collision=collision)
+    plan, spans = _sized_plan(
+        base, pair, q_start, spans_user, given=given, given_conditions=given_conditions, alpha=alpha
+    )
+    res = optimize_discrimination(plan, n=n, given=given, start=start, **options)
+    tests = _assessments(plan, base, pair, q_start, res.q, given=given, conds=conds, alpha=alpha)
+    criterion = (
+        "the larger of v_A, v_B over the planned rows (each pose in block 1 and block 2); 1/v_h <= "
+        "lambda_h (kpioed_drake.design.discriminate.conditions)"
+    )
+    record = discrimination_record(pair, alpha, criterion, res, tests["before"], tests["after"])
+    record["plan"] = _plan_record(res, plan, pair, spans, spans_user, conds, tests)
+    return _result(res, plan, base, given, spans, record)
+
+
+def _user_spans(problem: Problem, pair, condition_span) -> dict:
+    """The spans ``--condition-span`` asks for (a 0 kg payload dropped: the poses alone), checked
+    against the robot's rated payload."""
+    spans_user = parse_condition_span(condition_span, pair)
+    if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
+        del spans_user[PAYLOAD]
+    rated = problem.robot.rated_payload_kg
+    if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
+        raise InputError(
+            f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
+            f"{rated:g} kg (rated_payload_kg in its model file)"
+        )
+    return spans_user
+
+
+def _extended(problem: Problem, pair) -> Problem:
+    """``problem`` with the pair's two effects as further extensions (values unknown), after checking
+    that each changes the measurements at all."""
     zero = [dataclasses.replace(h.effect, values=None) for h in pair]
     base = dataclasses.replace(problem, extensions=(*problem.extensions, *zero))
     probe = heuristic_design(base, n=base.min_poses(), seed=0, collision=False)
@@ -234,7 +261,12 @@ def plan_design(
             raise InputError(
                 f"{OPTION}: {h.effect.name} does not change the measurements of {base.robot.name}"
             )
-    q_start = heuristic_design(base, n=n, seed=seed, collision=collision)
+    return base
+
+
+def _sized_plan(base: Problem, pair, q_start, spans_user: dict, *, given, given_conditions, alpha: float):
+    """The plan with its spans: the user's, and for the others the span the start poses ``q_start``
+    need for the target power, rounded up. Returns (plan, spans)."""
     forbidden = [c for c, s in spans_user.items() if s == 0]
     if forbidden:
         raise _no_plan(base, pair, q_start, alpha, f"{SPAN_OPTION} forbids a {forbidden[0]} span")
@@ -246,9 +278,17 @@ def plan_design(
     if not all(np.isfinite(list(need_start.values()))):
         raise _no_plan(base, pair, q_start, alpha, "no span of the plan reaches the power")
     spans = {**spans_user, **{c: nice_ceil(s) if s > 0 else 0.0 for c, s in need_start.items()}}
-    plan = with_spans(plan, spans)
-    res = optimize_discrimination(plan, n=n, given=given, start=start, **options)
-    q_all = np.concatenate([g, res.q])
+    return with_spans(plan, spans), spans
+
+
+def _assessments(
+    plan: PlanProblem, base: Problem, pair, q_start, q_new, *, given, conds, alpha: float
+) -> dict:
+    """Both tests under the plan: ``before`` (the given poses, else the heuristic start), ``after``
+    (with the designed poses ``q_new``) and ``heuristic`` (with the start poses instead); and the
+    spans the designed and the start poses need, ``need_after`` and ``need_final``."""
+    g = np.zeros((0, base.robot.n_joints)) if given is None else given
+    q_all = np.concatenate([g, q_new])
     after = plan_assessment(plan, base, pair, q_all, alpha=alpha)
     after["poses"] = "given + plan" if given is not None else "plan"
     if given is not None:
@@ -260,12 +300,17 @@ def plan_design(
     heuristic = plan_assessment(plan, base, pair, np.concatenate([g, q_start]), alpha=alpha)
     need_after = required_spans(plan, base, pair, q_all, conditions=conds, alpha=alpha)
     need_final = required_spans(plan, base, pair, np.concatenate([g, q_start]), conditions=conds, alpha=alpha)
-    criterion = (
-        "the larger of v_A, v_B over the planned rows (each pose in block 1 and block 2); 1/v_h <= "
-        "lambda_h (kpioed_drake.design.discriminate.conditions)"
-    )
-    record = discrimination_record(pair, alpha, criterion, res, before, after)
-    record["plan"] = {
+    return dict(before=before, after=after, heuristic=heuristic, need_after=need_after, need_final=need_final)
+
+
+def _plan_record(
+    res: DesignResult, plan: PlanProblem, pair, spans: dict, spans_user: dict, conds, tests: dict
+) -> dict:
+    """The JSON record's ``plan``: the blocks, the spans with where they come from and what the start
+    and the designed poses need (``tests`` of :func:`_assessments`), and the heuristic poses under
+    the same plan."""
+    need_final, need_after, heuristic = tests["need_final"], tests["need_after"], tests["heuristic"]
+    return {
         "model": "each designed pose measured twice: block 1 at the first data's condition (mean "
         "temperature, after its last time, no payload), block 2 after the span (warmer, later, or "
         "with the payload at the reflector)",
@@ -287,7 +332,6 @@ def plan_design(
         "target_power": TARGET_POWER,
         "heuristic": {h.effect.name: heuristic[h.effect.name] for h in pair},
     }
-    return _result(res, plan, base, given, spans, record)
 
 
 def _result(

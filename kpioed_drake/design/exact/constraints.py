@@ -213,9 +213,9 @@ def update_active_rows(values: np.ndarray, active: np.ndarray | None, m: int) ->
 
 RESTORE_MAX_DEG = 0.01
 """Largest incidence overshoot [deg] :func:`restore_incidence` pulls back: a solver's tolerance, not
-a design choice (SNOPT's feasibility tolerance is relative to the solution vector's size; measured
-on lift7, whose column joint is in mm: 1.8e-4 deg beyond the limit at "optimality conditions
-satisfied")."""
+a design choice (SNOPT's feasibility tolerance is relative to the solution vector's size, so a
+robot with a joint in mm, e.g. lift7's column, can end 2e-4 deg beyond the limit at "optimality
+conditions satisfied"; docs/design.md)."""
 
 
 def restore_incidence(problem: Problem, q) -> np.ndarray:

@@ -87,5 +87,6 @@ class DesignObjective:
 
     def normalisation(self, value: float) -> float:
         """Size against which changes of the criterion near ``value`` are measured (the solver's
-        cost scale, a sweep's relative change): :meth:`~kpioed_drake.estimation.criteria.Criterion.normalisation`."""
+        cost scale, a sweep's relative change):
+        :meth:`~kpioed_drake.estimation.criteria.Criterion.normalisation`."""
         return self.criterion.normalisation(value, self.problem.n_params)

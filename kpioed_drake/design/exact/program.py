@@ -199,7 +199,7 @@ class DesignProgram:
 
     # Drake passes x as float (plain evaluation) or as AutoDiffXd with an identity gradient (SNOPT,
     # IPOPT; DRAKE-NOTES): the returned gradient is therefore d/dx directly, without the chain
-    # rule through ExtractGradient(x) (which cost 4 ms per call on the constraint Jacobian).
+    # rule through ExtractGradient(x) (milliseconds per call on the constraint Jacobian).
     def _cost(self, x):
         s = self.cost_scale
         if x.dtype != object:

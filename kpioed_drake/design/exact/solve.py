@@ -52,27 +52,26 @@ def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
     SNOPT's superbasics limit for more)."""
     if solver == "snopt":
         return {
-            # 1e-5 (SNOPT's default 1e-6): measured on kr16 KPI with CA, 60 poses, seeds 0-9: 29 %
-            # fewer evaluations, final tr(Cs)/3 +0.12 % on average (max +0.9 %, some seeds lower);
-            # kr300/kr500 seeds 0-2 within 0.5 %; kr16 param seeds 0-1: criterion within 0.02 %.
+            # 1e-5 (SNOPT's default 1e-6): about 30 % fewer evaluations for a criterion about 0.1 %
+            # higher on average (docs/design.md).
             "Major optimality tolerance": 1e-5,
             # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
-            # smallest clearances in the QP, long first steps on notional robots went deep into
-            # collision and SNOPT stopped there (info 41). No change seen on the KUKA robots.
+            # smallest clearances in the QP, a long first step can go deep into collision, where
+            # SNOPT stops (info 41).
             "Major step limit": 0.2,
             # Tighter than SNOPT's default 1e-6 (which is relative to the norm of the solution
-            # vector): with 1e-6 and no margins, poses on the incidence limit were seen 3e-5 deg
-            # beyond it. With the margins above, 1e-7 passed the independent check in every
-            # design of the study, and needed fewer evaluations than 1e-9.
+            # vector, so 1e-6 lets a pose on the incidence limit end beyond the check's tolerance).
+            # With the margins of design.common, 1e-7 passes the independent check and needs fewer
+            # evaluations than 1e-9 (docs/design.md).
             "Major feasibility tolerance": 1e-7,
             "Minor feasibility tolerance": 1e-7,
-            # the param criterion has a long flat tail (kr300, 60 poses, no CA: 1609 major iterations)
+            # the param criterion has a long flat tail (over 1000 major iterations, docs/design.md)
             "Major iterations limit": 3000,
             "Iterations limit": 200000,
             "Superbasics limit": max(500, N_JOINTS * n + 50),
         }
-    # IPOPT's tol is on its scaled NLP error (not comparable one to one with SNOPT's); 1e-5 was
-    # measured to reach SNOPT-quality optima. The constraint-violation tolerances are tight so that
+    # IPOPT's tol is on its scaled NLP error (not comparable one to one with SNOPT's); 1e-5 reaches
+    # SNOPT-quality optima. The constraint-violation tolerances are tight so that
     # an "acceptable" stop cannot return poses violating the incidence limit.
     return {
         "tol": 1e-5,
@@ -221,8 +220,8 @@ def solve_checked(
 ) -> tuple[SolveOutcome, DesignCheck]:
     """One solve from ``q_start`` and the independent check of its result.
 
-    The reduced rows change identity between iterates; rarely (seen on some notional robots after a
-    long first step) SNOPT then stops early. Such a start is solved again with every clearance row,
+    The reduced rows change identity between iterates; rarely (after a long first step) SNOPT then
+    stops early. Such a start is solved again with every clearance row,
     the slower but robust formulation (times and evaluations then include both solves).
     """
     sol = solve_once(setup, q_start, active_rows=setup.active_rows, fixed_information=fixed_information)
