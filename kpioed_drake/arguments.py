@@ -21,10 +21,10 @@ HTML_SUFFIXES = (".html", ".htm")
 """Endings of 3-D page outputs."""
 
 
-def require(ok: bool, message: str) -> None:
-    """Raise InputError(message) unless ``ok``."""
+def require(ok: bool, message: str, *, fields=()) -> None:
+    """Raise InputError(message, fields=fields) unless ``ok``."""
     if not ok:
-        raise InputError(message)
+        raise InputError(message, fields=fields)
 
 
 def check_seed(seed) -> None:

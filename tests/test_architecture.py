@@ -1,6 +1,8 @@
-"""The package's shape (docs/ARCHITECTURE.md): one-way dependencies, small modules, imports at the top.
+"""The package's shape (docs/ARCHITECTURE.md): one-way dependencies, small modules, imports at the top,
+and no library message that names a command-line option.
 
-Read from the source with :mod:`ast`, so each test fails with the offending module and line.
+Read from the source with :mod:`ast` (the options from the command line's parser), so each test fails
+with the offending module and line.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import tokenize
 from pathlib import Path
 
 import pytest
+
+from kpioed_drake.cli import build_parser
 
 PACKAGE = Path(__file__).resolve().parents[1] / "kpioed_drake"
 MAX_LINES = 500
@@ -297,3 +301,72 @@ def test_history_check_can_fail():
     )
     found = _history(text, ast.parse(text))
     assert found == [(1, "issue 13"), (5, "2026-12-02"), (5, "bench/results"), (10, "#15")]
+
+
+def _option_strings() -> set[str]:
+    """Every option string of the ``kpioed`` parser and of its subcommands (``--sigma-mm``, ...)."""
+    out: set[str] = set()
+    parsers = [build_parser()]
+    while parsers:
+        parser = parsers.pop()
+        for action in parser._actions:
+            out.update(action.option_strings)
+            if isinstance(action.choices, dict):  # the subcommands
+                parsers += [p for p in action.choices.values() if hasattr(p, "_actions")]
+    return out
+
+
+def _docstring_nodes(tree: ast.Module) -> set[int]:
+    """ids of the string constants that stand alone as statements: docstrings of modules, classes,
+    functions and attributes."""
+    return {
+        id(node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Expr)
+        and isinstance(node.value, ast.Constant)
+        and isinstance(node.value.value, str)
+    }
+
+
+def _options_named(tree: ast.Module, options: set[str]) -> list[tuple[int, str]]:
+    """(line, option) of each string constant that is not a docstring and names an option as a whole
+    word (not ``--n`` in ``--no-certify``)."""
+    words = re.compile(
+        r"(?<![\w-])(" + "|".join(sorted(map(re.escape, options), key=len, reverse=True)) + r")(?![\w-])"
+    )
+    docs = _docstring_nodes(tree)
+    return [
+        (node.lineno, m.group(1))
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs
+        for m in words.finditer(node.value)
+    ]
+
+
+def test_no_library_string_names_an_option():
+    """Only the command line names its options; the library names the API's parameters
+    (``InputError(fields=...)``, :func:`kpioed_drake.errors.param`)."""
+    options = _option_strings()
+    assert {"--sigma-mm", "--force", "--target-var", "--q-work", "--n"} <= options
+    hits = [
+        f"{path.relative_to(PACKAGE.parent)}:{line}: {option}"
+        for name, (path, tree) in MODULES.items()
+        if not (name == "kpioed_drake.cli" or name.startswith("kpioed_drake.cli."))
+        for line, option in _options_named(tree, options)
+    ]
+    assert not hits, "\n".join(hits)
+
+
+def test_option_scanner_sees_an_option_in_a_message():
+    """The scan above can fail: a message naming ``--sigma-mm`` is found, its docstring and
+    ``--no-certify`` (not ``--n``) are not."""
+    tree = ast.parse(
+        '"""Run with ``--sigma-mm``."""\n\n'
+        "def f(x):\n"
+        '    """Uses --n."""\n'
+        '    raise ValueError(f"--sigma-mm must be positive, got {x}; --no-certify")\n'
+    )
+    assert _options_named(tree, {"--sigma-mm", "--n", "--no-certify"}) == [
+        (5, "--sigma-mm"),
+        (5, "--no-certify"),
+    ]

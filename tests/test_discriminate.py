@@ -160,7 +160,7 @@ def test_condition_span_reaches_the_target_power(kr16):
         lam = ex.noncentralities(F1, [np.array([k0]), np.array([k0 + 1])], pair)
         own = 0 if h is pair[0] else 1
         assert_allclose(ex.power(lam[own], 1), ex.TARGET_POWER, rtol=1e-6)
-    with pytest.raises(InputError, match=r"--discriminate: .*temperature_C span of"):
+    with pytest.raises(InputError, match=r"^discriminate: .*temperature_C span of"):
         dc.discrimination_design(kr16, "thermal_expansion|tracker_scale", n=30)
 
 

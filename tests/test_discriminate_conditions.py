@@ -153,12 +153,12 @@ def test_condition_span_parsing(kr16):
         ("nanK", "expected a finite span >= 0"),
         ("3K,4K", "given twice"),
     ]:
-        with pytest.raises(InputError, match=rf"--condition-span.*{pattern}"):
+        with pytest.raises(InputError, match=rf"^condition_span.*{pattern}"):
             cd.parse_condition_span(bad, pair)
     temp_only = ex.parse_pair(TEMP_PAIR, kr16.model)
     with pytest.raises(InputError, match="need no time_s span"):
         cd.parse_condition_span("600s", temp_only)
-    with pytest.raises(InputError, match="only for a --discriminate pair with"):
+    with pytest.raises(InputError, match="only for a discriminate pair with"):
         cd.parse_condition_span("3K", ex.parse_pair("joint_scale:2|gear_cyclic:2:1", kr16.model))
 
 

@@ -30,7 +30,7 @@ from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, param_names
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import MODELS_DIR, load_robot
 from kpioed_drake.simulation import simulate, table_csv_text
@@ -107,7 +107,7 @@ def test_payload_span_parsing(kr16):
     ]
     with pytest.raises(InputError, match="need no payload_kg span"):
         cd.parse_condition_span("10kg", ex.parse_pair("thermal_expansion|tracker_scale", kr16.model))
-    with pytest.raises(InputError, match="only for a --discriminate pair with.*a payload"):
+    with pytest.raises(InputError, match="only for a discriminate pair with.*a payload"):
         cd.parse_condition_span("10kg", ex.parse_pair("joint_scale:2|gear_cyclic:2:1", kr16.model))
     with pytest.raises(InputError, match="expected a finite span >= 0"):
         cd.parse_condition_span("-3kg", pair)
@@ -205,8 +205,10 @@ def test_poses_only_design_says_what_payload_would_reach_the_power(kr16, capsys)
     lines = plan_mod.payload_lines(rec)
     assert lines == [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power 0.8 "
-        f"(--condition-span {kg:g}kg, within the rated 16 kg)"
+        f"(condition_span {kg:g}kg, within the rated 16 kg)"
     ]
+    with param_names({"condition_span": "--condition-span"}):  # as the command line shows it
+        assert f"(--condition-span {kg:g}kg, within" in plan_mod.payload_lines(rec)[0]
     # the default size: the repeated poses reach the power without a payload
     assert plan_design(kr16, PAIR, n=10, given=q1, seed=0)[0].discrimination["payload"]["required_kg"] == 0.0
 
@@ -215,7 +217,7 @@ def test_rated_payload_bounds_the_plan_and_the_advice(kr16, tmp_path):
     """The model file's ``rated_payload_kg`` (kr16: 16 kg): a larger payload span exits 2 naming it;
     advice beyond it says more poses instead; a bad value names the file and field."""
     assert kr16.robot.rated_payload_kg == 16.0
-    with pytest.raises(InputError, match="--condition-span 20kg: more than kr16's rated payload of 16 kg"):
+    with pytest.raises(InputError, match="^condition_span 20kg: more than kr16's rated payload of 16 kg"):
         plan_design(kr16, PAIR, n=10, condition_span="20kg")
     adv = {"required_kg": 690.0, "target_power": 0.8, "rated_payload_kg": 16.0}
     assert plan_mod.payload_lines({"payload": adv}) == [

@@ -25,7 +25,9 @@ def working_pose(robot: Robot, q_work=None) -> np.ndarray:
     """
     if q_work is None:
         if robot.q_work is None:
-            raise InputError(f"{robot.name}: the model file has no q_work_deg; pass --q-work")
+            raise InputError(
+                f"{robot.name}: the model file has no working pose; pass q_work_deg", fields=("q_work_deg",)
+            )
         q_work = robot.q_work
     q_work = np.asarray(q_work, dtype=float)
     if (

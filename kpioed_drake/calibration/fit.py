@@ -36,7 +36,7 @@ from kpioed_drake.calibration.robust import (
     non_geometric_warning,
     screen_outliers,
 )
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma, param
 from kpioed_drake.estimation.estimator import (
     Conditions,
     EstimationResult,
@@ -117,7 +117,8 @@ def _hold(
     if strict:
         raise InputError(
             f"{data.path}: {what}; use more varied poses (a reflector on joint 6's axis leaves wrist "
-            "parameters undetermined); without --strict they are held at nominal"
+            "parameters undetermined); without strict they are held at nominal",
+            fields=("strict",),
         )
     kept = [n for n in found.names if n in at_estimate]
     nominal = [n for n in found.names if n not in at_estimate]
@@ -200,8 +201,7 @@ def calibrate(
             or with ``strict`` near-singular).
     """
     rob = load_robot(robot) if isinstance(robot, str) else robot
-    if not (np.isfinite(sigma_mm) and sigma_mm > 0):
-        raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
+    check_sigma(sigma_mm)
     q_work = working_pose(rob, q_work)
     alpha = float(outlier_threshold) if outlier_threshold else None
     if alpha is not None and not 0 < alpha < 1:
@@ -292,8 +292,8 @@ def calibrate(
     elif p is not None and p > 1 - 1e-3:
         warnings.append(
             f"chi2/dof = {report.chi2_per_dof:.3g}: the residuals are smaller than a noise of "
-            f"{sigma_mm:g} mm "
-            "predicts; --sigma-mm is probably too large (the reported uncertainties are then pessimistic)"
+            f"{sigma_mm:g} mm predicts; {param('sigma_mm')} is probably too large (the reported "
+            "uncertainties are then pessimistic)"
         )
     return report
 

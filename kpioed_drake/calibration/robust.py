@@ -199,7 +199,9 @@ def _few_fail(t, mask, factor, res, data: Measurements, alpha: float, force: boo
         "of different set-ups"
     )
     if not force:
-        raise InputError(message + "; use --force to calibrate anyway without removing outliers")
+        raise InputError(
+            message + "; use force to calibrate anyway without removing outliers", fields=("force",)
+        )
     warnings.append(f"forced: {message}; no pose was removed")
     return False
 

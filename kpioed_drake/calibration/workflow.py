@@ -8,13 +8,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kpioed_drake.arguments import check_paths, check_positive, require
+from kpioed_drake.arguments import check_paths, require
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
@@ -63,7 +63,7 @@ def calibrate_file(
         :class:`CalibrationReport`, or with ``extend`` the JSON-ready dict of
         :func:`calibrate_extended`.
     """
-    check_positive("sigma_mm", sigma_mm)
+    check_sigma(sigma_mm)
     ok = isinstance(outlier_alpha, int | float) and 0 <= outlier_alpha < 1
     require(ok, f"outlier_alpha: expected a number in [0, 1), got {outlier_alpha!r}")
     side_out = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
@@ -80,7 +80,8 @@ def calibrate_file(
     if extend:
         if out or plots_dir or html:
             raise InputError(
-                "--out, --plots and --html are not available with --extend (the report holds the fit)"
+                "out, plots_dir and html are not available with extend (the report holds the fit)",
+                fields=("out", "plots_dir", "html", "extend"),
             )
         data = read_data(data_path, rob, data_format)
         report = calibrate_extended(rob, data, list(extend), sigma_mm=sigma_mm, q_work=qw, force=force)

@@ -4,6 +4,9 @@ Each subcommand lives in its own module with ``register(subparsers)``; ``run(arg
 Exit statuses (:mod:`kpioed_drake.errors`): 0 success; 2 bad input (one line naming the file, row
 or field); 3 solver failure or infeasible result; 130 interrupted; 1 an internal error (one line;
 ``kpioed --debug COMMAND ...`` shows the traceback).
+
+The library's messages name the API's parameters; the command line shows each as the running
+command's option (:func:`option_names`): ``sigma_mm`` as ``--sigma-mm``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from kpioed_drake.errors import (
     SolverError,
     catch_interrupts,
     interrupted,
+    name_fields,
+    param_names,
 )
 
 COMMANDS = ("info", "evaluate", "design", "simulate", "calibrate", "diagnose", "study", "validate")
@@ -41,7 +46,23 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name in COMMANDS:
         importlib.import_module(f"kpioed_drake.cli.{name}").register(sub)
+    for command in sub.choices.values():
+        command.set_defaults(option_names=option_names(command))
     return parser
+
+
+def _long_option(option_strings: list[str]) -> str:
+    """``--sigma-mm`` of its option strings (``--certify`` of ``--certify``/``--no-certify``)."""
+    return next((o for o in option_strings if o.startswith("--")), option_strings[0])
+
+
+def option_names(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """API parameter -> option string of a command's parser (``{"sigma_mm": "--sigma-mm"}``): each
+    option's dest, and the command's ``api_names`` default (API parameter -> dest where they differ,
+    e.g. ``{"target_var_mm2": "target_var"}``)."""
+    names = {a.dest: _long_option(a.option_strings) for a in parser._actions if a.option_strings}
+    api_names = parser.get_default("api_names") or {}
+    return names | {api: names[dest] for api, dest in api_names.items()}
 
 
 def _os_error_text(exc: OSError) -> str:
@@ -59,13 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with catch_interrupts():
+        with catch_interrupts(), param_names(args.option_names):
             return int(args.func(args) or EXIT_OK)
     except InputError as exc:
-        print(f"kpioed: error: {exc}", file=sys.stderr)
+        print(f"kpioed: error: {name_fields(str(exc), exc.fields, args.option_names)}", file=sys.stderr)
         return EXIT_INPUT
     except SolverError as exc:
-        print(f"kpioed: failed: {exc}", file=sys.stderr)
+        print(f"kpioed: failed: {name_fields(str(exc), exc.fields, args.option_names)}", file=sys.stderr)
         return EXIT_SOLVER
     except BrokenPipeError:  # output piped into e.g. `head`
         sys.stderr.close()

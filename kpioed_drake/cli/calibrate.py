@@ -13,6 +13,9 @@ from kpioed_drake.cli.common import (
     print_json,
 )
 
+API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", "data_format": "format"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -38,7 +41,7 @@ def register(sub) -> None:
         help="refuse poses that do not determine every parameter (default: hold those at nominal, warn)",
     )
     add_extend(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

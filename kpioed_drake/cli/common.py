@@ -22,6 +22,12 @@ def add_sigma(p, default=None) -> None:
     p.add_argument("--sigma-mm", type=float, default=default, help="noise std. dev. per coordinate [mm]")
 
 
+def add_optional_number(p, option: str, *, type, metavar: str, help: str) -> None:
+    """An optional number ``option`` of ``type`` (int or float), None when not given (``help`` says
+    what that means)."""
+    p.add_argument(option, type=type, default=None, metavar=metavar, help=help)
+
+
 def add_q_work(p) -> None:
     p.add_argument(
         "--q-work", default=None, metavar="q1,...,q6", help="working pose [deg], overrides the model's"

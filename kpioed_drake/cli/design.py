@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_extend, add_html, add_robot, add_sigma
+from kpioed_drake.cli.common import add_extend, add_html, add_optional_number, add_robot, add_sigma
 from kpioed_drake.design import (
     DEFAULT_START,
     DESIGN_METHODS,
@@ -30,9 +30,12 @@ from kpioed_drake.design import (
     format_summary,
 )
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
-from kpioed_drake.errors import EXIT_SOLVER, InputError
+from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
 from kpioed_drake.estimation.criteria import TABLE
 from kpioed_drake.estimation.problem import KPI_AGGREGATES
+
+API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path": "json"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
 def register(sub) -> None:
@@ -81,10 +84,10 @@ def register(sub) -> None:
         help="design CSV of poses already measured: their information is held fixed and --n new poses "
         "are optimised (--out gets the new poses; the values are those of the combined design)",
     )
-    p.add_argument(
+    add_optional_number(
+        p,
         "--target-var",
         type=float,
-        default=None,
         metavar="V",
         help="find the fewest poses whose design reaches tr(Cs)/3 <= V [mm^2] (warm-started search; "
         "--n is not used)",
@@ -114,7 +117,7 @@ def register(sub) -> None:
         "rounded up; 0 forbids it); with joint_elasticity, backlash or a compliance: the payload at the "
         "reflector in block 2, e.g. 10kg (opt-in; default: the poses alone)",
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def _add_kpi_options(p) -> None:
@@ -191,7 +194,9 @@ def run(args) -> int:
     except DesignError as exc:
         if exc.result is not None:
             print(format_summary(exc.result), file=sys.stderr)
-        print(f"kpioed: design failed: {exc}", file=sys.stderr)
+        print(
+            f"kpioed: design failed: {name_fields(str(exc), exc.fields, args.option_names)}", file=sys.stderr
+        )
         return EXIT_SOLVER
     print(format_summary(res))
     if getattr(res, "discrimination", None) is not None:

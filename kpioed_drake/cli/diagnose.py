@@ -5,6 +5,9 @@ from __future__ import annotations
 from kpioed_drake import api
 from kpioed_drake.cli.common import add_data_outputs, add_robot, add_sigma, data_outputs, print_json
 
+API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -23,7 +26,7 @@ def register(sub) -> None:
     )
     add_sigma(p, default=0.02)
     add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

@@ -18,6 +18,9 @@ from kpioed_drake.cli.common import (
 )
 from kpioed_drake.design import certificate_line
 
+API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate a design CSV (q1_deg..q6_deg)")
@@ -36,7 +39,7 @@ def register(sub) -> None:
     add_extend(p)
     add_json_out(p)
     add_html(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_robot
+from kpioed_drake.cli.common import add_optional_number, add_robot
 from kpioed_drake.tracker import csvio
+
+API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
 def register(sub) -> None:
@@ -24,10 +27,10 @@ def register(sub) -> None:
     )
     p.add_argument("--payload-kg", type=float, default=0.0, help="payload at the reflector [kg] (0)")
     p.add_argument("--no-geometric-errors", action="store_true", help="the true robot is the nominal one")
-    p.add_argument(
+    add_optional_number(
+        p,
         "--targets",
         type=int,
-        default=None,
         metavar="N",
         help="targets (SMRs) measured at every pose: the first N of the model file's targets_mm "
         "(default: all); one row per pose and target, with a target column",
@@ -36,7 +39,7 @@ def register(sub) -> None:
     p.add_argument(
         "--truth", default=None, metavar="FILE.json", help="also write the true parameters as JSON"
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

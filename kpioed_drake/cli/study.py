@@ -6,6 +6,9 @@ from kpioed_drake import api
 from kpioed_drake.errors import EXIT_SOLVER
 from kpioed_drake.study import DEFAULT, VARIANTS, regenerate_tables
 
+API_NAMES = {"out_dir": "out"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser("study", help="run (or resume) the paper's study: Tables 6-8, Figures 7-8")
@@ -36,7 +39,7 @@ def register(sub) -> None:
         "bounds, about 4-13 s per robot; makes no design)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

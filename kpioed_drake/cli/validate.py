@@ -5,6 +5,9 @@ from __future__ import annotations
 from kpioed_drake import api
 from kpioed_drake.cli.common import add_format, add_json_out, add_robot, json_file, print_json
 
+API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
+"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -21,7 +24,7 @@ def register(sub) -> None:
     )
     add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:

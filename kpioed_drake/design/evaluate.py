@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.arguments import check_paths, check_positive
+from kpioed_drake.arguments import check_paths
 from kpioed_drake.design.approximate.certificate import certificate_fields
 from kpioed_drake.design.approximate.certificate import certify as certify_design
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_robot
@@ -57,7 +57,7 @@ def evaluate_file(
         tr(Cp)), ``n_params``, ``n_poses``, ``feasible`` and ``poses`` (per-pose feasibility),
         and the certificate's fields (null without ``certify``).
     """
-    check_positive("sigma_mm", sigma_mm, allow_none=True)
+    check_sigma(sigma_mm, allow_none=True)
     check_paths(robot=robot, inputs=[design], outputs=[json_path], html=html)
     rob = load_robot(robot)
     qw = parse_q_work(q_work_deg, rob) if q_work_deg else None

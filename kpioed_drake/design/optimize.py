@@ -66,11 +66,12 @@ def _validate(
     if not isinstance(n, int | np.integer) or n < min_new_poses(problem, n_given):
         given = f" with the {n_given} given poses" if n_given else ""
         raise InputError(
-            f"--n {n}: a design needs at least {min_new_poses(problem, n_given)} poses{given} to "
-            f"determine the {problem.n_params} parameters of {problem.robot.name} (3 coordinates per pose)"
+            f"n {n}: a design needs at least {min_new_poses(problem, n_given)} poses{given} to "
+            f"determine the {problem.n_params} parameters of {problem.robot.name} (3 coordinates per pose)",
+            fields=("n",),
         )
     if not _positive_int(starts):
-        raise InputError(f"--starts must be a positive integer, got {starts!r}")
+        raise InputError(f"starts must be a positive integer, got {starts!r}", fields=("starts",))
     if max_block is not None and not _positive_int(max_block):
         raise InputError(f"max_block must be a positive integer or None, got {max_block!r}")
     if not _positive_int(sweep_block):
@@ -340,4 +341,8 @@ def _finish(res: DesignResult, allow_infeasible: bool) -> DesignResult:
             f"{res.robot}: the {res.criterion} design has {res.n_infeasible_poses} infeasible pose(s) "
             f"(first: pose {first['index'] + 1}, {f['check']} {f['name']}, violation {f['violation']:.3g})"
         )
-    raise DesignError(msg + "; use --allow-infeasible to keep it anyway, or try another --seed/--starts", res)
+    raise DesignError(
+        msg + "; use allow_infeasible to keep it anyway, or try another seed/starts",
+        res,
+        fields=("allow_infeasible", "seed", "starts"),
+    )

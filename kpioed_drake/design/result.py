@@ -153,10 +153,11 @@ class DesignError(SolverError):
 
     Attributes:
         result: the :class:`DesignResult` that was rejected (None if there is none).
+        fields: the API parameters the message names (as :class:`~kpioed_drake.errors.InputError`).
     """
 
-    def __init__(self, message: str, result: DesignResult | None = None):
-        super().__init__(message)
+    def __init__(self, message: str, result: DesignResult | None = None, *, fields=()):
+        super().__init__(message, fields=fields)
         self.result = result
 
 

@@ -112,7 +112,10 @@ def design_for_target(
     t0 = time.perf_counter()
     V = float(target_var_mm2)
     if not np.isfinite(V) or V <= 0:
-        raise InputError(f"--target-var must be a positive variance [mm^2], got {target_var_mm2!r}")
+        raise InputError(
+            f"target_var_mm2 must be a positive variance [mm^2], got {target_var_mm2!r}",
+            fields=("target_var_mm2",),
+        )
     n_given = 0 if given is None else len(np.atleast_2d(given))
     n_min = min_new_poses(problem, n_given)
     if given is not None:

@@ -25,7 +25,7 @@ from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
 from kpioed_drake.design.target import design_for_target
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.outputs import Outputs, atomic_write_json
 from kpioed_drake.robot.models import Robot, load_robot
@@ -57,7 +57,10 @@ def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | 
     """(6,) or (K, 6) working poses [rad] (None: the model's) and weights from the file, if any."""
     if q_work_file is not None:
         if q_work_deg is not None:
-            raise InputError("give the working poses either by --q-work or by --q-work-file, not both")
+            raise InputError(
+                "give the working poses either by q_work_deg or by q_work_file, not both",
+                fields=("q_work_deg", "q_work_file"),
+            )
         return read_working_poses(q_work_file, robot)
     if q_work_deg is None:
         return None, None
@@ -68,6 +71,26 @@ def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | 
     q = np.asarray(q_work_deg, dtype=float)
     rows = [csvio.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
     return (rows[0] if q.ndim == 1 else np.stack(rows)), None
+
+
+def _check_discriminate(discriminate, condition_span, criterion, target_var_mm2, certify) -> None:
+    """InputError where :func:`run_design`'s ``discriminate`` meets an argument it excludes."""
+    if discriminate is not None:
+        require(
+            criterion == "kpi",
+            f"discriminate replaces criterion (got {criterion!r})",
+            fields=("discriminate", "criterion"),
+        )
+        require(
+            target_var_mm2 is None and not certify,
+            "discriminate takes no target_var_mm2 or certify",
+            fields=("discriminate", "target_var_mm2", "certify"),
+        )
+    require(
+        discriminate is not None or condition_span is None,
+        "condition_span goes with discriminate",
+        fields=("condition_span", "discriminate"),
+    )
 
 
 def run_design(
@@ -153,10 +176,7 @@ def run_design(
     Raises:
         InputError: bad input. DesignError: solver failure or infeasible design.
     """
-    if discriminate is not None:
-        require(criterion == "kpi", f"--discriminate replaces --criterion (got criterion {criterion!r})")
-        require(target_var_mm2 is None and not certify, "--discriminate takes no --target-var or --certify")
-    require(discriminate is not None or condition_span is None, "--condition-span goes with --discriminate")
+    _check_discriminate(discriminate, condition_span, criterion, target_var_mm2, certify)
     require(
         criterion in DESIGN_METHODS,
         f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {criterion!r}",
@@ -165,7 +185,7 @@ def run_design(
     check_count("n", n)
     check_count("starts", starts)
     check_seed(seed)
-    check_positive("sigma_mm", sigma_mm, allow_none=True)
+    check_sigma(sigma_mm, allow_none=True)
     check_positive("target_var_mm2", target_var_mm2, allow_none=True)
     check_paths(robot=robot_name, inputs=[q_work_file, given], outputs=[out, json_path], plot=plot, html=html)
     robot = load_robot(robot_name)

@@ -160,8 +160,8 @@ def _alternative_lines(c: dict) -> list[str]:
         return []
     names = [c["name"]] + [a["name"] for a in alts]
     out = [
-        f"    {' or '.join(names)}: the data cannot tell them apart; design poses with "
-        f"kpioed design --discriminate '{names[0]}|{names[1]}'"
+        f"    {' or '.join(names)}: the data cannot tell them apart; poses that can: a design with "
+        f"discriminate '{names[0]}|{names[1]}'"
     ]
     for a in alts:
         ev = a["evidence"]

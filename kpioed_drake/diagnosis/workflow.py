@@ -27,7 +27,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.arguments import check_paths, check_positive
+from kpioed_drake.arguments import check_paths
 from kpioed_drake.calibration import hold_undetermined
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
@@ -37,7 +37,7 @@ from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.rest import unexplained_rest
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
@@ -49,8 +49,7 @@ from kpioed_drake.tracker.formats import read_data
 
 def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
     """The checked fit problem (sigma, enough poses for the cross-validation)."""
-    if not (np.isfinite(sigma_mm) and sigma_mm > 0):
-        raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
+    check_sigma(sigma_mm)
     prob = FitProblem(robot, data, sigma_mm, cell=cell)
     n, n_free = data.n, prob.nominal.layout.n_free
     if 3 * (n - int(np.ceil(n / k_folds))) < n_free + 6:
@@ -207,7 +206,7 @@ def diagnose_file(
         force: go on with implausible data, noted in the report.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
     """
-    check_positive("sigma_mm", sigma_mm)
+    check_sigma(sigma_mm)
     check_paths(
         robot=robot, inputs=[data_path, data_format], outputs=[json_path], folders=[plots_dir], html=html
     )

@@ -41,7 +41,7 @@ MAX_GROSS_FRACTION = 1.0 / 3.0
 
 def _refuse(message: str, force: bool, warnings: list[str]) -> None:
     if not force:
-        raise InputError(f"{message} (use --force to go on anyway)")
+        raise InputError(f"{message} (use force to go on anyway)", fields=("force",))
     warnings.append(f"forced: {message}")
 
 

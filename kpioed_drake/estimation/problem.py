@@ -36,7 +36,7 @@ from kpioed_drake.effects import (
     parse_effect,
     resolve,
 )
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation import covariance
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
@@ -302,8 +302,10 @@ def make_problem(
         raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
     if q_work is None:
         if robot.q_work is None:
-            where = "q_work in its sidecar" if robot.urdf is not None else "q_work_deg"
-            raise InputError(f"{robot.name}: the model file has no {where}; pass --q-work")
+            where = "q_work in its sidecar" if robot.urdf is not None else "working pose"
+            raise InputError(
+                f"{robot.name}: the model file has no {where}; pass q_work_deg", fields=("q_work_deg",)
+            )
         q_work = robot.q_work
     q_work = np.asarray(q_work, dtype=float)
     if q_work.ndim == 2 and q_work.shape[0] == 1:
@@ -316,13 +318,13 @@ def make_problem(
     if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
         raise InputError(f"{robot.name}: q_work is outside the joint limits")
     weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
-    sigma = cell.sigma if sigma_mm is None else float(sigma_mm)
-    if not np.isfinite(sigma) or sigma <= 0:
-        raise InputError(f"--sigma-mm must be a positive number of millimetres, got {sigma_mm!r}")
+    sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
     if exts and robot.n_targets > 1:
-        raise InputError(f"{robot.name}: --extend is not available with several targets (targets_mm)")
+        raise InputError(
+            f"{robot.name}: extend is not available with several targets (targets_mm)", fields=("extend",)
+        )
     if fixed is not None:
         try:
             model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
@@ -346,16 +348,23 @@ def make_problem(
 def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
     """Checked, normalised (K,) weights of K working poses (None for one pose with no weights)."""
     if aggregate not in KPI_AGGREGATES:
-        raise InputError(f"--kpi-aggregate must be one of {', '.join(KPI_AGGREGATES)}, got {aggregate!r}")
+        raise InputError(
+            f"kpi_aggregate must be one of {', '.join(KPI_AGGREGATES)}, got {aggregate!r}",
+            fields=("kpi_aggregate",),
+        )
     if kpi_weights is None:
         return None if k == 1 else np.full(k, 1.0 / k)
     w = np.asarray(kpi_weights, dtype=float).reshape(-1)
     if w.shape != (k,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
         raise InputError(
-            f"--kpi-weights: expected {k} positive numbers (one per working pose), got {w.tolist()}"
+            f"kpi_weights: expected {k} positive numbers (one per working pose), got {w.tolist()}",
+            fields=("kpi_weights",),
         )
     if aggregate == "max" and not np.allclose(w, w[0]):
-        raise InputError("--kpi-weights: the worst case (--kpi-aggregate max) takes no weights")
+        raise InputError(
+            "kpi_weights: the worst case (kpi_aggregate max) takes no weights",
+            fields=("kpi_weights", "kpi_aggregate"),
+        )
     return w / w.sum()
 
 
@@ -367,11 +376,12 @@ def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
         eff = parse_effect(e, model=model) if isinstance(e, str) else e
         if eff.family not in JOINT_FAMILIES + COMPLIANCE_FAMILIES:
             raise InputError(
-                f"--extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) and "
-                f"compliances ({', '.join(COMPLIANCE_FAMILIES)}) can extend a design or an evaluation "
-                "(thermal_expansion, tracker_drift and tracker_scale need per-pose temperature and time)"
+                f"extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) and "
+                f"compliances ({', '.join(COMPLIANCE_FAMILIES)}) can be added to a design or an evaluation "
+                "(thermal_expansion, tracker_drift and tracker_scale need per-pose temperature and time)",
+                fields=("extend",),
             )
         if any(o.key == eff.key for o in out):
-            raise InputError(f"--extend {eff.name} is given twice")
+            raise InputError(f"extend {eff.name} is given twice", fields=("extend",))
         out.append(eff)
     return tuple(out)

@@ -33,7 +33,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.effects import parse_effect, resolve, true_measurements
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.robot.models import Robot, load_cell, load_robot
 from kpioed_drake.tracker.csvio import (
     OFFSET_COLUMNS,
@@ -154,13 +154,13 @@ def simulate(
     nj = rob.n_joints
     if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
         raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
-    if not (np.isfinite(sigma_mm) and sigma_mm >= 0):
-        raise InputError(f"--sigma-mm must be a non-negative number of millimetres, got {sigma_mm!r}")
+    check_sigma(sigma_mm, zero_ok=True)
     n_t = rob.n_targets if n_targets is None else n_targets
     if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
         raise InputError(
-            f"--targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
-            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}"
+            f"n_targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
+            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}",
+            fields=("n_targets",),
         )
     # the simulation uses exactly the joint values that the file will hold
     q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)

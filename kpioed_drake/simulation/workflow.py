@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from kpioed_drake.arguments import check_paths, check_positive, check_seed
+from kpioed_drake.errors import check_sigma
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, simulate
@@ -80,7 +81,7 @@ def simulate_file(
         (table, truth): the measurement table (pandas) and the truth dict. Nothing is written unless
         the whole simulation succeeds.
     """
-    check_positive("sigma_mm", sigma_mm)
+    check_sigma(sigma_mm)
     check_seed(seed)
     check_positive("payload_kg", payload_kg, zero_ok=True)
     check_paths(robot=robot, inputs=[design], outputs=[out, truth_path])

@@ -207,7 +207,8 @@ def run_study(
         need = parameter_layout(load_robot(r)).n_free // 3 + 1
         if n < need:
             raise InputError(
-                f"--n {n}: {r} needs designs of at least {need} poses (one more than its parameters / 3)"
+                f"n {n}: {r} needs designs of at least {need} poses (one more than its parameters / 3)",
+                fields=("n",),
             )
     draws = heuristic_draws if heuristic_draws is not None else (3 if quick else 10)
     tasks = make_tasks(robots, n=n, heuristic_draws=draws, seed=seed, variant=var.name)

@@ -67,8 +67,9 @@ def _execute_dask(todo: list[Task], scheduler, design_api, on_done: OnDone) -> N
             client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(
-                f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s "
-                f"({type(exc).__name__}: {exc}); start one (`dask scheduler`) or leave --scheduler out"
+                f"scheduler {scheduler}: no `dask scheduler` answered within {SCHEDULER_TIMEOUT_S:g} s "
+                f"({type(exc).__name__}: {exc}); start one or leave scheduler out",
+                fields=("scheduler",),
             ) from None
     try:
         futs = {

@@ -124,7 +124,7 @@ def combine(name: str, parts: list[Variant], description: str | None = None) -> 
             if value == getattr(base, f.name):
                 continue
             if f.name in changes:
-                raise InputError(f"--variant {name}: two parts change {f.name}")
+                raise InputError(f"variant {name}: two parts change {f.name}", fields=("variant",))
             changes[f.name] = value
     text = description or "; ".join(p.description for p in parts)
     return dataclasses.replace(base, name=name, description=text, **changes)
@@ -137,7 +137,9 @@ def get_variant(name: str) -> Variant:
         InputError: an unknown name, or parts that change the same field.
     """
     if not isinstance(name, str) or not all(part in VARIANTS for part in name.split("+")):
-        raise InputError(f"--variant {name!r}: expected one of {', '.join(VARIANTS)} or a+b of them")
+        raise InputError(
+            f"variant {name!r}: expected one of {', '.join(VARIANTS)} or a+b of them", fields=("variant",)
+        )
     if "+" not in name:
         return VARIANTS[name]
     return combine(name, [VARIANTS[part] for part in name.split("+")])

@@ -286,13 +286,21 @@ def parse_q_work(text: str, robot: Robot) -> np.ndarray:
     try:
         vals = np.array([float(x) for x in text.split(",")])
     except ValueError:
-        raise InputError(f"--q-work: expected {nj} comma-separated numbers (degrees), got {text!r}") from None
+        raise InputError(
+            f"q_work_deg: expected {nj} comma-separated numbers (degrees), got {text!r}",
+            fields=("q_work_deg",),
+        ) from None
     if vals.shape != (nj,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"--q-work: expected {nj} finite comma-separated numbers in degrees, got {text!r}")
+        raise InputError(
+            f"q_work_deg: expected {nj} finite comma-separated numbers in degrees, got {text!r}",
+            fields=("q_work_deg",),
+        )
     lo, up = q_to_file(robot, robot.lower), q_to_file(robot, robot.upper)
     for j in range(nj):
         if not lo[j] <= vals[j] <= up[j]:
             raise InputError(
-                f"--q-work: joint {j + 1} = {vals[j]:g} deg is outside [{lo[j]:g}, {up[j]:g}] of {robot.name}"
+                f"q_work_deg: joint {j + 1} = {vals[j]:g} deg is outside [{lo[j]:g}, {up[j]:g}] of "
+                f"{robot.name}",
+                fields=("q_work_deg",),
             )
     return q_from_file(robot, vals)

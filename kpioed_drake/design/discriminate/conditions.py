@@ -47,6 +47,7 @@ from kpioed_drake.design.discriminate.design import DiscriminationProblem, expla
 from kpioed_drake.design.discriminate.explanations import (
     CONDITION_FAMILIES,
     DEFAULT_ALPHA,
+    OPTION,
     TARGET_POWER,
     lambda_for_power,
     noncentralities,
@@ -58,8 +59,8 @@ from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.tracker import csvio
 from kpioed_drake.tracker.measurement import measurement_jacobian
 
-SPAN_OPTION = "--condition-span"
-"""The option's name, used in messages."""
+SPAN_OPTION = "condition_span"
+"""The API parameter the messages name (their ``fields``; the command line shows ``--condition-span``)."""
 CONDITIONS = {
     "thermal_expansion": "temperature_C",
     "tracker_scale": "temperature_C",
@@ -137,9 +138,10 @@ def parse_condition_span(text, pair) -> dict[str, float]:
         needed = [*needed, PAYLOAD]
     if not needed:
         raise InputError(
-            f"{SPAN_OPTION}: only for a --discriminate pair with {', '.join(CONDITION_FAMILIES)} "
+            f"{SPAN_OPTION}: only for a {OPTION} pair with {', '.join(CONDITION_FAMILIES)} "
             f"(a temperature or time span) or with {', '.join(PAYLOAD_FAMILIES)} (a payload) "
-            f"(got {' and '.join(h.effect.name for h in pair)})"
+            f"(got {' and '.join(h.effect.name for h in pair)})",
+            fields=(SPAN_OPTION, OPTION),
         )
     out: dict[str, float] = {}
     for part in str(text).split(","):
@@ -148,22 +150,28 @@ def parse_condition_span(text, pair) -> dict[str, float]:
         if m is None or unit not in _SPAN_UNITS:
             raise InputError(
                 f"{SPAN_OPTION}: expected a number with a unit, K (temperature), s, min, h (time) or kg "
-                f"(payload), e.g. '3K', '600s', '3K,600s' or '10kg', got {part.strip()!r}"
+                f"(payload), e.g. '3K', '600s', '3K,600s' or '10kg', got {part.strip()!r}",
+                fields=(SPAN_OPTION,),
             )
         try:
             value = float(m.group(1))
         except ValueError:
             value = float("nan")
         if not (np.isfinite(value) and value >= 0):
-            raise InputError(f"{SPAN_OPTION}: expected a finite span >= 0, got {part.strip()!r}")
+            raise InputError(
+                f"{SPAN_OPTION}: expected a finite span >= 0, got {part.strip()!r}", fields=(SPAN_OPTION,)
+            )
         cond, factor = _SPAN_UNITS[unit]
         if cond in out:
-            raise InputError(f"{SPAN_OPTION}: the {cond} span is given twice ({text!r})")
+            raise InputError(
+                f"{SPAN_OPTION}: the {cond} span is given twice ({text!r})", fields=(SPAN_OPTION,)
+            )
         if cond not in needed:
             names = " and ".join(h.effect.name for h in pair)
             raise InputError(
                 f"{SPAN_OPTION} {part.strip()}: {names} need no {cond} span (they need "
-                f"{', '.join(f'{c} [{UNITS[c]}]' for c in needed)})"
+                f"{', '.join(f'{c} [{UNITS[c]}]' for c in needed)})",
+                fields=(SPAN_OPTION,),
             )
         out[cond] = value * factor
     return out

@@ -52,6 +52,7 @@ from kpioed_drake.design.discriminate.explanations import (
     OPTION,
     condition_message,
     condition_spread,
+    discriminate_error,
     noncentralities,
     parse_pair,
     power,
@@ -225,7 +226,7 @@ def checked_pair(problem: Problem, pair_text: str, alpha: float):
     names = {e.key for e in problem.extensions}
     for h in pair:
         if h.effect.key in names:
-            raise InputError(f"{OPTION}: {h.effect.name} is also given to --extend")
+            raise discriminate_error(f"{h.effect.name} is also given to extend", "extend")
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha!r}")
     return pair
@@ -236,7 +237,7 @@ def heuristic_start(options: dict) -> str:
     (the approximate design is one of the KPI at a working pose)."""
     start = options.pop("start", None) or "heuristic"
     if start != "heuristic":
-        raise InputError(f"{OPTION}: the optimiser starts from the heuristic design (got start {start!r})")
+        raise discriminate_error(f"the optimiser starts from the heuristic design (got start {start!r})")
     return start
 
 
@@ -249,7 +250,9 @@ def optimize_discrimination(dprob: Problem, *, n: int, given, **options) -> Desi
     except DesignError as exc:
         if exc.result is not None:
             exc.result.criterion = "discriminate"
-        raise DesignError(str(exc).replace("the kpi design", "the discriminate design"), exc.result) from None
+        raise DesignError(
+            str(exc).replace("the kpi design", "the discriminate design"), exc.result, fields=exc.fields
+        ) from None
 
 
 def discrimination_design(
@@ -288,15 +291,13 @@ def discrimination_design(
         q = given if given is not None else heuristic_design(problem, n=n_q, seed=seed, collision=collision)
         spans = condition_spread(problem, pair, q, alpha=alpha)
         source = "given" if given is not None else "heuristic"
-        raise InputError(condition_message(pair, spans, len(q), source, alpha))
+        raise InputError(condition_message(pair, spans, len(q), source, alpha), fields=(OPTION,))
     zero = [dataclasses.replace(h.effect, values=None) for h in pair]  # columns at zero, as in a design
     base = dataclasses.replace(problem, extensions=(*problem.extensions, *zero))
     probe = heuristic_design(base, n=base.min_poses(), seed=0, collision=False)
     for h in pair:
         if not np.any(extension_columns(base.model, probe, [h.effect])):
-            raise InputError(
-                f"{OPTION}: {h.effect.name} does not change the measurements of {base.robot.name}"
-            )
+            raise discriminate_error(f"{h.effect.name} does not change the measurements of {base.robot.name}")
     dprob = discrimination_problem(base, pair)
     q_before = given if given is not None else heuristic_design(base, n=n, seed=seed, collision=collision)
     before = assessment(base, pair, q_before, alpha=alpha)

@@ -26,8 +26,15 @@ from kpioed_drake.effects import (
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
-OPTION = "--discriminate"
-"""The option's name, used in messages."""
+OPTION = "discriminate"
+"""The API parameter the messages name (their ``fields``; the command line shows ``--discriminate``)."""
+
+
+def discriminate_error(text: str, *fields: str) -> InputError:
+    """InputError ``"discriminate: {text}"``, naming ``discriminate`` and ``fields``."""
+    return InputError(f"{OPTION}: {text}", fields=(OPTION, *fields))
+
+
 DEFAULT_ALPHA = 0.01
 """Level of the tests (that of ``kpioed diagnose``)."""
 TARGET_POWER = 0.8
@@ -107,15 +114,14 @@ def parse_pair(text: str, model) -> tuple[Explanation, Explanation]:
     values optional, e.g. ``"joint_scale:2=300|gear_cyclic:2:1"``).
 
     Raises:
-        InputError: naming ``--discriminate``: no single '|', an unknown or malformed effect, the
+        InputError: naming ``discriminate``: no single '|', an unknown or malformed effect, the
             same effect twice, or an effect this robot cannot show (no gravity torque on the
             joint).
     """
     parts = str(text).split("|")
     if len(parts) != 2 or not all(p.strip() for p in parts):
-        raise InputError(
-            f"{OPTION}: expected two explanations 'A|B', e.g. 'joint_scale:2=300|gear_cyclic:2:1', "
-            f"got {text!r}"
+        raise discriminate_error(
+            f"expected two explanations 'A|B', e.g. 'joint_scale:2=300|gear_cyclic:2:1', got {text!r}"
         )
     out = []
     for p in parts:
@@ -124,11 +130,11 @@ def parse_pair(text: str, model) -> tuple[Explanation, Explanation]:
             if eff.values is None:
                 eff = _default(eff, model)
         except InputError as exc:
-            raise InputError(f"{OPTION}: {exc}") from None
+            raise discriminate_error(str(exc), *exc.fields) from None
         given = "=" in p
         out.append(Explanation(eff, "given" if given else "default", given or eff.n_params == 1))
     if out[0].effect.key == out[1].effect.key:
-        raise InputError(f"{OPTION}: the two explanations are the same effect ({out[0].effect.name})")
+        raise discriminate_error(f"the two explanations are the same effect ({out[0].effect.name})")
     return out[0], out[1]
 
 

@@ -56,11 +56,12 @@ from kpioed_drake.design.discriminate.explanations import (
     TARGET_POWER,
     condition_message,
     condition_spread,
+    discriminate_error,
 )
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.result import DesignResult
 from kpioed_drake.effects import T_REF_C, extension_columns
-from kpioed_drake.errors import InputError
+from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.problem import Problem
 
 
@@ -124,7 +125,8 @@ def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPH
     need = required_spans(plan, base, pair, np.concatenate([g, q]), conditions=[PAYLOAD], alpha=alpha)
     kg = need[PAYLOAD]
     return {
-        "model": "the designed poses measured again with the payload at the reflector (--condition-span)",
+        "model": "the designed poses measured again with the payload at the reflector "
+        f"({param(SPAN_OPTION)})",
         "target_power": TARGET_POWER,
         "required_kg": nice_ceil(kg) if np.isfinite(kg) and kg > 0 else (0.0 if kg == 0 else None),
         "rated_payload_kg": base.robot.rated_payload_kg,
@@ -157,14 +159,16 @@ def payload_lines(rec: dict) -> list[str]:
     )
     return [
         f"  payload: the designed poses measured again with {kg:g} kg at the reflector reach power "
-        f"{adv['target_power']:g} (--condition-span {kg:g}kg, {carries})"
+        f"{adv['target_power']:g} ({param(SPAN_OPTION)} {kg:g}kg, {carries})"
     ]
 
 
 def _no_plan(problem: Problem, pair, q, alpha: float, why: str) -> InputError:
     """The exit-2 error where no plan can help: ``why`` and the spans an even ramp would need."""
     spans = condition_spread(problem, pair, q, alpha=alpha)
-    return InputError(f"{condition_message(pair, spans, len(q), 'start', alpha)} ({why})")
+    return InputError(
+        f"{condition_message(pair, spans, len(q), 'start', alpha)} ({why})", fields=(OPTION, SPAN_OPTION)
+    )
 
 
 def plan_design(
@@ -214,7 +218,7 @@ def plan_design(
             res.discrimination["payload"] = payload_advice(base, pair, given, res.q, alpha=alpha)
         return res, base
     if problem.n_targets > 1:
-        raise InputError(f"{OPTION}: a measurement plan for {pair_text!r} takes one target per pose")
+        raise discriminate_error(f"a measurement plan for {pair_text!r} takes one target per pose")
     start = heuristic_start(options)
     seed, collision = int(options.get("seed", 0)), options.get("collision", True)
     base = _extended(problem, pair)
@@ -234,7 +238,7 @@ def plan_design(
 
 
 def _user_spans(problem: Problem, pair, condition_span) -> dict:
-    """The spans ``--condition-span`` asks for (a 0 kg payload dropped: the poses alone), checked
+    """The spans ``condition_span`` asks for (a 0 kg payload dropped: the poses alone), checked
     against the robot's rated payload."""
     spans_user = parse_condition_span(condition_span, pair)
     if spans_user.get(PAYLOAD) == 0:  # no payload: the poses alone (a payload is never needed)
@@ -243,7 +247,8 @@ def _user_spans(problem: Problem, pair, condition_span) -> dict:
     if PAYLOAD in spans_user and rated is not None and spans_user[PAYLOAD] > rated:
         raise InputError(
             f"{SPAN_OPTION} {spans_user[PAYLOAD]:g}kg: more than {problem.robot.name}'s rated payload of "
-            f"{rated:g} kg (rated_payload_kg in its model file)"
+            f"{rated:g} kg (rated_payload_kg in its model file)",
+            fields=(SPAN_OPTION,),
         )
     return spans_user
 
@@ -258,9 +263,7 @@ def _extended(problem: Problem, pair) -> Problem:
         if not np.any(
             extension_columns(base.model, probe, [h.effect], temperature_C=T_REF_C + 1.0, time_s=1.0)
         ):
-            raise InputError(
-                f"{OPTION}: {h.effect.name} does not change the measurements of {base.robot.name}"
-            )
+            raise discriminate_error(f"{h.effect.name} does not change the measurements of {base.robot.name}")
     return base
 
 
