@@ -1,6 +1,8 @@
-"""The package's shape (docs/ARCHITECTURE.md): one-way dependencies, small modules, imports at the top.
+"""The package's shape (docs/ARCHITECTURE.md): one-way dependencies, small modules, imports at the top,
+and no library message that names a command-line option.
 
-Read from the source with :mod:`ast`, so each test fails with the offending module and line.
+Read from the source with :mod:`ast` (the options from the command line's parser), so each test fails
+with the offending module and line.
 """
 
 from __future__ import annotations
