@@ -38,7 +38,7 @@ from kpioed_drake.calibration import calibrate_file as calibrate
 from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.design import run_design as design
-from kpioed_drake.diagnosis import diagnose_file as diagnose
+from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
@@ -75,3 +75,38 @@ def info(robot: str, *, cell_path=None) -> dict:
         "unidentifiable": rep.unidentifiable,
         "car_shift_x_mm": rob.car_shift_x,
     }
+
+
+def diagnose(
+    robot: str,
+    data_path,
+    *,
+    sigma_mm: float = 0.02,
+    json_path=None,
+    plots_dir=None,
+    html=None,
+    force: bool = False,
+    data_format=None,
+) -> DiagnosisReport:
+    """Diagnose a measurement file (``kpioed diagnose``): :func:`kpioed_drake.diagnosis.diagnose_file`
+    with ``sigma_mm`` [mm] and ``force`` as its :class:`~kpioed_drake.diagnosis.DiagnosisOptions`.
+
+    Args:
+        robot: model name or YAML path.
+        data_path: the measurement CSV.
+        sigma_mm: the known noise standard deviation per coordinate [mm].
+        json_path: JSON report to write.
+        plots_dir: folder for the residual pictures (PNG).
+        html: 3-D page (Meshcat) of the residuals before and after the named extension.
+        force: go on with implausible data, noted in the report.
+        data_format: format file of a measurement file of another layout (docs/data-formats.md).
+    """
+    return diagnose_file(
+        robot,
+        data_path,
+        DiagnosisOptions(sigma_mm=sigma_mm, force=force),
+        json_path=json_path,
+        plots_dir=plots_dir,
+        html=html,
+        data_format=data_format,
+    )

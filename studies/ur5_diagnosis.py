@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis import diagnose
+from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.outputs import atomic_write_json
 from kpioed_drake.robot.models import load_robot
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     grid = read_data(Path(a.data) / "ur5_grid.csv", robot, fmt)
     rand = read_data(Path(a.data) / "ur5_random.csv", robot, fmt)
     t0 = time.perf_counter()
-    rep = diagnose(robot, grid, sigma_mm=SIGMA_MM)
+    rep = diagnose(robot, grid, DiagnosisOptions(sigma_mm=SIGMA_MM))
     seconds = time.perf_counter() - t0
     out = {
         "seconds": seconds,

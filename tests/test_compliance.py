@@ -11,6 +11,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.cli import main
 from kpioed_drake.design.discriminate.explanations import parse_pair
+from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.selection import candidate_effects
 from kpioed_drake.diagnosis.workflow import diagnose
@@ -353,7 +354,7 @@ def test_compliant_base_must_be_true_or_false(tmp_path):
 
 def test_diagnose_names_the_column(lift7, column_case):
     """Not gear_cyclic stand-ins: the column compliance itself, and the held-out RMS at the noise."""
-    rep = diagnose(lift7, column_case.data, sigma_mm=0.02)
+    rep = diagnose(lift7, column_case.data, DiagnosisOptions(sigma_mm=0.02))
     assert [c.get("name", c["effect"]) for c in rep.causes] == ["column_compliance:1"]
     assert rep.causes[0]["plausible"]
     assert rep.extended["holdout_rms_mm"] < 1.3 * 0.02 < rep.baseline["holdout_rms_mm"]
@@ -396,7 +397,7 @@ def test_base_compliance_and_shoulder_elasticity_look_alike_on_kr16(kr16):
     case = synthetic_case(kr16, np.random.default_rng(3), [eff], mass_spread=0.3)
     prob = FitProblem(kr16, case.data, 0.02)
     cands = candidate_effects(case.data, prob.tau, robot=kr16)[0] + [fx.Effect("base_compliance")]
-    rep = diagnose(kr16, case.data, sigma_mm=0.02, candidates=cands)
+    rep = diagnose(kr16, case.data, DiagnosisOptions(sigma_mm=0.02, candidates=tuple(c.name for c in cands)))
     (cause,) = rep.causes
     assert cause["effect"] == "base_compliance"
     assert ("joint_elasticity", 2) in [(a["effect"], a.get("joint")) for a in cause["alternatives"]]

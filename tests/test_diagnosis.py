@@ -8,6 +8,7 @@ pairs); ``-m slow`` runs 50 seeded cases of each kind and checks the rates docum
 docs/diagnosis.md.
 """
 
+import dataclasses
 import json
 
 import numpy as np
@@ -51,10 +52,10 @@ def _detectable_case(kr16, family: str, seed: int):
 @pytest.mark.parametrize("family", fx.FAMILIES)
 def test_hidden_effect_is_named_and_estimated(kr16, family):
     case = _detectable_case(kr16, family, seed=7)
-    rep = D.diagnose(kr16, case.data, sigma_mm=SIGMA)
+    rep = D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=SIGMA))
     truth = case.effects[0]
     assert rep.discrepancy
-    assert rep.cause_keys == case.keys, (truth.text(), rep.summary())
+    assert rep.cause_names == case.names, (truth.text(), rep.summary())
     cause = rep.causes[0]
     assert cause["effect"] == family and cause["unit"] == fx.UNITS[family]
     # the estimate agrees with the truth within 5 standard deviations
@@ -117,8 +118,8 @@ def test_report_json_contract_cli_and_plots(kr16, tmp_path):
     for name in ("residual_structure.png", "before_after.png"):
         assert (tmp_path / "p" / name).stat().st_size > 10_000
     # data from a DataFrame in the file format gives the same answer as the file
-    rep = D.diagnose("kr16", Measurements.from_table(case.data.to_frame()))
-    assert rep.cause_keys == {("joint_elasticity", 2, None), ("gear_cyclic", 4, 2)}
+    rep = D.diagnose(kr16, Measurements.from_table(case.data.to_frame()))
+    assert rep.cause_names == {"joint_elasticity:2", "gear_cyclic:4:2"}
     # the two top score statistics of the residual structure point at the two causes
     top = {s["candidate"] for s in rep.residual_structure[:3]}
     assert "joint_elasticity:2" in top or "gear_cyclic:4:2" in top
@@ -145,8 +146,7 @@ def test_absorbed_candidate_is_reported_not_fitted(kr16):
 
 def test_undetermined_geometry_is_handled_like_calibrate(kr16):
     """With joint 4 held still its row's parameters are not determined: diagnose holds the same
-    parameters at nominal as calibrate does and says so (it used to go on with a pseudo-inverse);
-    calibrate --strict refuses."""
+    parameters at nominal as calibrate does and says so; calibrate --strict refuses."""
     rng = np.random.default_rng(5)
     q = syn.random_poses(kr16, 80, rng)
     q[:, 3] = np.deg2rad(30.0)
@@ -166,8 +166,6 @@ def test_undetermined_geometry_is_handled_like_calibrate(kr16):
 def test_candidates_follow_the_data(kr16):
     rng = np.random.default_rng(2)
     case = syn.synthetic_case(kr16, rng, [], n_poses=40)
-    import dataclasses
-
     cands, notes = D.candidate_effects(dataclasses.replace(case.data, temperature_C=None, time_s=None))
     names = [c.name for c in cands]
     assert "joint_elasticity:1" not in names and "joint_elasticity:2" in names
@@ -185,11 +183,56 @@ def test_bad_inputs(kr16):
         D.diagnose(kr16, case.data)
     case = syn.synthetic_case(kr16, rng, [], n_poses=30)
     with pytest.raises(InputError, match="sigma"):
-        D.diagnose(kr16, case.data, sigma_mm=0.0)
+        D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=0.0))
     with pytest.raises(InputError, match="missing column 'z_mm'"):
         D.diagnose(kr16, Measurements.from_table(case.data.to_frame().drop(columns=["z_mm"])))
     with pytest.raises(InputError, match="expected Measurements"):
         D.diagnose(kr16, case.data.to_frame())
+
+
+def test_options_load_from_yaml(tmp_path):
+    """``DiagnosisOptions`` (frozen) from YAML through Drake's ``yaml_load_typed``: every field, the
+    defaults of the fields left out, an unknown field refused."""
+    path = tmp_path / "diagnose.yaml"
+    path.write_text(
+        "sigma_mm: 0.05\nalpha: 0.001\nk_folds: 4\nmax_effects: 2\n"
+        "candidates: [gear_cyclic:2:1, backlash:3]\nforce: true\n"
+    )
+    opts = D.load_options(filename=path)
+    assert opts == D.DiagnosisOptions(
+        sigma_mm=0.05,
+        alpha=0.001,
+        k_folds=4,
+        max_effects=2,
+        candidates=("gear_cyclic:2:1", "backlash:3"),
+        force=True,
+    )
+    assert D.load_options(data="k_folds: 3\n") == D.DiagnosisOptions(k_folds=3)
+    assert D.load_options(data="{}") == D.DiagnosisOptions()
+    with pytest.raises(RuntimeError, match="unknown"):
+        D.load_options(data="sigma: 0.03\n")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.sigma_mm = 0.02
+
+
+def test_fit_problem_returns_new_problems(kr16):
+    """``FitProblem`` is frozen: a side or a torque for one fit is a new problem, the first unchanged."""
+    case = syn.synthetic_case(kr16, np.random.default_rng(4), [], n_poses=30)
+    prob = D.FitProblem(kr16, case.data, SIGMA)
+    side = np.ones(case.data.n)
+    one = prob.with_side(3, side)
+    assert prob.conditions.side is None
+    np.testing.assert_array_equal(one.conditions.side[:, 2], side)
+    np.testing.assert_array_equal(one.conditions.side[:, 1], np.sign(prob.tau[:, 1]))
+    tau = prob.tau.copy()
+    tau[:, 2] = -tau[:, 2]
+    two = one.with_tau(tau)
+    np.testing.assert_array_equal(two.conditions.side[:, 2], np.sign(tau[:, 2]))  # its torque changed
+    np.testing.assert_array_equal(two.conditions.side[:, 1], one.conditions.side[:, 1])
+    np.testing.assert_array_equal(one.tau, prob.tau)
+    assert two.nominal is prob.nominal and prob.with_nominal(two.nominal).conditions is prob.conditions
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        prob.conditions = two.conditions
 
 
 # ------------------------------------------------------------------------------------------ rates (slow)

@@ -1,4 +1,4 @@
-"""Competing explanations, plausibility and the unexplained rest of ``kpioed diagnose`` (issue 13).
+"""Competing explanations, plausibility and the unexplained rest of ``kpioed diagnose``.
 
 Seeded simulated campaigns on the KR 16 (``synthetic.synthetic_case``): a gear-ratio error, a pair
 of candidates the poses cannot tell apart, a negative compliance, clean data, and an error outside
@@ -15,7 +15,8 @@ import pytest
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.alternatives import settle
-from kpioed_drake.diagnosis.selection import Selection, _stand_in
+from kpioed_drake.diagnosis.records import Selection
+from kpioed_drake.diagnosis.selection import stand_in_reason
 from kpioed_drake.effects import physical
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.study import synthetic as syn
@@ -29,12 +30,12 @@ def kr16():
 
 
 def _names(rep) -> list[set]:
-    return [{":".join(str(x) for x in k if x is not None) for k in ks} for ks in rep.explanation_keys]
+    return rep.explanation_names
 
 
 def test_joint_scale_is_named_or_offered(kr16):
     case = syn.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
-    rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
+    rep = D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=case.sigma))
     groups = _names(rep)
     assert any("joint_scale:2" in g for g in groups), groups
     # a gear error of joint 2 is never named alone when the truth is its gear ratio
@@ -54,14 +55,15 @@ def test_a_cause_beaten_by_a_candidate_is_swapped(kr16):
     case = syn.synthetic_case(kr16, np.random.default_rng(11), ["joint_scale:2=400"], n_poses=70)
     prob = D.FitProblem(kr16, case.data, case.sigma)
     wrong = prob.fit([fx.parse_effect("gear_cyclic:2:1")])
-    sel = Selection(fit=wrong, holdout=prob.holdout(wrong), steps=[], evidence={})
+    before = Selection(problem=prob, fit=wrong, holdout=prob.holdout(wrong))
     cands, _ = D.candidate_effects(case.data, prob.tau)
-    out = settle(prob, sel, cands, alpha=0.01, k_folds=5)
+    sel, out = settle(before, cands, alpha=0.01, k_folds=5)
     assert [e.name for e in sel.fit.effects] == ["joint_scale:2"]
-    assert sel.swaps[0]["replaced"] == "gear_cyclic:2:1" and sel.steps[-1]["swapped"]["by"] == "joint_scale:2"
-    assert sel.swaps[0]["lr_stat"] > sel.swaps[0]["lr_stat_replaced"] + 6.63
-    assert set(out) == {("joint_scale", 2, None)}
-    assert sel.evidence[("joint_scale", 2, None)]["replaced"] == "gear_cyclic:2:1"
+    assert sel.swaps[0].replaced == "gear_cyclic:2:1" and sel.steps[-1].swap.by == "joint_scale:2"
+    assert sel.swaps[0].lr_stat > sel.swaps[0].lr_stat_replaced + 6.63
+    assert set(out) == {"joint_scale:2"}
+    assert sel.evidence["joint_scale:2"]["replaced"] == "gear_cyclic:2:1"
+    assert before.fit is wrong and before.swaps == () and before.steps == ()  # a new selection
 
 
 def test_indistinguishable_pair_is_reported_together(kr16):
@@ -71,7 +73,7 @@ def test_indistinguishable_pair_is_reported_together(kr16):
     q = syn.random_poses(kr16, 70, rng)
     q[:, 3] = np.deg2rad(rng.uniform(-15.0, 15.0, size=q.shape[0]))
     case = syn.synthetic_case(kr16, rng, ["joint_scale:4=-800"], q=q)
-    rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
+    rep = D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=case.sigma))
     groups = _names(rep)
     assert {"joint_scale:4", "gear_cyclic:4:1"} in [g & {"joint_scale:4", "gear_cyclic:4:1"} for g in groups]
     cause = next(c for c in rep.causes if c["name"] in ("joint_scale:4", "gear_cyclic:4:1"))
@@ -84,7 +86,7 @@ def test_indistinguishable_pair_is_reported_together(kr16):
 
 def test_negative_compliance_is_implausible(kr16):
     case = syn.synthetic_case(kr16, np.random.default_rng(3), ["joint_elasticity:3=-3e-6"], n_poses=70)
-    rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
+    rep = D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=case.sigma))
     cause = next(c for c in rep.causes if c["effect"] == "joint_elasticity" and c["joint"] == 3)
     assert cause["value"] < 0
     assert cause["plausible"] is False and "negative compliance" in cause["plausible_reason"]
@@ -93,7 +95,7 @@ def test_negative_compliance_is_implausible(kr16):
 
 def test_clean_case_has_no_causes_and_no_rest(kr16):
     case = syn.synthetic_case(kr16, np.random.default_rng(21), [], n_poses=60)
-    rep = D.diagnose(kr16, case.data, sigma_mm=case.sigma)
+    rep = D.diagnose(kr16, case.data, D.DiagnosisOptions(sigma_mm=case.sigma))
     assert rep.causes == [] and rep.unexplained is None and not rep.discrepancy
 
 
@@ -114,7 +116,7 @@ def test_error_outside_the_library_is_unexplained(kr16):
         time_s=case.data.time_s,
         source="synthetic",
     )
-    rep = D.diagnose(kr16, data, sigma_mm=case.sigma)
+    rep = D.diagnose(kr16, data, D.DiagnosisOptions(sigma_mm=case.sigma))
     # the best candidate (joint_scale:3, LR 72) fits 7 % of the excess: a stand-in, noted, not named
     assert rep.causes == [] and any("stand-in" in n for n in rep.notes)
     u = rep.unexplained
@@ -179,6 +181,5 @@ def test_plausibility_bounds(text, std, ok):
     ],
 )
 def test_stand_in_rule(cost, after, stand_in):
-    row = {"_fit": SimpleNamespace(cost=cost, dof=200), "holdout_rms_mm": after}
-    why = _stand_in(row, 0.050, 0.02, 0.01)
+    why = stand_in_reason(SimpleNamespace(cost=cost, dof=200), after, before=0.050, sigma=0.02, alpha=0.01)
     assert (why is not None) is stand_in

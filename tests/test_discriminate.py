@@ -24,6 +24,7 @@ from kpioed_drake.design.discriminate import design as dc
 from kpioed_drake.design.discriminate import explanations as ex
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import T_REF_C, augmented_jacobian, gravity_torques
@@ -196,11 +197,11 @@ def test_first_data_cannot_separate_the_pair_and_the_design_does(kr16, extended)
     assert cost2[b] - cost2[a] > 100.0  # B's fit is far worse: chi^2 difference
     assert hold2[a] < 1.3 * SIGMA and hold2[b] > 1.5 * hold2[a]
     # diagnose (all its candidates): the first data leaves B among the explanations; all data names A alone
-    first = diagnose(kr16.robot, case.data.subset(np.arange(len(q1))), sigma_mm=SIGMA)
+    first = diagnose(kr16.robot, case.data.subset(np.arange(len(q1))), DiagnosisOptions(sigma_mm=SIGMA))
     named = {c["name"] for c in first.causes} | {x["name"] for c in first.causes for x in c["alternatives"]}
     assert b in named
-    both = diagnose(kr16.robot, case.data, sigma_mm=SIGMA)
-    assert both.cause_keys == {("joint_scale", 2, None)}
+    both = diagnose(kr16.robot, case.data, DiagnosisOptions(sigma_mm=SIGMA))
+    assert both.cause_names == {"joint_scale:2"}
     assert both.causes[0]["alternatives"] == []
 
 

@@ -28,6 +28,7 @@ from kpioed_drake.design.discriminate import plan as plan_mod
 from kpioed_drake.design.discriminate.design import discrimination_problem, explanation_indices
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError, param_names
@@ -180,8 +181,8 @@ def test_first_data_cannot_separate_elasticity_from_scale_and_the_payload_plan_d
     )
     (tmp_path / "first.csv").write_text(table_csv_text(table.iloc[: len(q1)]))
     (tmp_path / "all.csv").write_text(table_csv_text(table))
-    first = diagnose(kr16.robot, tmp_path / "first.csv", sigma_mm=SIGMA)
-    both = diagnose(kr16.robot, tmp_path / "all.csv", sigma_mm=SIGMA)
+    first = diagnose(kr16.robot, tmp_path / "first.csv", DiagnosisOptions(sigma_mm=SIGMA))
+    both = diagnose(kr16.robot, tmp_path / "all.csv", DiagnosisOptions(sigma_mm=SIGMA))
     # the first data: the elasticity with the gear-ratio error among its alternatives (not separated)
     assert any("joint_scale:2" in [a["name"] for a in c["alternatives"]] for c in first.causes)
     # the plan's data: the elasticity alone, no alternative

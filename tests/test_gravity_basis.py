@@ -15,7 +15,7 @@ from fd import central_fd
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.cli import main as cli_main
-from kpioed_drake.diagnosis import diagnose
+from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.errors import InputError
@@ -146,7 +146,7 @@ def test_diagnose_upgrades_elasticity_when_masses_are_off(kr16):
     rng = np.random.default_rng(1)
     eff = dataclasses.replace(fx.parse_effect("joint_elasticity:5"), tool_mm=1.0)
     case = synthetic_case(kr16, rng, [eff], n_poses=60, sigma=0.02, mass_spread=0.3)
-    rep = diagnose(kr16, case.data, sigma_mm=0.02)
+    rep = diagnose(kr16, case.data, DiagnosisOptions(sigma_mm=0.02))
     assert [c["name"] for c in rep.causes] == ["joint_elasticity_basis:5"]
     up = rep.causes[0]["evidence"]["basis_upgrade"]
     assert up["replaces"] == "joint_elasticity:5" and up["p_value"] < 1e-6
@@ -155,7 +155,9 @@ def test_diagnose_upgrades_elasticity_when_masses_are_off(kr16):
     assert any("gravity basis" in n for n in rep.notes)
     # with the file's masses the same elasticity stays the one-parameter family
     case = synthetic_case(kr16, np.random.default_rng(1), [eff], n_poses=60, sigma=0.02)
-    assert [c["name"] for c in diagnose(kr16, case.data, sigma_mm=0.02).causes] == ["joint_elasticity:5"]
+    assert [c["name"] for c in diagnose(kr16, case.data, DiagnosisOptions(sigma_mm=0.02)).causes] == [
+        "joint_elasticity:5"
+    ]
 
 
 def test_calibrate_extend_with_the_basis(kr16):

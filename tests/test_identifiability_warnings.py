@@ -241,9 +241,9 @@ def test_tracker_parameter_that_only_correlates_is_estimated_not_held_at_registr
     data holds tracker_ry at the solution at its estimate and says so (not "at nominal")."""
     seen = {}
 
-    def keep(robot, data, **kwargs):
+    def keep(robot, data, *args, **kwargs):
         seen.update(robot=robot, data=data)
-        return diagnose(robot, data, **kwargs)
+        return diagnose(robot, data, *args, **kwargs)
 
     monkeypatch.setattr(synthetic, "diagnose", keep)
     r = run_synthetic_case(

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from kpioed_drake.diagnosis.elastic_basis import use_expected_sides
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.sides import prior_moments, side_patterns, side_weights
+from kpioed_drake.diagnosis.sides import prior_moments, side_patterns, side_weights, with_expected_sides
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation import multiplicity as mp
 from kpioed_drake.study.synthetic import RATE_FAMILIES as FAMILIES
@@ -134,8 +133,7 @@ def test_side_patterns_hold_the_expected_side_and_the_true_one(kr16):
     wrong side of joint 6)."""
     rng = np.random.default_rng(11)
     case = synthetic_case(kr16, rng, [], n_poses=60, mass_spread=0.3)
-    prob = FitProblem(kr16, case.data, 0.02)
-    use_expected_sides(prob)
+    prob = with_expected_sides(FitProblem(kr16, case.data, 0.02))
     pats = side_patterns(prob, [4, 6])
     true_tau = FitProblem(case.model_true.robot, case.data, 0.02).tau
     for j, P in pats.items():

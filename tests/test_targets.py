@@ -31,7 +31,7 @@ from kpioed_drake.calibration.validate import validate as validate_model
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignConstraints, optimize_design
 from kpioed_drake.design.approximate.design import rank3_changes
-from kpioed_drake.diagnosis import diagnose
+from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import identifiability
 from kpioed_drake.estimation.problem import make_problem
@@ -330,8 +330,8 @@ def test_diagnose_three_targets_finds_the_effect(kr16):
     robot = with_targets(kr16, THREE)
     q = np.random.default_rng(1).uniform(kr16.lower, kr16.upper, size=(20, 6))
     table, _ = simulation.simulate(robot, q, sigma_mm=SIGMA, seed=2, effects=["joint_elasticity:2"])
-    report = diagnose(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
-    assert report.n_poses == 60 and report.cause_keys == {("joint_elasticity", 2, None)}, report.summary()
+    report = diagnose(robot, Measurements.from_table(table, robot), DiagnosisOptions(sigma_mm=SIGMA))
+    assert report.n_poses == 60 and report.cause_names == {"joint_elasticity:2"}, report.summary()
 
 
 def test_design_and_evaluate_cli_with_two_targets(tmp_path, capsys):

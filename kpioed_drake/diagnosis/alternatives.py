@@ -7,8 +7,8 @@ A when ``LR_B >= LR_A - c`` with ``c = chi2.isf(alpha, k_A)`` (the critical valu
 with A's number of parameters: 6.63 for one, 9.21 for two at 1 %): if B is the truth,
 ``LR_A - LR_B`` is at most ``LR(A | B) ~ chi2(k_A)``, so a likelihood-ratio test of A against B
 cannot reject B at that level, the data cannot tell them apart; and B itself is significant
-(``p(LR_B) < alpha``, uncorrected). (Until 2026-12-01 23:59 ``c`` had one degree of freedom for
-every A, which rejects a true B beside a two-parameter cause 3.6 % of the time, not 1 %.) Only B
+(``p(LR_B) < alpha``, uncorrected). The margin takes A's degrees of freedom: with one for every A,
+a true B beside a two-parameter cause would be dropped more often than ``alpha``. Only B
 whose score statistic (the linearised ``LR_B`` at ``f0``, cheap) comes within
 ``c + max(c, 20 % of LR_A)`` of ``LR_A`` are refitted.
 
@@ -36,12 +36,15 @@ out the geometry and R: near 1 when the poses make the two signatures alike).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.stats
 
 from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.selection import Selection, columns, identifiability, projected_basis
+from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
+from kpioed_drake.diagnosis.selection import columns, identifiability, projected_basis
 from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
 
@@ -83,8 +86,8 @@ def competing(
     lr_a = max(f0.cost - ext.cost, 0.0)
     # if B is the truth, LR_A - LR_B <= LR(A | B) ~ chi2(k_A): the margin has A's degrees of freedom
     c = float(scipy.stats.chi2.isf(alpha, a.n_params))
-    in_model = {e.key for e in ext.effects}
-    others = [b for b in pool if b.key not in in_model]
+    in_model = {e.name for e in ext.effects}
+    others = [b for b in pool if b.name not in in_model]
     if not others:
         return []
     Jm, cols = columns(prob, f0, [a] + others)
@@ -99,8 +102,8 @@ def competing(
         if not beside:
             Jx, cols_x = columns(prob, ext, others)
             Qx, _ = np.linalg.qr(Jx)
-            beside.update({e.key: _outside(Qx, Cx) for e, Cx in zip(others, cols_x, strict=True)})
-        return beside[b.key]
+            beside.update({e.name: _outside(Qx, Cx) for e, Cx in zip(others, cols_x, strict=True)})
+        return beside[b.name]
 
     found = []
     for b, C in zip(others, cols[1:], strict=True):
@@ -162,19 +165,44 @@ def _swap_evidence(prob: FitProblem, f0: Fit, b, fb: Fit, ev: dict, hold, m: int
 
 def _plausible(prob: FitProblem, b, fb: Fit) -> bool:
     """Whether the value of B (the last effect of ``fb``) is physically plausible."""
-    std = np.sqrt(np.clip(np.diag(fb.Cp), 0, None))[fb.layout.effects][-b.n_params :]
-    return plausibility(b, std, tau=prob.tau, time_s=prob.data.time_s)[0]
+    return plausibility(b, _last_std(fb, b), tau=prob.tau, time_s=prob.data.time_s)[0]
 
 
-def settle(prob: FitProblem, sel: Selection, pool, *, alpha: float, k_folds: int) -> dict:
+def _last_std(fit: Fit, e) -> np.ndarray:
+    """Standard deviations of the values of ``e``, the last effect of ``fit`` (internal units)."""
+    return np.sqrt(np.clip(np.diag(fit.Cp), 0, None))[fit.layout.effects][-e.n_params :]
+
+
+def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: int) -> Selection:
+    """``sel`` with cause ``a`` swapped for ``b`` (fit ``fb``, competing evidence ``ev``; ``f0`` the
+    fit without ``a``), recorded as a step."""
+    prob, ext = sel.problem, sel.fit
+    hold = prob.holdout(fb, k=k_folds)
+    m = len([x for x in pool if x.name not in {e.name for e in ext.effects}])
+    evidence = dict(sel.evidence)
+    evidence.pop(a.name, None)
+    evidence[b.name] = _swap_evidence(prob, f0, b, fb, ev, hold, max(m, 1), a.name)
+    swap = Swap(replaced=a.name, by=b.name, lr_stat=ev["lr_stat"], lr_stat_replaced=ev["lr_stat_cause"])
+    step = SelectionStep(len(sel.steps) + 1, added=(b.name,), removed=(a.name,), swap=swap)
+    return dataclasses.replace(
+        sel, fit=fb, holdout=hold, evidence=evidence, swaps=(*sel.swaps, swap), steps=(*sel.steps, step)
+    )
+
+
+def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selection, dict]:
     """Swap causes for competing candidates that explain the data significantly better given the
-    other causes (in place on ``sel``), then return, per final cause key, ``(f0, alternatives)``:
-    the fit without the cause and :func:`competing`'s list."""
+    other causes.
+
+    Returns:
+        (selection, settled): the selection after the swaps and, per final cause's name,
+        ``(f0, alternatives)``: the fit without the cause and :func:`competing`'s list.
+    """
+    prob = sel.problem
     ln_n = np.log(3 * prob.data.n)
     for _ in range(MAX_EFFECTS + 1):
         ext, out, swap = sel.fit, {}, None
         for i, a in enumerate(ext.effects):
-            f0 = prob.fit([x for x in ext.effects if x.key != a.key], start=ext)
+            f0 = prob.fit([x for x in ext.effects if x.name != a.name], start=ext)
             found = competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds)
             lr_a = max(f0.cost - ext.cost, 0.0)
             if found and len(sel.swaps) < MAX_EFFECTS:
@@ -184,29 +212,45 @@ def settle(prob: FitProblem, sel: Selection, pool, *, alpha: float, k_folds: int
                 if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
                     swap = (a, f0, *found[0])
                     break
-            out[a.key] = (f0, found)
+            out[a.name] = (f0, found)
         if swap is None:
-            return out
-        a, f0, b, fb, ev = swap
-        hold = prob.holdout(fb, k=k_folds)
-        m = len([x for x in pool if x.key not in {e.key for e in ext.effects}])
-        sel.evidence.pop(a.key, None)
-        sel.evidence[b.key] = _swap_evidence(prob, f0, b, fb, ev, hold, max(m, 1), a.name)
-        sel.fit, sel.holdout = fb, hold
-        rec = {
-            "replaced": a.name,
-            "by": b.name,
-            "lr_stat": ev["lr_stat"],
-            "lr_stat_replaced": ev["lr_stat_cause"],
+            return sel, out
+        sel = _swap(sel, *swap, pool, k_folds=k_folds)
+    return sel, out
+
+
+def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
+    """The effects of the extended model as causes: values and standard deviations (display units),
+    the evidence (the step's statistics, the final LR given all other effects, the size at the
+    reflector), plausibility (:mod:`~kpioed_drake.effects.physical`) and the alternatives: those of
+    ``settled`` (:func:`settle`'s) and then ``more`` (``{name: [Alternative]}``)."""
+    prob, ext = sel.problem, sel.fit
+    std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
+    out, c = [], ext.layout.effects.start
+    for i, e in enumerate(ext.effects):
+        e_std = std[c : c + e.n_params]
+        c += e.n_params
+        sig = prob.effect_signal(ext, i)
+        f0, found = settled[e.name]
+        ev = {
+            **sel.evidence.get(e.name, {}),
+            "lr_stat_final": max(f0.cost - ext.cost, 0.0),  # given all others (refitted without it)
+            "tool_max_mm": float(np.max(np.linalg.norm(sig, axis=1))),
+            "tool_rms_mm": float(np.sqrt(np.mean(np.sum(sig**2, axis=1)))),
         }
-        sel.swaps.append(rec)
-        sel.steps.append(
-            {
-                "step": len(sel.steps) + 1,
-                "added": b.name,
-                "removed": [a.name],
-                "swapped": rec,
-                "candidates": [],
-            }
+        alts = []
+        for b, fb, ev_b in found:
+            ok, why = plausibility(b, _last_std(fb, b), tau=prob.tau, time_s=prob.data.time_s)
+            alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
+        ok, why = plausibility(e, e_std, tau=prob.tau, time_s=prob.data.time_s)
+        out.append(
+            Cause(
+                effect=e,
+                std=tuple(e.display_values(e_std)),
+                evidence=ev,
+                plausible=ok,
+                plausible_reason=why,
+                alternatives=(*alts, *more.get(e.name, ())),
+            )
         )
-    return out
+    return tuple(out)

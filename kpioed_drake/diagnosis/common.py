@@ -1,4 +1,13 @@
-"""Settings of the diagnosis shared by its modules (levels, folds, limits)."""
+"""Settings of the diagnosis: the levels, folds and limits its modules share, and the options of one
+run (:class:`DiagnosisOptions`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from pathlib import Path
+
+from pydrake.common.yaml import yaml_load_typed
 
 ALPHA = 0.01
 """Level of the goodness-of-fit test and family-wise level of each selection step."""
@@ -36,3 +45,57 @@ PAIR_ALPHA_SHARE = 0.1
 """The pair step's family-wise level is this share of ``alpha``: it runs once per diagnosis, after the
 last single step, and spends a tenth of the level the single steps have (a false alarm on clean data
 needs the goodness-of-fit test, a single step or the pair step: at most 2.1 alpha)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnosisOptions:
+    """The settings of one diagnosis (:func:`~kpioed_drake.diagnosis.diagnose`); read from YAML
+    with :func:`load_options`."""
+
+    sigma_mm: float = 0.02
+    """The known noise standard deviation per coordinate [mm]: the goodness-of-fit test and every
+    likelihood ratio are taken against it."""
+    alpha: float = ALPHA
+    """Level of the goodness-of-fit test and family-wise level of each selection step."""
+    k_folds: int = K_FOLDS
+    """Folds of the cross-validation over poses (the held-out error)."""
+    max_effects: int = MAX_EFFECTS
+    """Most effects the stepwise selection adds."""
+    candidates: tuple[str, ...] | None = None
+    """The candidate effects as texts (``gear_cyclic:2:1``, ``backlash:3``; docs/diagnosis.md, "Effect
+    models"); None: the candidates these data can reveal
+    (:func:`~kpioed_drake.diagnosis.selection.candidate_effects`)."""
+    force: bool = False
+    """Go on with implausible data
+    (:func:`~kpioed_drake.estimation.plausibility.check_data`), noted in the report."""
+
+
+def _yaml_schema(cls) -> type:
+    """A mutable dataclass with the fields of the frozen ``cls`` for Drake's ``yaml_load_typed``,
+    which fills a schema field by field (``tuple[T, ...]`` read as ``list[T]``)."""
+
+    def listed(t):
+        args = typing.get_args(t)
+        if typing.get_origin(t) is tuple:
+            return list[args[0]]
+        if args and type(None) in args:
+            return listed(args[0]) | None
+        return t
+
+    hints = typing.get_type_hints(cls)
+    fields = [
+        (f.name, listed(hints[f.name]), dataclasses.field(default=f.default)) for f in dataclasses.fields(cls)
+    ]
+    return dataclasses.make_dataclass(f"{cls.__name__}Yaml", fields)
+
+
+def load_options(*, filename: str | Path | None = None, data: str | None = None) -> DiagnosisOptions:
+    """:class:`DiagnosisOptions` from a YAML file or text (Drake's ``yaml_load_typed``: a field left
+    out keeps its default; an unknown field is an error)."""
+    raw = yaml_load_typed(
+        schema=_yaml_schema(DiagnosisOptions), filename=None if filename is None else str(filename), data=data
+    )
+    values = {f.name: getattr(raw, f.name) for f in dataclasses.fields(DiagnosisOptions)}
+    if values["candidates"] is not None:
+        values["candidates"] = tuple(values["candidates"])
+    return DiagnosisOptions(**values)

@@ -21,7 +21,6 @@ elasticity is a further candidate (:func:`_add_basis_if_unexplained`).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -30,7 +29,8 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import FitProblem
-from kpioed_drake.diagnosis.selection import Selection, backward_step
+from kpioed_drake.diagnosis.records import Alternative, Selection
+from kpioed_drake.diagnosis.selection import backward_step
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.estimator import rms
 
@@ -54,93 +54,111 @@ def _upgradable(prob: FitProblem, e) -> bool:
     return e.family == "backlash" and gb.joint_basis(prob.robot, e.joint).rank > 0
 
 
-def upgrade_elasticity(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int):
-    """Replace named elasticities by their gravity basis where the data demand it (in place).
+def _mass_alternative(b: fx.Effect, evidence: dict) -> Alternative:
+    """The gravity basis ``b`` as a competing explanation (the cause with other link masses)."""
+    return Alternative(effect=b, evidence=evidence)
 
-    For each named ``joint_elasticity:j`` (and ``backlash:j``, :func:`_upgradable`): the basis in its
-    place, then the backward step (effects
-    that were stand-ins for the mass mismatch, e.g. a gear error of joint j, go). Accepted if the
-    result has a lower BIC (``chi2 + k ln(3 n)``) and a lower held-out RMS than the current model.
 
-    If the upgrade is not better but its backward step removes effects (the basis explains them
-    with the elasticity), each removed effect gets the basis as a competing explanation.
+def _upgrade_one(sel: Selection, e, *, alpha: float, k_folds: int, ln_n: float):
+    """The upgrade of one named effect ``e`` to its joint's gravity basis (:func:`upgrade_elasticity`).
 
     Returns:
-        notes for the report, one per upgrade, and per effect key the alternatives to add to its
-        cause (:func:`add_alternatives`).
+        (selection, note, alternatives): the upgraded selection and its note, or the selection
+        unchanged, no note and ``{name: [Alternative]}`` for the effects the upgrade's backward step
+        removed.
+    """
+    prob = sel.problem
+    b = basis_for(prob, e.joint)
+    f = prob.fit([b if x.name == e.name else x for x in sel.fit.effects], start=sel.fit)
+    dof = b.n_params - e.n_params
+    lr = max(sel.fit.cost - f.cost, 0.0)
+    p = float(scipy.stats.chi2.sf(lr, dof))
+    trial = dataclasses.replace(sel, fit=f, holdout=prob.holdout(f, k=k_folds))
+    trial, removed = backward_step(trial, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    before, after = rms(sel.holdout), rms(trial.holdout)
+    if _bic(trial.fit) >= _bic(sel.fit) or after >= before:
+        # not better, but the effects it makes redundant are stand-ins for a mass mismatch
+        ev = {"lr_stat_vs_file_masses": lr, "dof": dof, "p_value": p}
+        masses = f"{e.name} with the link masses and centres of mass unlike the model file's"
+        alts = {
+            nm: [_mass_alternative(b, {**ev, "explains": f"{nm} and {e.name} together: {masses}"})]
+            for nm in removed
+        }
+        return sel, None, alts
+    fb = next(x for x in trial.fit.effects if x.name == b.name)
+    comp = gb.basis_compliance(fb, trial.fit.model)
+    upgrade = {
+        "replaces": e.name,
+        "lr_stat": lr,
+        "dof": dof,
+        "p_value": p,
+        "delta_bic": _bic(sel.fit) - _bic(trial.fit),
+        "removed": removed,
+        "holdout_rms_mm_before": before,
+        "holdout_rms_mm_after": after,
+        **{f"basis_{k}": v for k, v in comp.items()},
+    }
+    if e.family == "joint_elasticity":
+        upgrade["compliance_file_masses"] = float(e.value_array()[0])
+    evidence = dict(trial.evidence)
+    evidence[b.name] = {**evidence.pop(e.name, {}), "basis_upgrade": upgrade}
+    why = (
+        "the model file's masses do not explain the deflection"
+        if e.family == "joint_elasticity"
+        else "a deflection with the gravity torque of other link masses explains the data better"
+    )
+    note = (
+        f"{e.name}: {why} (LR {lr:.1f} on {dof} dof); "
+        f"named with the gravity basis {b.name} ({b.n_params} moments), compliance against the "
+        f"file's torques {comp['compliance']:.3g} rad/(N m)"
+        + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
+    )
+    return dataclasses.replace(sel, fit=trial.fit, holdout=trial.holdout, evidence=evidence), note, {}
+
+
+def upgrade_elasticity(sel: Selection, *, alpha: float, k_folds: int):
+    """Replace named elasticities by their gravity basis where the data demand it.
+
+    For each named ``joint_elasticity:j`` (and ``backlash:j``, :func:`_upgradable`): the basis in its
+    place, then the backward step (effects that were stand-ins for the mass mismatch, e.g. a gear
+    error of joint j, go). Accepted if the result has a lower BIC (``chi2 + k ln(3 n)``) and a lower
+    held-out RMS than the current model. If the upgrade is not better but its backward step removes
+    effects (the basis explains them with the elasticity), each removed effect gets the basis as a
+    competing explanation. Then a named elasticity or backlash is tried as a backlash whose side
+    follows the torque fitted from the data (:func:`_backlash_with_fitted_torque`), and, while the
+    model fails the goodness-of-fit test, the basis of the joints without one
+    (:func:`_add_basis_if_unexplained`).
+
+    Returns:
+        (selection, notes, alternatives): the selection after the upgrades, notes for the report
+        (one per upgrade) and per effect name the alternatives to add to its cause
+        (:func:`basis_alternatives`).
     """
     notes, alternatives = [], {}
-    ln_n = np.log(3 * prob.data.n)
-    for e in [x for x in sel.fit.effects if _upgradable(prob, x)]:
-        b = basis_for(prob, e.joint)
-        f = prob.fit([b if x.key == e.key else x for x in sel.fit.effects], start=sel.fit)
-        dof = b.n_params - e.n_params
-        lr = max(sel.fit.cost - f.cost, 0.0)
-        p = float(scipy.stats.chi2.sf(lr, dof))
-        trial = Selection(fit=f, holdout=prob.holdout(f, k=k_folds), steps=[], evidence=dict(sel.evidence))
-        removed = backward_step(prob, trial, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-        before, after = rms(sel.holdout), rms(trial.holdout)
-        if _bic(trial.fit) >= _bic(sel.fit) or after >= before:
-            # not better, but the effects it makes redundant are stand-ins for a mass mismatch
-            named = {x.name: x for x in sel.fit.effects}
-            for x in (named[nm] for nm in removed):
-                alternatives.setdefault(_key(x), []).append(
-                    {
-                        "effect": b.family,
-                        "joint": b.joint,
-                        "name": b.name,
-                        "evidence": {
-                            "lr_stat_vs_file_masses": lr,
-                            "dof": dof,
-                            "p_value": p,
-                            "explains": f"{x.name} and {e.name} together: {e.name} with the link masses "
-                            "and centres of mass unlike the model file's",
-                        },
-                    }
-                )
-            continue
-        ev = trial.evidence.pop(e.key, {})
-        fb = next(x for x in trial.fit.effects if x.key == b.key)
-        comp = gb.basis_compliance(fb, trial.fit.model)
-        ev["basis_upgrade"] = {
-            "replaces": e.name,
-            "lr_stat": lr,
-            "dof": dof,
-            "p_value": p,
-            "delta_bic": _bic(sel.fit) - _bic(trial.fit),
-            "removed": removed,
-            "holdout_rms_mm_before": before,
-            "holdout_rms_mm_after": after,
-            **{f"basis_{k}": v for k, v in comp.items()},
-        }
-        if e.family == "joint_elasticity":
-            ev["basis_upgrade"]["compliance_file_masses"] = float(e.value_array()[0])
-        trial.evidence[b.key] = ev
-        sel.fit, sel.holdout, sel.evidence = trial.fit, trial.holdout, trial.evidence
-        why = (
-            "the model file's masses do not explain the deflection"
-            if e.family == "joint_elasticity"
-            else "a deflection with the gravity torque of other link masses explains the data better"
-        )
-        notes.append(
-            f"{e.name}: {why} (LR {lr:.1f} on {dof} dof); "
-            f"named with the gravity basis {b.name} ({b.n_params} moments), compliance against the "
-            f"file's torques {comp['compliance']:.3g} rad/(N m)"
-            + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
-        )
+    ln_n = np.log(3 * sel.problem.data.n)
+    for e in [x for x in sel.fit.effects if _upgradable(sel.problem, x)]:
+        sel, note, alts = _upgrade_one(sel, e, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
+        notes += [note] if note else []
+        for name, found in alts.items():
+            alternatives.setdefault(name, []).extend(found)
     # the named causes' sides first, then (if the model still fails the test) further causes
-    done = {e.key for e in sel.fit.effects}
-    notes += _backlash_with_fitted_torque(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
-    notes += _add_basis_if_unexplained(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n)
-    notes += _backlash_with_fitted_torque(prob, sel, alpha=alpha, k_folds=k_folds, ln_n=ln_n, skip=done)
-    return notes, alternatives
+    done = {e.name for e in sel.fit.effects}
+    kw = {"alpha": alpha, "k_folds": k_folds, "ln_n": ln_n}
+    sel, more = _backlash_with_fitted_torque(sel, **kw)
+    notes += more
+    sel, more = _add_basis_if_unexplained(sel, **kw)
+    notes += more
+    sel, more = _backlash_with_fitted_torque(sel, **kw, skip=done)
+    return sel, notes + more, alternatives
 
 
-def _stand_in_alternatives(prob: FitProblem, sel: Selection, alternatives: dict, *, alpha: float) -> None:
+def _stand_in_alternatives(sel: Selection, *, alpha: float) -> dict:
     """A named joint-angle cause of joint j (gear, scale, coupling, backlash) that adds nothing to
     the gravity basis of joint j (likelihood ratio not significant at ``alpha`` once the basis is in
     the model) is also joint j's elasticity with masses unlike the file's: the basis becomes its
-    alternative (e.g. ``gear_cyclic:2:1``, whose sin/cos(q_2) are part of joint 2's torque)."""
+    alternative (e.g. ``gear_cyclic:2:1``, whose sin/cos(q_2) are part of joint 2's torque).
+    Returns ``{name: [Alternative]}``."""
+    prob, out = sel.problem, {}
     named = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
     for x in sel.fit.effects:
         if x.family not in fx.JOINT_FAMILIES or x.family == "joint_elasticity" or x.joint in named:
@@ -148,72 +166,34 @@ def _stand_in_alternatives(prob: FitProblem, sel: Selection, alternatives: dict,
         if gb.joint_basis(prob.robot, x.joint).rank == 0:
             continue
         b = basis_for(prob, x.joint)
-        others = [y for y in sel.fit.effects if y.key != x.key]
+        others = [y for y in sel.fit.effects if y.name != x.name]
         f_b = prob.fit([*others, b], start=sel.fit)
         lr_x = max(f_b.cost - prob.fit([*others, b, x], start=f_b).cost, 0.0)
         p_x = float(scipy.stats.chi2.sf(lr_x, x.n_params))
         if p_x < alpha:
             continue
-        alternatives.setdefault(_key(x), []).append(
-            {
-                "effect": b.family,
-                "joint": b.joint,
-                "name": b.name,
-                "evidence": {
-                    "chi2_difference": f_b.cost - sel.fit.cost,
-                    "n_params": b.n_params,
-                    "lr_stat_cause_given_basis": lr_x,
-                    "p_value_cause_given_basis": p_x,
-                    "explains": f"{x.name} lies within the gravity torque of joint {x.joint} with other link "
-                    f"masses: an elasticity of joint {x.joint} explains it as well",
-                },
-            }
-        )
-
-
-def backlash_sides(prob: FitProblem) -> np.ndarray:
-    """(n, 6) the side of a backlash per pose for the fit: the expected sign of each joint's gravity
-    torque when the file's masses and centres of mass are uncertain
-    (:func:`~kpioed_drake.effects.gravity_basis.expected_side` with
-    :func:`~kpioed_drake.effects.gravity_basis.torque_std`): +-1 where the file's torque is clearly
-    on one side, towards 0 where its sign is within its uncertainty (those poses say little about
-    the side, and a wrong sign there would work against the test)."""
-    tau = prob.tau
-    side = np.sign(tau)
-    for j in range(1, prob.robot.n_joints + 1):  # joints gravity loads (a vertical joint 1: rank 0)
-        if gb.joint_basis(prob.robot, j).rank:
-            side[:, j - 1] = gb.expected_side(tau[:, j - 1], gb.torque_std(prob.robot, prob.data.q, j))
-    return side
-
-
-def use_expected_sides(prob: FitProblem) -> None:
-    """Fit every backlash with :func:`backlash_sides` (in place, in ``prob.conditions``)."""
-    prob.conditions = dataclasses.replace(prob.conditions, side=backlash_sides(prob))
-
-
-def _with_tau(prob: FitProblem, tau: np.ndarray) -> FitProblem:
-    """A copy of ``prob`` whose fit conditions hold other gravity torques (n, 6) [N m]; a backlash of
-    a joint whose torque changed takes its sign (a side fitted from the data)."""
-    trial = copy.copy(prob)
-    side = prob.conditions.side
-    if side is not None:
-        side = np.where(tau != prob.tau, np.sign(tau), side)
-    trial.conditions = dataclasses.replace(prob.conditions, tau=tau, side=side)
-    return trial
+        evidence = {
+            "chi2_difference": f_b.cost - sel.fit.cost,
+            "n_params": b.n_params,
+            "lr_stat_cause_given_basis": lr_x,
+            "p_value_cause_given_basis": p_x,
+            "explains": f"{x.name} lies within the gravity torque of joint {x.joint} with other link "
+            f"masses: an elasticity of joint {x.joint} explains it as well",
+        }
+        out.setdefault(x.name, []).append(_mass_alternative(b, evidence))
+    return out
 
 
 def _best_side(prob: FitProblem, sel: Selection, e, Y: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """(n,) the torque shape ``Y theta'`` whose sign, as a backlash of e's joint, best explains the
     residuals of the model without e (score statistic): ``theta`` of the basis fit and, for a
     two-dimensional basis (a wrist joint), 36 directions over the half circle."""
-    others = [x for x in sel.fit.effects if x.key != e.key]
+    others = [x for x in sel.fit.effects if x.name != e.name]
     f0 = prob.fit(others, start=sel.fit)
     tau1 = prob.tau.copy()
     tau1[:, e.joint - 1] = 1.0
     n = prob.data.n
-    _, H, E = _with_tau(prob, tau1).response(
-        f0.model, [*others, fx.Effect("backlash", e.joint)], np.arange(n)
-    )
+    _, H, E = prob.with_tau(tau1).response(f0.model, [*others, fx.Effect("backlash", e.joint)], np.arange(n))
     Q, _ = np.linalg.qr(np.concatenate([H[:, :, f0.free], E[:, :, :-1]], axis=2).reshape(3 * n, -1))
     G = E[:, :, -1] / prob.sigma  # (n, 3) the joint's angle column
     r0 = (f0.residuals / prob.sigma).reshape(-1)
@@ -231,9 +211,29 @@ def _best_side(prob: FitProblem, sel: Selection, e, Y: np.ndarray, theta: np.nda
     return out
 
 
+def _fitted_torque(prob: FitProblem, joint: int, shape: np.ndarray) -> np.ndarray:
+    """(n, 6) the problem's torques with joint's replaced by ``shape`` scaled to its RMS [N m]."""
+    tau = prob.tau.copy()
+    tau[:, joint - 1] = shape * np.sqrt(np.mean(prob.tau[:, joint - 1] ** 2) / np.mean(shape**2))
+    return tau
+
+
+def _basis_theta(sel: Selection, e) -> np.ndarray:
+    """The first moments of joint e's gravity basis: e's values (a basis) or of a fit with the basis
+    in e's place (an elasticity or a backlash)."""
+    prob = sel.problem
+    rank = gb.joint_basis(prob.robot, e.joint).rank
+    if e.family == gb.FAMILY:
+        return e.value_array()[:rank]
+    f = prob.fit(
+        [basis_for(prob, e.joint) if x.name == e.name else x for x in sel.fit.effects], start=sel.fit
+    )
+    return next(x for x in f.effects if x.joint == e.joint and x.family == gb.FAMILY).value_array()[:rank]
+
+
 def _backlash_with_fitted_torque(
-    prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int, ln_n: float, skip=()
-) -> list[str]:
+    sel: Selection, *, alpha: float, k_folds: int, ln_n: float, skip=()
+) -> tuple[Selection, list[str]]:
     """A named elasticity that is a backlash whose side the file's masses get wrong.
 
     ``backlash:j`` follows the sign of joint j's gravity torque; with masses unlike the file's that
@@ -246,62 +246,79 @@ def _backlash_with_fitted_torque(
     too. For a wrist joint (two basis moments) the side is searched over 36 directions of the
     torque (:func:`_best_side`). A named ``backlash:j`` (whose side is the file's torque's expected
     sign) is tried with the fitted side alike. After an accepted replacement the backward step
-    removes the effects that stood in for the poses on the wrong side. Effects whose key is in
+    removes the effects that stood in for the poses on the wrong side. Effects whose name is in
     ``skip`` (already tried) are left alone.
     """
     notes = []
     for e in [x for x in sel.fit.effects if x.family in ("joint_elasticity", gb.FAMILY, "backlash")]:
-        if e.key in skip or e.key not in {x.key for x in sel.fit.effects}:
+        if e.name in skip or e.name not in {x.name for x in sel.fit.effects}:
             continue  # tried before, or removed by the backward step of an earlier replacement
-        j = e.joint - 1
+        prob = sel.problem
         jb = gb.joint_basis(prob.robot, e.joint)
-        if e.family == gb.FAMILY:
-            theta = e.value_array()[: jb.rank]
-        else:
-            f = prob.fit(
-                [basis_for(prob, e.joint) if x.key == e.key else x for x in sel.fit.effects], start=sel.fit
-            )
-            theta = next(x for x in f.effects if x.joint == e.joint and x.family == gb.FAMILY).value_array()
-            theta = theta[: jb.rank]
-        shape = _best_side(prob, sel, e, jb.regressor(prob.robot, prob.data.q), theta)
+        shape = _best_side(prob, sel, e, jb.regressor(prob.robot, prob.data.q), _basis_theta(sel, e))
         side = np.sign(shape)
         if min(np.sum(side > 0), np.sum(side < 0)) < BACKLASH_MIN_SIDE or not np.any(shape):
             continue
-        tau = prob.tau.copy()
-        tau[:, j] = shape * np.sqrt(np.mean(prob.tau[:, j] ** 2) / np.mean(shape**2))
-        trial = _with_tau(prob, tau)
+        trial = prob.with_tau(_fitted_torque(prob, e.joint, shape))
         bl = fx.Effect("backlash", e.joint)
-        f = trial.fit([bl if x.key == e.key else x for x in sel.fit.effects], start=sel.fit)
+        f = trial.fit([bl if x.name == e.name else x for x in sel.fit.effects], start=sel.fit)
         if _bic(f) >= _bic(sel.fit):
             continue
         hold = trial.holdout(f, k=k_folds)
         if rms(hold) >= rms(sel.holdout):
             continue
-        ev = sel.evidence.pop(e.key, {})
-        ev["backlash_side_from_data"] = {
+        side_ev = {
             "replaces": e.name,
             "chi2_with": f.cost,
             "chi2_without": sel.fit.cost,
             "holdout_rms_mm_before": rms(sel.holdout),
             "holdout_rms_mm_after": rms(hold),
-            "poses_side_differs_from_file": int(np.sum(side != np.sign(prob.tau[:, j]))),
+            "poses_side_differs_from_file": int(np.sum(side != np.sign(prob.tau[:, e.joint - 1]))),
         }
-        prob.conditions = trial.conditions
-        sel.fit, sel.holdout = f, hold
-        sel.evidence[bl.key] = ev
-        side_ev = ev["backlash_side_from_data"]
-        removed = backward_step(prob, sel, bl, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-        side_ev["removed"] = removed
+        evidence = dict(sel.evidence)
+        ev = evidence.pop(e.name, {})
+        evidence[bl.name] = {**ev, "backlash_side_from_data": side_ev}
+        sel = dataclasses.replace(sel, problem=trial, fit=f, holdout=hold, evidence=evidence)
+        sel, removed = backward_step(sel, bl, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        evidence = dict(sel.evidence)
+        evidence[bl.name] = {**ev, "backlash_side_from_data": {**side_ev, "removed": removed}}
+        sel = dataclasses.replace(sel, evidence=evidence)
         notes.append(
             f"{e.name} is a backlash: backlash:{e.joint} with the side of the gravity torque fitted from the "
             f"data (the file's masses put {side_ev['poses_side_differs_from_file']} poses on the other "
             f"side) fits better (chi2 {f.cost:.1f} against {side_ev['chi2_without']:.1f})"
             + (f"; removed as stand-ins: {', '.join(removed)}" if removed else "")
         )
-    return notes
+    return sel, notes
 
 
-def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float, k_folds: int, ln_n: float):
+def _unexplained_candidates(sel: Selection) -> list[tuple]:
+    """``(effect, problem, fit)`` of :func:`_add_basis_if_unexplained`'s candidates: per joint without
+    an elasticity or a backlash, its gravity basis and a backlash on the side of the torque fitted
+    from the data (:func:`_best_side`), each fitted beside the model."""
+    prob = sel.problem
+    have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY, "backlash")}
+    tried = []
+    for j in range(1, prob.robot.n_joints + 1):
+        jb = gb.joint_basis(prob.robot, j)
+        if j in have or jb.rank == 0:
+            continue
+        b = basis_for(prob, j)
+        f = prob.fit([*sel.fit.effects, b], start=sel.fit)
+        tried.append((b, prob, f))
+        theta = next(x for x in f.effects if x.name == b.name).value_array()[: jb.rank]
+        shape = _best_side(prob, sel, b, jb.regressor(prob.robot, prob.data.q), theta)
+        side = np.sign(shape)
+        if min(np.sum(side > 0), np.sum(side < 0)) >= BACKLASH_MIN_SIDE:
+            trial = prob.with_tau(_fitted_torque(prob, j, shape))
+            bl = fx.Effect("backlash", j)
+            tried.append((bl, trial, trial.fit([*sel.fit.effects, bl], start=sel.fit)))
+    return tried
+
+
+def _add_basis_if_unexplained(
+    sel: Selection, *, alpha: float, k_folds: int, ln_n: float
+) -> tuple[Selection, list[str]]:
     """If the model still fails the goodness-of-fit test: for each joint j without an elasticity,
     its gravity basis and a backlash whose side follows the torque fitted from the data
     (:func:`_best_side`) as further candidates (likelihood ratio, Bonferroni over these
@@ -310,25 +327,8 @@ def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float,
     step. This finds an elasticity or a backlash whose torque with the true masses looks nothing
     like the file's (e.g. a wrist joint whose link's centre of mass sits near its axis in the file)."""
     if scipy.stats.chi2.sf(sel.fit.cost, sel.fit.dof) >= alpha:
-        return []
-    have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY, "backlash")}
-    tried = []  # (effect, problem, fit)
-    for j in range(1, prob.robot.n_joints + 1):
-        jb = gb.joint_basis(prob.robot, j)
-        if j in have or jb.rank == 0:
-            continue
-        b = basis_for(prob, j)
-        f = prob.fit([*sel.fit.effects, b], start=sel.fit)
-        tried.append((b, prob, f))
-        theta = next(x for x in f.effects if x.key == b.key).value_array()[: jb.rank]
-        shape = _best_side(prob, sel, b, jb.regressor(prob.robot, prob.data.q), theta)
-        side = np.sign(shape)
-        if min(np.sum(side > 0), np.sum(side < 0)) >= BACKLASH_MIN_SIDE:
-            tau = prob.tau.copy()
-            tau[:, j - 1] = shape * np.sqrt(np.mean(prob.tau[:, j - 1] ** 2) / np.mean(shape**2))
-            trial = _with_tau(prob, tau)
-            bl = fx.Effect("backlash", j)
-            tried.append((bl, trial, trial.fit([*sel.fit.effects, bl], start=sel.fit)))
+        return sel, []
+    tried = _unexplained_candidates(sel)
     best = None
     for b, pb, f in tried:
         lr = max(sel.fit.cost - f.cost, 0.0)
@@ -337,14 +337,14 @@ def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float,
         if min(1.0, p * len(tried)) < alpha and dbic > 0 and (best is None or dbic > best[4]):
             best = (b, pb, f, p, dbic, lr)
     if best is None:
-        return []
+        return sel, []
     b, pb, f, p, dbic, lr = best
     if scipy.stats.chi2.sf(f.cost, f.dof) < alpha:  # not the rest, at most a stand-in for it
-        return []
+        return sel, []
     hold = pb.holdout(f, k=k_folds)
     before = rms(sel.holdout)
     if rms(hold) >= before:
-        return []
+        return sel, []
     ev = {
         "lr_stat": lr,
         "dof": b.n_params,
@@ -356,34 +356,24 @@ def _add_basis_if_unexplained(prob: FitProblem, sel: Selection, *, alpha: float,
         "step": "after the selection (the model failed the fit test)",
     }
     if b.family == gb.FAMILY:
-        comp = gb.basis_compliance(next(x for x in f.effects if x.key == b.key), f.model)
+        comp = gb.basis_compliance(next(x for x in f.effects if x.name == b.name), f.model)
         ev.update({f"basis_{k}": v for k, v in comp.items()})
         what = f"the gravity torque of joint {b.joint} with any link masses; compliance against the file's "
         what += f"torques {comp['compliance']:.3g} rad/(N m)"
     else:
         what = f"the side of joint {b.joint}'s gravity torque fitted from the data"
-        prob.conditions = pb.conditions
-    sel.evidence[b.key] = ev
-    sel.fit, sel.holdout = f, hold
-    removed = backward_step(prob, sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-    return [
+    sel = dataclasses.replace(sel, problem=pb, fit=f, holdout=hold, evidence={**sel.evidence, b.name: ev})
+    sel, removed = backward_step(sel, b, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+    return sel, [
         f"the model still failed the fit test; {b.name} ({what}) explains the rest (LR {lr:.1f} on "
         f"{b.n_params} dof)" + (f"; removed: {', '.join(removed)}" if removed else "")
     ]
 
 
-def _key(e: fx.Effect) -> tuple:
-    """The report's key of an effect (as ``DiagnosisReport`` keys a cause dict)."""
-    return (e.family, e.joint, e.harmonic if e.coupled is None else e.coupled)
-
-
-def add_alternatives(
-    prob: FitProblem, sel: Selection, causes: list[dict], alternatives: dict, *, alpha: float
-):
-    """Append the basis alternatives of :func:`upgrade_elasticity` and of
-    :func:`_stand_in_alternatives` (on the final model ``sel.fit``) to the causes (in place)."""
-    alternatives = {k: list(v) for k, v in alternatives.items()}
-    _stand_in_alternatives(prob, sel, alternatives, alpha=alpha)
-    for c in causes:
-        key = (c["effect"], c.get("joint"), c.get("harmonic", c.get("coupled_joint")))
-        c.setdefault("alternatives", []).extend(alternatives.get(key, []))
+def basis_alternatives(sel: Selection, alternatives: dict, *, alpha: float) -> dict:
+    """``{name: [Alternative]}``: the basis alternatives of :func:`upgrade_elasticity` and then those of
+    :func:`_stand_in_alternatives` (on the final model ``sel.fit``)."""
+    out = {k: list(v) for k, v in alternatives.items()}
+    for name, found in _stand_in_alternatives(sel, alpha=alpha).items():
+        out.setdefault(name, []).extend(found)
+    return out

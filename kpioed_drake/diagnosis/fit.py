@@ -8,39 +8,79 @@ cross-validated residuals (each fold's refit one Gauss-Newton step from the fit 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from kpioed_drake.diagnosis.common import FOLD_SEED, K_FOLDS
 from kpioed_drake.estimation import estimator
-from kpioed_drake.estimation.estimator import EstimationResult
-from kpioed_drake.robot.models import Robot, load_cell
+from kpioed_drake.estimation.estimator import Conditions, EstimationResult
+from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.measurement import nominal_model
+from kpioed_drake.tracker.measurement import TrackerModel, nominal_model
 
 Fit = EstimationResult
 """A fit of the geometric parameters and some effects (``effects``, ``Cp`` of both)."""
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
 class FitProblem:
-    """Data + sigma + the cached conditions: fits of any set of effects on any subset of poses.
+    """Data + sigma + the per-pose conditions: fits of any set of effects on any subset of poses.
+
+    Immutable: :meth:`with_nominal`, :meth:`with_sides`, :meth:`with_side` and :meth:`with_tau` return
+    a new problem, so a fit with another backlash side or torque never changes the problem others hold.
 
     Attributes:
-        robot: the robot; data: the measurements; sigma: noise per coordinate [mm].
-        cell: the cell; nominal: the nominal model (the start of every fit without ``start``).
-        conditions: per-pose inputs of the effects over all poses; the gravity torques hold the
-            payload at the nominal reflector point (fixed during the fit, so that the residual
-            function stays the same for every parameter value).
-        side_patterns: ``{joint: (K, n)}`` candidate sides of a backlash whose side the file's masses
-            leave uncertain (:func:`kpioed_drake.diagnosis.sides.side_patterns`); empty: the side of
-            ``conditions`` only.
+        robot: the robot.
+        data: the measurements.
+        sigma: noise per coordinate [mm].
+        cell: the cell (default: the robot's cell file).
+        nominal: the nominal model, the start of every fit without ``start`` (default: the cell's).
+        conditions: per-pose inputs of the effects over all poses (default: the data's); the gravity
+            torques hold the payload at the nominal reflector point (fixed during the fit, so that the
+            residual function stays the same for every parameter value).
     """
 
-    def __init__(self, robot: Robot, data: Measurements, sigma: float, *, cell=None):
-        self.robot, self.data, self.sigma = robot, data, float(sigma)
-        self.cell = load_cell(robot=robot) if cell is None else cell
-        self.nominal = nominal_model(robot, self.cell)
-        self.conditions = estimator.data_conditions(robot, data, p_FP=self.nominal.p_FQ)
-        self.side_patterns = {}
+    robot: Robot
+    data: Measurements
+    sigma: float
+    _: dataclasses.KW_ONLY
+    cell: Cell | None = None
+    nominal: TrackerModel | None = None
+    conditions: Conditions | None = None
+
+    def __post_init__(self):
+        # the defaults are derived from the other fields (set once, at construction)
+        object.__setattr__(self, "sigma", float(self.sigma))
+        if self.cell is None:
+            object.__setattr__(self, "cell", load_cell(robot=self.robot))
+        if self.nominal is None:
+            object.__setattr__(self, "nominal", nominal_model(self.robot, self.cell))
+        if self.conditions is None:
+            conditions = estimator.data_conditions(self.robot, self.data, p_FP=self.nominal.p_FQ)
+            object.__setattr__(self, "conditions", conditions)
+
+    def with_nominal(self, nominal: TrackerModel) -> FitProblem:
+        """The same problem started from another nominal model (e.g. with parameters held)."""
+        return dataclasses.replace(self, nominal=nominal)
+
+    def with_sides(self, side: np.ndarray) -> FitProblem:
+        """The same problem with the backlash sides ``side`` (n, 6) (per pose and joint)."""
+        return dataclasses.replace(self, conditions=dataclasses.replace(self.conditions, side=side))
+
+    def with_side(self, joint: int, side: np.ndarray) -> FitProblem:
+        """The same problem with the backlash of ``joint`` (1-based) on ``side`` (n,)."""
+        s = (np.sign(self.tau) if self.conditions.side is None else self.conditions.side).copy()
+        s[:, joint - 1] = side
+        return self.with_sides(s)
+
+    def with_tau(self, tau: np.ndarray) -> FitProblem:
+        """The same problem with other gravity torques (n, 6) [N m]; a backlash of a joint whose
+        torque changed takes the new torque's sign (a side fitted from the data)."""
+        side = self.conditions.side
+        if side is not None:
+            side = np.where(tau != self.tau, np.sign(tau), side)
+        return dataclasses.replace(self, conditions=dataclasses.replace(self.conditions, tau=tau, side=side))
 
     @property
     def tau(self) -> np.ndarray:
@@ -60,9 +100,9 @@ class FitProblem:
         n = self.data.n
         mask = np.zeros(n, dtype=bool)
         mask[np.arange(n) if idx is None else np.asarray(idx)] = True
-        known = {e.key: e for e in (start.effects if start is not None else ())}
+        known = {e.name: e for e in (start.effects if start is not None else ())}
         effs = [
-            e.with_values(known[e.key].value_array() if e.key in known else np.zeros(e.n_params))
+            e.with_values(known[e.name].value_array() if e.name in known else np.zeros(e.n_params))
             for e in effects
         ]
         return estimator.estimate(
@@ -93,9 +133,8 @@ class FitProblem:
         norm where the fold's Jacobian is rank deficient); the fold's poses are then predicted
         exactly (nonlinear response) at the stepped parameters. Leaving out 1/k of the poses moves
         the parameters by about their standard deviations, where the least-squares problem is
-        linear to many digits: on the UR5's 1000 poses the held-out RMS agrees with full
-        Levenberg-Marquardt refits of each fold to better than 1e-6 relative, at the cost of one
-        Jacobian instead of k fits.
+        linear to many digits, so the step gives the held-out residuals of full refits of each
+        fold (tests/test_holdout.py compares them) at the cost of one Jacobian instead of k fits.
         """
         n = self.data.n
         every = np.arange(n)

@@ -2,9 +2,8 @@
 
 Forward selection tests one candidate at a time. Two effects whose columns are correlated once the
 model's span is projected out can cancel each other: each alone leaves a small score, together they
-explain much (a *suppressor pair*). Measured on the KR 16 harness, pair seed 124:
-``thermal_expansion`` and ``tracker_drift`` (temperature and time both grow over the campaign)
-reach LR 6.1 and 9.8 alone and 31.8 together; the forward selection named nothing.
+explain much (a *suppressor pair*), e.g. ``thermal_expansion`` and ``tracker_drift`` when
+temperature and time both grow over the campaign; the forward selection then names neither.
 
 When no single candidate qualifies, :func:`correlated_pairs` lists the pairs of candidates whose
 projected bases have a largest canonical correlation of at least
@@ -25,7 +24,7 @@ import scipy.stats
 
 from kpioed_drake.diagnosis.common import PAIR_CORRELATION
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.sides import set_side
+from kpioed_drake.diagnosis.records import PairTest
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.multiplicity import adjusted_p, min_p_null
 
@@ -68,7 +67,7 @@ def scores(joint: list[np.ndarray], r: np.ndarray) -> np.ndarray:
 
 def pair_step(
     prob: FitProblem, current: Fit, tested, r: np.ndarray, *, alpha: float, ln_n: float, k_folds: int
-):
+) -> tuple[list[PairTest], PairTest | None, FitProblem]:
     """The joint test of correlated pairs, after a selection step that added nothing.
 
     Args:
@@ -79,14 +78,15 @@ def pair_step(
         alpha: family-wise level over the pairs; ln_n: ``ln(3 n)`` of BIC; k_folds: held-out folds.
 
     Returns:
-        (rows, best): up to :data:`MAX_ROWS` pair records (strongest score first) and the accepted
-        pair ``((a, b), row)`` with the refitted ``row["_fit"]`` and held-out ``row["_hold"]``, or
-        None: significant (family-wise p < alpha), BIC gain with both members' parameters, each
-        member significant given the other (uncorrected p < alpha) and a lower held-out RMS.
+        (tests, best, problem): up to :data:`MAX_ROWS` pair tests (strongest score first); the
+        accepted pair's test (``tests[0]`` with its refit and held-out residuals) or None; and the
+        problem from now on (a refitted pair's backlashes keep the sides they were scored with). A
+        pair is accepted when significant (family-wise p < alpha), with a BIC gain with both
+        members' parameters, each member significant given the other (uncorrected p < alpha).
     """
     pairs = correlated_pairs([u for _, u, _ in tested], min_corr=PAIR_CORRELATION)
     if not pairs:
-        return [], None
+        return [], None, prob
     joint = pair_bases([u for _, u, _ in tested], pairs)
     stat = scores(joint, r)
     dof = np.array([B.shape[1] for B in joint])
@@ -94,45 +94,41 @@ def pair_step(
     m = len(joint)
     null = min_p_null(joint) if p.min() < 2 * alpha else None
     order = np.argsort(-(stat - dof * ln_n))
-    rows = []
-    for k in order[:MAX_ROWS]:
-        i, j, rho = pairs[k]
-        rows.append(
-            {
-                "pair": [tested[i][0].name, tested[j][0].name],
-                "canonical_correlation": rho,
-                "score": float(stat[k]),
-                "dof": int(dof[k]),
-                "p_value": float(p[k]),
-                "p_value_corrected": adjusted_p(float(p[k]), null, m),
-            }
+    tests = [
+        PairTest(
+            effects=(tested[pairs[k][0]][0], tested[pairs[k][1]][0]),
+            canonical_correlation=pairs[k][2],
+            score=float(stat[k]),
+            dof=int(dof[k]),
+            p_value=float(p[k]),
+            p_value_corrected=adjusted_p(float(p[k]), null, m),
         )
-    row = rows[0]
-    if row["p_value_corrected"] >= alpha:
-        return rows, None
+        for k in order[:MAX_ROWS]
+    ]
+    if tests[0].p_value_corrected >= alpha:
+        return tests, None, prob
     (a, _, side_a), (b, _, side_b) = tested[pairs[order[0]][0]], tested[pairs[order[0]][1]]
-    saved = prob.conditions.side
+    trial = prob
     for e, side in ((a, side_a), (b, side_b)):
         if side is not None:
-            set_side(prob, e.joint, side)
-    f = prob.fit(list(current.effects) + [a, b], start=current)
+            trial = trial.with_side(e.joint, side)
+    f = trial.fit(list(current.effects) + [a, b], start=current)
     lr = max(current.cost - f.cost, 0.0)
     k_ab = a.n_params + b.n_params
-    given = [max(prob.fit(list(current.effects) + [x], start=current).cost - f.cost, 0.0) for x in (b, a)]
-    row.update(
-        {
-            "lr_stat": lr,
-            "p_value": float(scipy.stats.chi2.sf(lr, k_ab)),
-            "delta_bic": lr - k_ab * ln_n,
-            "lr_given_other": given,
-        }
+    given = [max(trial.fit(list(current.effects) + [x], start=current).cost - f.cost, 0.0) for x in (b, a)]
+    p_lr = float(scipy.stats.chi2.sf(lr, k_ab))
+    top = dataclasses.replace(
+        tests[0],
+        lr_stat=lr,
+        p_value=p_lr,
+        p_value_corrected=adjusted_p(p_lr, null, m),
+        delta_bic=lr - k_ab * ln_n,
+        lr_given_other=tuple(given),
     )
     p_given = [float(scipy.stats.chi2.sf(g, e.n_params)) for g, e in zip(given, (a, b), strict=True)]
-    row["p_value_corrected"] = adjusted_p(row["p_value"], null, m)
-    if row["p_value_corrected"] >= alpha or row["delta_bic"] <= 0 or max(p_given) >= alpha:
-        prob.conditions = dataclasses.replace(prob.conditions, side=saved)
-        row["status"] = "not added: not significant once refitted, no BIC gain, or a member not needed"
-        return rows, None
-    row["_fit"], row["_hold"] = f, prob.holdout(f, k=k_folds)
-    row["holdout_rms_mm"] = rms(row["_hold"])
-    return rows, ((a, b), row)
+    if top.p_value_corrected >= alpha or top.delta_bic <= 0 or max(p_given) >= alpha:
+        status = "not added: not significant once refitted, no BIC gain, or a member not needed"
+        return [dataclasses.replace(top, status=status), *tests[1:]], None, prob
+    hold = trial.holdout(f, k=k_folds)
+    top = dataclasses.replace(top, fit=f, holdout=hold, holdout_rms_mm=rms(hold))
+    return [top, *tests[1:]], top, trial

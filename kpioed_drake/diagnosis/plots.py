@@ -161,7 +161,7 @@ def _norm_hist(ax, report, which=("base", "ext")):
 def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     """x, y (n,) and the fitted curve (x, y) for one effect; y in display units."""
     d = prob.data
-    i = next(k for k, e in enumerate(fit.effects) if e.key == effect.key)
+    i = next(k for k, e in enumerate(fit.effects) if e.name == effect.name)
     sig = prob.effect_signal(fit, i)  # (n,3)
     r = residual + sig if partial else residual
     if effect.family in fx.JOINT_FAMILIES:
@@ -238,10 +238,7 @@ def plot_before_after(report: DiagnosisReport, path) -> Path:
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
         ax.legend(fontsize=7)
-        cause = next(
-            (c for c in report.causes if c.get("name", c["effect"]) == e.name),
-            None,
-        )
+        cause = next((c for c in report.causes if c["name"] == e.name), None)
         ttl = f"after: {e.name}"
         if cause:
             v = cause["value"]

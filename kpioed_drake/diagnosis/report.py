@@ -1,29 +1,49 @@
-"""The diagnosis report: JSON contract, text summary and the numbers that fill them.
+"""The diagnosis report: the JSON contract and text summary, built from the diagnosis's records, and
+the numbers that fill them.
 
-- :class:`DiagnosisReport`: what :func:`kpioed_drake.diagnosis.diagnose` returns;
+- :class:`DiagnosisReport`: what :func:`kpioed_drake.diagnosis.diagnose` returns; its causes and
+  steps as records (:mod:`.records`) and as the JSON's dicts (:func:`cause_dict`, :func:`step_dict`);
 - :func:`fit_summary`: rms, chi^2/dof, p-value and held-out rms of a fit;
 - :func:`kpi_summary`: the KPI (TCP at ``q_work``, paper eq. 24e) of the geometric and the
   extended model, its shift and its variance tr(Cs)/3;
-- :func:`causes`: the named effects with values, standard deviations and evidence, their competing
-  explanations (:mod:`.alternatives`) and plausibility (:mod:`.physical`).
+- :func:`unexplained_rest`: what the extended model's residuals still follow when they exceed the
+  noise.
+
+The unexplained rest: when the goodness-of-fit test of the extended model rejects (``chi2 ~
+chi2(dof)`` against the known sigma, p < alpha), the residuals hold an error outside the candidate
+library. Its structure: the residuals in W (n, 3) are regressed, coordinate by coordinate, on each
+variable of the data:
+
+- smooth variables (a constant, v and v^2, v standardised): the joint angles ``q_1..q_6``, the gravity
+  torques ``tau_2..tau_6``, ``temperature_C``, ``time_s``, ``payload_kg`` (when they vary), the
+  reflector's ``reach`` (horizontal distance from the base axis) and ``height`` (z in W);
+- pose regions (one mean per tercile): ``reach tercile``, ``height tercile``.
+
+``strength`` is the fraction of the residual sum of squares (about the per-coordinate mean) the
+variable explains (R^2, 0..1); ``p_value`` is the F test of that regression against none
+(``3 (p - 1)`` and ``3 (n - p)`` degrees of freedom). ``follows`` lists the variables with
+p < alpha, strongest first. ``excess_rms_mm`` = ``sigma sqrt(chi2/dof - 1)``: the size of the rest
+per coordinate.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import kpi_and_covariance
-from kpioed_drake.diagnosis.alternatives import settle
-from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
-from kpioed_drake.diagnosis.selection import Selection
-from kpioed_drake.effects.physical import plausibility
+from kpioed_drake.diagnosis.records import Alternative, CandidateTest, Cause, PairTest, SelectionStep
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.tracker.csvio import jsonable, q_to_file
+from kpioed_drake.tracker.measurement import reflector_world
+
+MAX_FOLLOWS = 6
+"""Most variables listed in the unexplained rest's ``follows``."""
 
 
 @dataclasses.dataclass
@@ -37,17 +57,18 @@ class DiagnosisReport:
         sigma_mm: the known noise per coordinate [mm].
         discrepancy: the geometric model does not explain the data, or a cause was named.
         test: the goodness-of-fit test of the geometric model (chi2, dof, p_value, alpha, rejects).
-        causes: the named effects with values, standard deviations and evidence (display units).
+        cause_records: the named effects with values, standard deviations, evidence and alternatives
+            (:attr:`causes`: as the JSON's dicts, display units).
         baseline: fit summary of the geometric model (rms, chi2, held-out rms, ...).
         extended: fit summary of the extended model.
         gain: ratios extended / baseline and the KPI's change.
         kpi: TCP at q_work of both models and their variances (empty without q_work).
         residual_structure: score statistics of the candidates against the baseline residuals.
-        steps: the selection steps.
+        step_records: the selection steps (:attr:`steps`: as the JSON's dicts).
         notes: remarks (candidates left out, poor fit).
         details: the fits and the problem, for plots (not part of the JSON).
         unexplained: None when the extended model fits to the noise level, else the rest's size and
-            the variables it follows (:func:`~kpioed_drake.diagnosis.rest.unexplained_rest`).
+            the variables it follows (:func:`unexplained_rest`).
     """
 
     robot: str
@@ -55,27 +76,37 @@ class DiagnosisReport:
     sigma_mm: float
     discrepancy: bool
     test: dict
-    causes: list
+    cause_records: tuple[Cause, ...]
     baseline: dict
     extended: dict
     gain: dict
     kpi: dict
     residual_structure: list
-    steps: list
+    step_records: tuple[SelectionStep, ...]
     notes: list
     details: dict = dataclasses.field(default_factory=dict, repr=False)
     unexplained: dict | None = None
 
-    @property
-    def cause_keys(self) -> set:
-        """{(family, joint, harmonic)} of the named causes."""
-        return {_key(c) for c in self.causes}
+    @functools.cached_property
+    def causes(self) -> list[dict]:
+        """The named causes as in the JSON (:func:`cause_dict`)."""
+        return [cause_dict(c) for c in self.cause_records]
+
+    @functools.cached_property
+    def steps(self) -> list[dict]:
+        """The selection steps as in the JSON (:func:`step_dict`)."""
+        return [step_dict(s) for s in self.step_records]
 
     @property
-    def explanation_keys(self) -> list[set]:
-        """Per named cause, the keys of the cause and of its alternatives (what the data cannot tell
-        apart); keys as :attr:`cause_keys`, for a coupling (family, joint, coupled joint)."""
-        return [{_key(c)} | {_key(a) for a in c.get("alternatives", [])} for c in self.causes]
+    def cause_names(self) -> set[str]:
+        """Names of the named causes (e.g. ``gear_cyclic:4:2``)."""
+        return {c.effect.name for c in self.cause_records}
+
+    @property
+    def explanation_names(self) -> list[set[str]]:
+        """Per named cause, the names of the cause and of its alternatives (what the data cannot tell
+        apart)."""
+        return [{c.effect.name} | {a.effect.name for a in c.alternatives} for c in self.cause_records]
 
     def to_json(self) -> dict:
         return jsonable(
@@ -148,9 +179,74 @@ class DiagnosisReport:
         return "\n".join(lines)
 
 
-def _key(c: dict) -> tuple:
-    """(family, joint, harmonic or coupled joint) of a cause or alternative dict."""
-    return (c["effect"], c.get("joint"), c.get("harmonic", c.get("coupled_joint")))
+def row_dict(t: CandidateTest | PairTest) -> dict:
+    """A candidate's or a pair's test as a row of the JSON's steps."""
+    if isinstance(t, PairTest):
+        return {"pair": [e.name for e in t.effects], **t.statistics()}
+    return {"candidate": t.effect.name, **t.statistics()}
+
+
+def step_dict(s: SelectionStep) -> dict:
+    """A selection step as in the JSON: its candidates' rows, the pairs', what it added and removed
+    (a swap: what replaced what)."""
+    if s.swap is not None:
+        return {
+            "step": s.step,
+            "added": s.added[0],
+            "removed": list(s.removed),
+            "swapped": dataclasses.asdict(s.swap),
+            "candidates": [],
+        }
+    out = {
+        "step": s.step,
+        "holdout_rms_mm_before": s.holdout_rms_mm_before,
+        "chi2_before": s.chi2_before,
+        "candidates": [row_dict(t) for t in s.candidates],
+    }
+    if s.pairs:
+        out["pairs"] = [row_dict(t) for t in s.pairs]
+    out["added"] = " + ".join(s.added) if s.added else None
+    if len(s.added) == 2:
+        out["pair"] = list(s.added)
+    if s.removed:
+        out["removed"] = list(s.removed)
+    return out
+
+
+def _effect_dict(e: fx.Effect) -> dict:
+    """An effect as in the JSON (SPEC names, display units), with its name."""
+    return {**{k: v for k, v in e.to_dict().items() if k != "tool_mm"}, "name": e.name}
+
+
+def alternative_dict(a: Alternative) -> dict:
+    """A competing explanation as in the JSON: the effect, its value and plausibility, the evidence;
+    the gravity basis (no value of its own): the effect and the evidence."""
+    if a.plausible is None:
+        return {
+            "effect": a.effect.family,
+            "joint": a.effect.joint,
+            "name": a.effect.name,
+            "evidence": a.evidence,
+        }
+    return {
+        **_effect_dict(a.effect),
+        "evidence": a.evidence,
+        "plausible": a.plausible,
+        "plausible_reason": a.plausible_reason,
+    }
+
+
+def cause_dict(c: Cause) -> dict:
+    """A named cause as in the JSON: the effect with its value and standard deviation (display
+    units), evidence, plausibility and alternatives."""
+    return {
+        **_effect_dict(c.effect),
+        "std": c.std[0] if len(c.std) == 1 else list(c.std),
+        "evidence": c.evidence,
+        "plausible": c.plausible,
+        "plausible_reason": c.plausible_reason,
+        "alternatives": [alternative_dict(a) for a in c.alternatives],
+    }
 
 
 def _alternative_lines(c: dict) -> list[str]:
@@ -215,52 +311,6 @@ def kpi_summary(prob: FitProblem, base: Fit, ext: Fit) -> dict:
     }
 
 
-def _plausible(prob: FitProblem, e, std) -> dict:
-    ok, why = plausibility(e, std, tau=prob.tau, time_s=prob.data.time_s)
-    return {"plausible": ok, "plausible_reason": why}
-
-
-def causes(
-    prob: FitProblem, sel: Selection, pool=(), *, alpha: float = ALPHA, k_folds: int = K_FOLDS
-) -> list[dict]:
-    """The effects of the extended model: values and standard deviations (display units), the
-    evidence (the step's statistics, the final LR given all other effects, the size at the tool),
-    ``plausible`` / ``plausible_reason`` (:mod:`.physical`) and ``alternatives``: the candidates of
-    ``pool`` the data cannot tell apart from the cause (:mod:`.alternatives`; a cause that one of
-    them beats is swapped first, in place on ``sel``)."""
-    settled = settle(prob, sel, pool, alpha=alpha, k_folds=k_folds)
-    ext = sel.fit
-    std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
-    out, c = [], ext.layout.effects.start
-    for i, e in enumerate(ext.effects):
-        d = e.to_dict()
-        d["name"] = e.name
-        e_std = std[c : c + e.n_params]
-        dv = e.display_values(e_std)
-        c += e.n_params
-        d["std"] = dv[0] if len(dv) == 1 else dv
-        d.pop("tool_mm", None)
-        sig = prob.effect_signal(ext, i)
-        ev = dict(sel.evidence.get(e.key, {}))
-        # the final LR of this effect given all others (re-fitted without it)
-        f0, found = settled[e.key]
-        ev["lr_stat_final"] = max(f0.cost - ext.cost, 0.0)
-        ev["tool_max_mm"] = float(np.max(np.linalg.norm(sig, axis=1)))
-        ev["tool_rms_mm"] = float(np.sqrt(np.mean(np.sum(sig**2, axis=1))))
-        d["evidence"] = ev
-        d.update(_plausible(prob, e, e_std))
-        d["alternatives"] = []
-        for b, fb, ev_b in found:
-            a = {k: v for k, v in b.to_dict().items() if k != "tool_mm"}
-            a["name"] = b.name
-            a["evidence"] = ev_b
-            b_std = np.sqrt(np.clip(np.diag(fb.Cp), 0, None))[fb.layout.effects][-b.n_params :]
-            a.update(_plausible(prob, b, b_std))
-            d["alternatives"].append(a)
-        out.append(d)
-    return out
-
-
 def gain(prob: FitProblem, baseline: dict, extended: dict, kpi: dict) -> dict:
     """Ratios extended / baseline of the held-out rms, rms and chi2/dof, and the KPI's change."""
     out = {
@@ -273,3 +323,70 @@ def gain(prob: FitProblem, baseline: dict, extended: dict, kpi: dict) -> dict:
         out["kpi_tcp_shift_mm"] = kpi["tcp_shift_mm"]
         out["kpi_avg_var_ratio"] = kpi["kpi_avg_var_mm2_extended"] / kpi["kpi_avg_var_mm2_baseline"]
     return out
+
+
+def _variables(prob: FitProblem, fit: Fit) -> list[tuple[str, np.ndarray, str]]:
+    """(name, values (n,), 'smooth' | 'terciles') of every variable that varies over the data."""
+    d = prob.data
+    p_W = reflector_world(fit.model, d.q, d.target)
+    nj = d.q.shape[1]
+    out = [(f"q_{j + 1}", d.q[:, j], "smooth") for j in range(nj)]
+    out += [(f"tau_{j + 1} (gravity torque)", prob.tau[:, j], "smooth") for j in range(nj)]
+    for name, v in (("temperature_C", d.temperature_C), ("time_s", d.time_s), ("payload_kg", d.payload_kg)):
+        if v is not None:
+            out.append((name, np.asarray(v, dtype=float), "smooth"))
+    reach, height = np.hypot(p_W[:, 0], p_W[:, 1]), p_W[:, 2]
+    out += [("reach", reach, "smooth"), ("height", height, "smooth")]
+    out += [("reach tercile", reach, "terciles"), ("height tercile", height, "terciles")]
+    return [x for x in out if np.ptp(x[1]) > 1e-9 * max(1.0, float(np.max(np.abs(x[1]))))]
+
+
+def _design(v: np.ndarray, kind: str) -> np.ndarray:
+    """(n, p) regressors of one variable, the constant included."""
+    if kind == "terciles":
+        edges = np.quantile(v, [1 / 3, 2 / 3])
+        g = np.searchsorted(edges, v, side="right")
+        X = np.stack([g == k for k in range(3)], axis=1).astype(float)
+        return X[:, X.sum(axis=0) > 0]
+    z = (v - v.mean()) / v.std()
+    return np.stack([np.ones_like(z), z, z**2], axis=1)
+
+
+def structure(prob: FitProblem, fit: Fit) -> list[dict]:
+    """Every varying variable's ``{variable, strength, p_value}`` for ``fit``'s residuals, strongest first."""
+    r = fit.residuals @ fit.model.R_WT.T  # (n, 3) in W
+    n = r.shape[0]
+    sst = float(np.sum((r - r.mean(axis=0)) ** 2))
+    out = []
+    for name, v, kind in _variables(prob, fit):
+        X = _design(v, kind)
+        beta, *_ = np.linalg.lstsq(X, r, rcond=None)
+        sse = float(np.sum((r - X @ beta) ** 2))
+        p = X.shape[1]
+        df1, df2 = 3 * (p - 1), 3 * (n - p)
+        strength = max(0.0, 1.0 - sse / sst) if sst > 0 else 0.0
+        F = ((sst - sse) / df1) / (sse / df2) if sse > 0 and df1 > 0 and df2 > 0 else 0.0
+        pv = float(scipy.stats.f.sf(F, df1, df2)) if df1 > 0 and df2 > 0 else 1.0
+        out.append({"variable": name, "strength": strength, "p_value": pv})
+    return sorted(out, key=lambda x: -x["strength"])
+
+
+def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float) -> dict | None:
+    """None when ``fit`` explains the data to the noise level, else the rest and what it follows.
+
+    Returns:
+        ``{chi2_per_dof, p_value, alpha, excess_rms_mm, follows: [{variable, strength, p_value}],
+        variables: [all of them]}`` or None.
+    """
+    p = float(scipy.stats.chi2.sf(fit.cost, fit.dof))
+    if p >= alpha:
+        return None
+    allv = structure(prob, fit)
+    return {
+        "chi2_per_dof": fit.chi2_per_dof,
+        "p_value": p,
+        "alpha": alpha,
+        "excess_rms_mm": prob.sigma * float(np.sqrt(max(fit.chi2_per_dof - 1.0, 0.0))),
+        "follows": [x for x in allv if x["p_value"] < alpha][:MAX_FOLLOWS],
+        "variables": allv,
+    }

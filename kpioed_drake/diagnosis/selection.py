@@ -37,7 +37,8 @@ from kpioed_drake.diagnosis.common import (
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.pairs import pair_step
-from kpioed_drake.diagnosis.sides import set_side, side_penalty, side_weights, unit_columns
+from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
+from kpioed_drake.diagnosis.sides import side_penalty, side_weights, unit_columns
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.multiplicity import adjusted_p, critical_p, min_p_null, normalized
@@ -197,32 +198,9 @@ def score_tests(prob: FitProblem, fit: Fit, cands) -> list:
     return sorted(out, key=lambda d: d["p_value"])
 
 
-@dataclasses.dataclass
-class Selection:
-    """Outcome of :func:`select_effects`.
-
-    Attributes:
-        fit: the extended model's fit (the baseline if nothing was added).
-        holdout: (n, 3) its held-out residuals [mm].
-        steps: one record per step: the candidates' statistics, what was added and removed.
-        evidence: per chosen effect's key, the statistics of the step that added it.
-        stand_ins: significant candidates left unnamed because their held-out gain was negligible
-            (:func:`_stand_in`) while the model still failed the goodness-of-fit test.
-        swaps: causes replaced by a candidate that fits significantly better given the other causes
-            (:func:`~kpioed_drake.diagnosis.alternatives.settle`).
-    """
-
-    fit: Fit
-    holdout: np.ndarray
-    steps: list
-    evidence: dict
-    stand_ins: list = dataclasses.field(default_factory=list)
-    swaps: list = dataclasses.field(default_factory=list)
-
-
-def _public(row: dict) -> dict:
-    return {k: v for k, v in row.items() if not k.startswith("_")}
-
+ABSORBED = "absorbed by the model's parameters (not identifiable from these poses)"
+NOT_REFITTED = "not refitted: its score statistic (linearised LR) cannot make it the best"
+NO_GAIN = "significant but does not lower the held-out error"
 
 SCREEN_FRACTION = 0.5
 """A candidate is refitted only if its score statistic reaches this fraction of the critical value."""
@@ -230,135 +208,170 @@ SCREEN_MARGIN = 10.0
 """... and its penalised score is within max(this, 10 %) of the best penalised score."""
 
 
-def _screen(tested, level, ln_n: float):
-    """The candidates worth a full fit, by their score statistic (the linearised LR at the current
-    fit, within 2e-4 (1 + LR) of the refitted LR on the KR 16 cases measured): those whose score
-    reaches half the corrected critical value (``level(weight)``: the marginal p-value a candidate of
-    that normalized weight needs) and whose penalised score ``score - k ln(3 n)`` is
-    within ``max(SCREEN_MARGIN, 10 %)`` of the best one; the others are marked (no LR in their row)."""
-    if not tested:
-        return []
-    pen = [row["score"] - e.n_params * ln_n for e, row in tested]
-    top = max(pen)
-    out = []
-    for (e, row), p in zip(tested, pen, strict=True):
-        crit = float(scipy.stats.chi2.isf(level(row["_weight"]), e.n_params))
-        if row["score"] >= SCREEN_FRACTION * crit and p >= top - max(SCREEN_MARGIN, 0.1 * abs(top)):
-            out.append((e, row))
+def _screen(tests: list[CandidateTest], level, ln_n: float) -> tuple[list[CandidateTest], list[int]]:
+    """The scored candidates worth a full fit, by their score statistic (the linearised LR at the
+    current fit, close to the refitted LR): those whose score reaches half the corrected critical
+    value (``level(weight)``: the marginal p-value a candidate of that normalized weight needs) and
+    whose penalised score ``score - k ln(3 n)`` is within ``max(SCREEN_MARGIN, 10 %)`` of the best
+    one. Returns the tests with the others marked (no LR in their row) and the places to refit."""
+    scored = [i for i, t in enumerate(tests) if t.score is not None]
+    if not scored:
+        return tests, []
+    pen = {i: tests[i].score - tests[i].effect.n_params * ln_n for i in scored}
+    top = max(pen.values())
+    out, keep = list(tests), []
+    for i in scored:
+        t = tests[i]
+        crit = float(scipy.stats.chi2.isf(level(t.weight), t.effect.n_params))
+        if t.score >= SCREEN_FRACTION * crit and pen[i] >= top - max(SCREEN_MARGIN, 0.1 * abs(top)):
+            keep.append(i)
         else:
-            row["status"] = "not refitted: its score statistic (linearised LR) cannot make it the best"
-    return out
+            out[i] = dataclasses.replace(t, status=NOT_REFITTED)
+    return out, keep
 
 
-def _test_step(prob: FitProblem, current: Fit, pool, *, alpha: float, ln_n: float, k_folds: int):
-    """Identifiability and score statistic of every candidate in ``pool``, LR test and BIC of those
-    the score screen keeps (:func:`_screen`), held-out error of the best significant one. Returns the
-    rows (in pool order) and the best significant (effect, row)."""
+def _scored(prob: FitProblem, current: Fit, pool, sides) -> tuple[list[CandidateTest], list, np.ndarray]:
+    """Identifiability and score statistic of every candidate in ``pool`` at ``current``; a backlash
+    whose joint has several candidate sides (``sides``: ``{joint: (K, n)}``) is scored with each and
+    keeps the best. Returns the tests (pool order), the orthonormal bases of the step's weighted
+    min-p test and their normalized weights (each candidate's sides weighted by
+    :func:`~kpioed_drake.diagnosis.sides.side_weights`)."""
     Jm, cols = columns(prob, current, pool)
     Q, _ = np.linalg.qr(Jm)
     r = (current.residuals / prob.sigma).reshape(-1)
     units = unit_columns(
-        prob, current, [e.joint for e in pool if e.family == "backlash" and e.joint in prob.side_patterns]
+        prob, current, [e.joint for e in pool if e.family == "backlash" and e.joint in sides]
     )
-    rows, tested, bases, raw = [], [], [], []
+    tests, bases, raw, index = [], [], [], []
     for e, Jc in zip(pool, cols, strict=True):
-        row = {"candidate": e.name, **identifiability(Jm, Jc)}
-        rows.append(row)
-        if row["remaining"] < MIN_REMAINING:
-            row["status"] = "absorbed by the model's parameters (not identifiable from these poses)"
+        t = CandidateTest(effect=e, **identifiability(Jm, Jc))
+        if t.remaining < MIN_REMAINING:
+            tests.append(dataclasses.replace(t, status=ABSORBED))
             continue
-        U = [projected_basis(Q, Jc)]
+        U, pats = [projected_basis(Q, Jc)], None
         if e.family == "backlash" and e.joint in units:  # every side the mass prior allows
-            pats = prob.side_patterns[e.joint]
+            pats = sides[e.joint]
             g = units[e.joint].reshape(-1, 3)
             U = [projected_basis(Q, (g * s[:, None]).reshape(-1, 1)) for s in pats]
         keep = [i for i, u in enumerate(U) if u.shape[1]]
         if not keep:
+            tests.append(t)
             continue
         w = side_weights([U[i] for i in keep])  # a backlash: its expected side and the other sides
         scores = [float(np.sum((U[i].T @ r) ** 2)) for i in keep]
         best_i = int(np.argmax(scores))
-        i = keep[best_i]
-        row["score"] = scores[best_i]
-        row["_basis"] = U[0]  # the pair step's: the current (expected) side, not one the residuals chose
-        row["_index"] = len(bases) + best_i  # its best side's place among the step's bases
-        if len(U) > 1:
-            row["_side"] = pats[i]
-            row["side_patterns"] = len(U)
-            row["_side_bases"] = U
-        tested.append((e, row))
+        several = len(U) > 1
+        t = dataclasses.replace(
+            t,
+            score=scores[best_i],
+            basis=U[0],  # the pair step's: the current (expected) side, not one the residuals chose
+            n_sides=len(U) if several else None,
+            side=pats[keep[best_i]] if several else None,
+            side_bases=tuple(U) if several else None,
+        )
+        index.append(len(bases) + best_i)  # its best side's place among the step's bases
+        tests.append(t)
         bases += [U[i] for i in keep]
         raw += list(w)
-    m = max(len(bases), 1)
     weights = normalized(raw, len(raw)) if raw else np.ones(0)
-    for _, row in tested:
-        row["_weight"] = float(weights[row.pop("_index")])
+    scored = [i for i, t in enumerate(tests) if t.score is not None]
+    for i, k in zip(scored, index, strict=True):
+        tests[i] = dataclasses.replace(tests[i], weight=float(weights[k]))
+    return tests, bases, weights
+
+
+def _refit(prob: FitProblem, current: Fit, t: CandidateTest, *, null, m: int, alpha: float, ln_n: float):
+    """``t`` with its likelihood-ratio test and BIC: the refit of the current model with the
+    candidate (a backlash on the side its score chose), kept in the test if it is significant with a
+    BIC gain. The best of several sides is ranked as one test: its BIC gain is lowered by
+    :func:`~kpioed_drake.diagnosis.sides.side_penalty`."""
+    e = t.effect
+    trial = prob if t.side is None else prob.with_side(e.joint, t.side)
+    f = trial.fit(list(current.effects) + [e], start=current)
+    lr = max(current.cost - f.cost, 0.0)
+    p = float(scipy.stats.chi2.sf(lr, e.n_params))
+    penalty = None if t.side_bases is None else side_penalty(t.side_bases)
+    delta_bic = lr - e.n_params * ln_n
+    if penalty is not None:
+        delta_bic -= penalty
+    t = dataclasses.replace(
+        t,
+        lr_stat=lr,
+        dof=e.n_params,
+        p_value=p,
+        p_value_corrected=adjusted_p(p, null, m, weight=t.weight),
+        delta_bic=delta_bic,
+        side_penalty=penalty,
+    )
+    return dataclasses.replace(t, fit=f) if t.p_value_corrected < alpha and delta_bic > 0 else t
+
+
+def _test_step(prob: FitProblem, current: Fit, pool, sides, *, alpha: float, ln_n: float, k_folds: int):
+    """Identifiability and score statistic of every candidate in ``pool``, LR test and BIC of those
+    the score screen keeps (:func:`_screen`), held-out error of the best significant one.
+
+    Returns:
+        (tests, best, problem): the tests in pool order, the place of the best significant one (or
+        None) and the problem from now on (a backlash chosen best keeps the side its score chose).
+    """
+    tests, bases, weights = _scored(prob, current, pool, sides)
+    m = max(len(bases), 1)
     # the min-p law only where a candidate can be significant (its family-wise p-value is never below
-    # its marginal one; the refitted LR is within 2e-4 (1 + LR) of the score): else Bonferroni's
-    p_min = min((float(scipy.stats.chi2.sf(row["score"], e.n_params)) for e, row in tested), default=1.0)
+    # its marginal one, and the refitted LR is close to the score): else Bonferroni's
+    p_min = min(
+        (float(scipy.stats.chi2.sf(t.score, t.effect.n_params)) for t in tests if t.score is not None),
+        default=1.0,
+    )
     null = min_p_null(bases, weights=weights) if bases and p_min < 2 * alpha else None
+    tests, refit = _screen(tests, lambda w: critical_p(alpha, null, m, weight=w), ln_n)
     best = None
-    saved_side = prob.conditions.side
-    for e, row in _screen(tested, lambda w: critical_p(alpha, null, m, weight=w), ln_n):
-        if "_side" in row:
-            set_side(prob, e.joint, row["_side"])
-        f = prob.fit(list(current.effects) + [e], start=current)
-        prob.conditions = dataclasses.replace(prob.conditions, side=saved_side)
-        lr = max(current.cost - f.cost, 0.0)
-        p = float(scipy.stats.chi2.sf(lr, e.n_params))
-        row.update(
-            {
-                "lr_stat": lr,
-                "dof": e.n_params,
-                "p_value": p,
-                "p_value_corrected": adjusted_p(p, null, m, weight=row["_weight"]),
-                "delta_bic": lr - e.n_params * ln_n,
-            }
-        )
-        if "_side_bases" in row:  # the best of several sides: ranked as one test (2 ln of their number)
-            row["side_penalty"] = side_penalty(row["_side_bases"])
-            row["delta_bic"] -= row["side_penalty"]
-        if row["p_value_corrected"] < alpha and row["delta_bic"] > 0:
-            row["_fit"] = f
-            if best is None or row["delta_bic"] > best[1]["delta_bic"]:
-                best = (e, row)
+    for i in refit:
+        tests[i] = _refit(prob, current, tests[i], null=null, m=m, alpha=alpha, ln_n=ln_n)
+        if tests[i].fit is not None and (best is None or tests[i].delta_bic > tests[best].delta_bic):
+            best = i
     # held-out error of the best significant candidate only: the one the step may add (the others'
     # held-out errors would not change the decision, and they are the expensive part)
     if best is not None:
-        if "_side" in best[1]:  # its backlash's side from now on
-            set_side(prob, best[0].joint, best[1]["_side"])
-        best[1]["_hold"] = prob.holdout(best[1]["_fit"], k=k_folds)
-        best[1]["holdout_rms_mm"] = rms(best[1]["_hold"])
-    return rows, best
+        t = tests[best]
+        if t.side is not None:  # its backlash's side from now on
+            prob = prob.with_side(t.effect.joint, t.side)
+        hold = prob.holdout(t.fit, k=k_folds)
+        tests[best] = dataclasses.replace(t, holdout=hold, holdout_rms_mm=rms(hold))
+    return tests, best, prob
 
 
-def backward_step(prob: FitProblem, sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
-    """Remove every chosen effect (but the one just added) that no longer earns its place."""
-    removed = []
+def backward_step(sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
+    """Remove every chosen effect (but ``added``, the one just added) that no longer earns its place.
+
+    Returns:
+        (selection, removed): the selection without them and their names.
+    """
+    prob, fit, hold = sel.problem, sel.fit, sel.holdout
+    evidence, removed = dict(sel.evidence), []
     for old in list(sel.fit.effects):
-        if old.key == added.key or len(sel.fit.effects) < 2:
+        if old.name == added.name or len(fit.effects) < 2:
             continue
-        rest = [x for x in sel.fit.effects if x.key != old.key]
-        f = prob.fit(rest, start=sel.fit)
-        lr = max(f.cost - sel.fit.cost, 0.0)
+        rest = [x for x in fit.effects if x.name != old.name]
+        f = prob.fit(rest, start=fit)
+        lr = max(f.cost - fit.cost, 0.0)
         p = float(scipy.stats.chi2.sf(lr, old.n_params))
         if p >= alpha or lr - old.n_params * ln_n <= 0:
-            sel.fit, sel.holdout = f, prob.holdout(f, k=k_folds)
+            fit, hold = f, prob.holdout(f, k=k_folds)
             removed.append(old.name)
-            sel.evidence.pop(old.key, None)
-    return removed
+            evidence.pop(old.name, None)
+    return dataclasses.replace(sel, fit=fit, holdout=hold, evidence=evidence), removed
 
 
-def _stand_in(row: dict, before: float, sigma: float, alpha: float) -> str | None:
+def stand_in_reason(fit: Fit, after: float, *, before: float, sigma: float, alpha: float) -> str | None:
     """Why a significant candidate is a stand-in (not named), or None.
 
-    A stand-in: the model with it still fails the goodness-of-fit test and it lowers the held-out
-    RMS by less than ``MIN_HOLDOUT_GAIN`` or removes less than ``MIN_EXCESS_SHARE`` of the held-out
-    mean square above the noise (``before^2 - sigma^2``): a small piece of an error outside the
-    candidate list that the candidate's columns happen to fit.
+    A stand-in: the model with it (``fit``, held-out RMS ``after``) still fails the goodness-of-fit
+    test and it lowers the held-out RMS (``before`` without it) by less than ``MIN_HOLDOUT_GAIN`` or
+    removes less than ``MIN_EXCESS_SHARE`` of the held-out mean square above the noise
+    (``before^2 - sigma^2``): a small piece of an error outside the candidate list that the
+    candidate's columns happen to fit.
     """
-    f, after = row["_fit"], row["holdout_rms_mm"]
-    if scipy.stats.chi2.sf(f.cost, f.dof) >= alpha:
+    if scipy.stats.chi2.sf(fit.cost, fit.dof) >= alpha:
         return None
     gain = 1.0 - after / before
     excess = before**2 - sigma**2
@@ -372,95 +385,110 @@ def _stand_in(row: dict, before: float, sigma: float, alpha: float) -> str | Non
     )
 
 
-def _pair(
-    prob: FitProblem, sel: Selection, pool, rows, rec: dict, *, alpha: float, ln_n: float, k_folds: int
-):
+def _verdict(t: CandidateTest, before: float, sigma: float, alpha: float):
+    """Why the step's best candidate is not added (its status) and, if it is a stand-in, its record;
+    (None, None): add it."""
+    gain = 1.0 - t.holdout_rms_mm / before
+    why = stand_in_reason(t.fit, t.holdout_rms_mm, before=before, sigma=sigma, alpha=alpha)
+    if gain <= 0:
+        return NO_GAIN, None
+    if why:
+        return f"stand-in: {why}", StandIn(t.effect.name, gain, t.lr_stat, why)
+    return None, None
+
+
+def _pair(sel: Selection, tests, sides, step: SelectionStep, *, alpha: float, ln_n: float, k_folds: int):
     """After a step that added nothing: the joint test of correlated pairs (:func:`.pairs.pair_step`).
-    Adds the accepted pair to ``sel`` (with ``rec``, the step's record, and the backward step) and
-    returns it, else records the pairs in ``rec`` and returns None."""
+
+    Returns:
+        (selection, step, pair): the selection with the pair step's problem, the step with the pairs'
+        tests and the pair's test to add, or None.
+    """
     tested = [
-        (e, row["_basis"], prob.side_patterns[e.joint][0] if "_side" in row else None)
-        for e, row in zip(pool, rows, strict=True)
-        if "_basis" in row
+        (t.effect, t.basis, sides[t.effect.joint][0] if t.side is not None else None)
+        for t in tests
+        if t.basis is not None
     ]
-    r = (sel.fit.residuals / prob.sigma).reshape(-1)
+    r = (sel.fit.residuals / sel.problem.sigma).reshape(-1)
     level = alpha * PAIR_ALPHA_SHARE
-    pair_rows, best = pair_step(prob, sel.fit, tested, r, alpha=level, ln_n=ln_n, k_folds=k_folds)
-    if pair_rows:
-        rec["pairs"] = [_public(x) for x in pair_rows]
+    pairs, best, problem = pair_step(sel.problem, sel.fit, tested, r, alpha=level, ln_n=ln_n, k_folds=k_folds)
+    sel, step = dataclasses.replace(sel, problem=problem), dataclasses.replace(step, pairs=tuple(pairs))
     if best is None:
-        return None
-    (a, b), row = best
+        return sel, step, None
     before = rms(sel.holdout)
-    gain = 1.0 - row["holdout_rms_mm"] / before
-    why = _stand_in(row, before, prob.sigma, alpha)
+    gain = 1.0 - best.holdout_rms_mm / before
+    why = stand_in_reason(best.fit, best.holdout_rms_mm, before=before, sigma=problem.sigma, alpha=alpha)
     if gain <= 0 or why:
-        row["status"] = f"stand-in: {why}" if why else "significant but does not lower the held-out error"
-        rec["pairs"][0] = _public(row)
-        return None
-    rec["added"] = f"{a.name} + {b.name}"
-    rec["pair"] = [a.name, b.name]
-    _accept(prob, sel, rec, row, (a, b), before, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-    return best
+        status = f"stand-in: {why}" if why else NO_GAIN
+        step = dataclasses.replace(step, pairs=(dataclasses.replace(best, status=status), *step.pairs[1:]))
+        return sel, step, None
+    return sel, step, best
 
 
-def _accept(prob: FitProblem, sel: Selection, rec: dict, row: dict, effects, before: float, **kw) -> None:
-    """Add ``effects`` (one candidate, or a pair) to ``sel`` with the step's ``row``: their evidence
-    (a pair member's says ``added_with``), the fit, the backward step and the step's record ``rec``."""
-    ev = {k: v for k, v in _public(row).items() if k not in ("candidate", "pair")}
+def _accept(
+    sel: Selection, step: SelectionStep, t: CandidateTest | PairTest, before: float, **kw
+) -> Selection:
+    """Add the effects of ``t`` (one candidate, or a pair) to ``sel``: their evidence (a pair
+    member's says ``added_with``), the fit, the backward step and the step's record."""
+    ev = t.statistics()
     ev["holdout_rms_mm_with"] = ev.pop("holdout_rms_mm")
-    ev.update({"step": rec["step"], "holdout_rms_mm_without": before})
-    for e in effects:
-        with_ = [x.name for x in effects if x.key != e.key]
-        sel.evidence[e.key] = {**ev, "added_with": with_[0]} if with_ else ev
-    sel.fit, sel.holdout = row["_fit"], row["_hold"]
-    removed = backward_step(prob, sel, effects[-1], **kw)
-    if removed:
-        rec["removed"] = removed
-    sel.steps.append(rec)
+    ev.update({"step": step.step, "holdout_rms_mm_without": before})
+    evidence = dict(sel.evidence)
+    for e in t.effects:
+        with_ = [x.name for x in t.effects if x.name != e.name]
+        evidence[e.name] = {**ev, "added_with": with_[0]} if with_ else ev
+    sel = dataclasses.replace(sel, fit=t.fit, holdout=t.holdout, evidence=evidence)
+    sel, removed = backward_step(sel, t.effects[-1], **kw)
+    step = dataclasses.replace(step, added=tuple(e.name for e in t.effects), removed=tuple(removed))
+    return dataclasses.replace(sel, steps=(*sel.steps, step))
 
 
 def select_effects(
-    prob: FitProblem, base: Fit, base_holdout, cands, *, alpha: float, k_folds: int, max_effects: int
+    prob: FitProblem,
+    base: Fit,
+    base_holdout,
+    cands,
+    *,
+    sides,
+    alpha: float,
+    k_folds: int,
+    max_effects: int,
 ) -> Selection:
-    """Stepwise selection of effects from ``cands`` on top of the geometric fit ``base``."""
-    sel = Selection(fit=base, holdout=base_holdout, steps=[], evidence={})
-    ln_n = np.log(3 * prob.data.n)
-    for step in range(1, max_effects + 1):
-        pool = [c for c in cands if c.key not in {e.key for e in sel.fit.effects}]
+    """Stepwise selection of effects from ``cands`` on top of the geometric fit ``base``.
+
+    Args:
+        prob, base, base_holdout: the fit problem, the geometric fit and its held-out residuals.
+        cands: the candidate effects.
+        sides: ``{joint: (K, n)}`` candidate sides of each backlash whose side the masses leave
+            uncertain (:func:`~kpioed_drake.diagnosis.sides.side_patterns`; row 0 the problem's).
+        alpha, k_folds, max_effects: the family-wise level of a step, the folds of the held-out
+            error and the most effects to add.
+    """
+    sel = Selection(problem=prob, fit=base, holdout=base_holdout)
+    kw = {"alpha": alpha, "ln_n": np.log(3 * prob.data.n), "k_folds": k_folds}
+    for number in range(1, max_effects + 1):
+        in_model = {e.name for e in sel.fit.effects}
+        pool = [c for c in cands if c.name not in in_model]
         if not pool:
             break
-        rows, best = _test_step(prob, sel.fit, pool, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        tests, best, problem = _test_step(sel.problem, sel.fit, pool, sides, **kw)
+        sel = dataclasses.replace(sel, problem=problem)
         before = rms(sel.holdout)
         accepted = None
         if best is not None:
-            e_best, row = best
-            gain = 1.0 - row["holdout_rms_mm"] / before
-            why = _stand_in(row, before, prob.sigma, alpha)
-            if gain <= 0:
-                row["status"] = "significant but does not lower the held-out error"
-            elif why:
-                row["status"] = f"stand-in: {why}"
-                sel.stand_ins.append(
-                    {"candidate": e_best.name, "holdout_gain": gain, "lr_stat": row["lr_stat"], "reason": why}
-                )
+            status, stand_in = _verdict(tests[best], before, problem.sigma, alpha)
+            if status is None:
+                accepted = tests[best]
             else:
-                accepted = best
-        rec = {
-            "step": step,
-            "holdout_rms_mm_before": before,
-            "chi2_before": sel.fit.cost,
-            "candidates": [_public(r) for r in rows],
-        }
+                tests[best] = dataclasses.replace(tests[best], status=status)
+                sel = dataclasses.replace(sel, stand_ins=sel.stand_ins + ((stand_in,) if stand_in else ()))
+        step = SelectionStep(
+            number, candidates=tuple(tests), holdout_rms_mm_before=before, chi2_before=sel.fit.cost
+        )
         if accepted is None and len(sel.fit.effects) + 2 <= max_effects:
-            accepted = _pair(prob, sel, pool, rows, rec, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
-            if accepted is not None:
-                continue
+            sel, step, accepted = _pair(sel, tests, sides, step, **kw)
         if accepted is None:
-            rec["added"] = None
-            sel.steps.append(rec)
+            sel = dataclasses.replace(sel, steps=(*sel.steps, step))
             break
-        e, row = accepted
-        rec["added"] = e.name
-        _accept(prob, sel, rec, row, (e,), before, alpha=alpha, ln_n=ln_n, k_folds=k_folds)
+        sel = _accept(sel, step, accepted, before, **kw)
     return sel

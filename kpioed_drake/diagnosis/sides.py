@@ -7,10 +7,10 @@ and the model file's moments ``pi`` are uncertain (masses and centres of mass +-
 :data:`~kpioed_drake.effects.gravity_basis.MASS_PRIOR_SPREAD`). Where the file's torque is within
 that uncertainty of zero (wrist joints, whose torques come from centres of mass near their axes) its
 sign is a coin flip, and a backlash column with the wrong side at a few poses keeps only part of the
-signal (on the KR 16 cases measured: 8-11 of a signal whose true side gives 18-53).
+signal.
 
 :func:`side_patterns` gives each loaded joint a small set of candidate sides: the expected sign
-``erf(tau / (sqrt 2 u))`` (:func:`~kpioed_drake.diagnosis.elastic_basis.backlash_sides`) first, then
+``erf(tau / (sqrt 2 u))`` (:func:`backlash_sides`) first, then
 the distinct sign patterns of the torques of :data:`N_PRIOR_DRAWS` seeded draws of the moments from
 the prior (each mass times ``U(1 - s, 1 + s)``, each centre-of-mass coordinate shifted by
 ``U(-s, s)`` times the centre of mass's distance, 100 mm where it is 0). A selection step scores a
@@ -19,18 +19,16 @@ the step counts every pattern as a test (weighted min-p over all candidates and 
 :mod:`~kpioed_drake.estimation.multiplicity`), with the weights of :func:`side_weights`: the
 expected side 1 like every other candidate, the other patterns 1 together, so that choosing the side
 from the data costs the backlash what the choice is worth and the other candidates one test (the
-patterns of one joint differ at a few poses and are strongly correlated: 2-14 effective tests for
-7-43 patterns; with weight 1 each they raised a step's effective number of tests from about 35 to
-51-65). To rank a backlash against the other
-candidates of a step, its likelihood ratio is lowered by :func:`side_penalty` (the choice of the side
-is worth that much under "no effect"), and a named backlash is tried against the gravity basis of its
-joint (:func:`~kpioed_drake.diagnosis.elastic_basis.upgrade_elasticity`): a large elasticity whose
-torque the file's masses get wrong can look like a backlash with a chosen side.
+patterns of one joint differ at a few poses and are strongly correlated: far fewer effective tests
+than patterns, and with weight 1 each they would raise every other candidate's correction). To
+rank a backlash against the other candidates of a step, its likelihood ratio is lowered by
+:func:`side_penalty` (the choice of the side is worth that much under "no effect"), and a named
+backlash is tried against the gravity basis of its joint
+(:func:`~kpioed_drake.diagnosis.elastic_basis.upgrade_elasticity`): a large elasticity whose torque
+the file's masses get wrong can look like a backlash with a chosen side.
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 
@@ -58,6 +56,26 @@ def prior_moments(
     return np.concatenate([m[..., None], m[..., None] * c], axis=2).reshape(n, -1)
 
 
+def backlash_sides(prob: FitProblem) -> np.ndarray:
+    """(n, 6) the side of a backlash per pose for the fit: the expected sign of each joint's gravity
+    torque when the file's masses and centres of mass are uncertain
+    (:func:`~kpioed_drake.effects.gravity_basis.expected_side` with
+    :func:`~kpioed_drake.effects.gravity_basis.torque_std`): +-1 where the file's torque is clearly
+    on one side, towards 0 where its sign is within its uncertainty (those poses say little about
+    the side, and a wrong sign there would work against the test)."""
+    tau = prob.tau
+    side = np.sign(tau)
+    for j in range(1, prob.robot.n_joints + 1):  # joints gravity loads (a vertical joint 1: rank 0)
+        if gb.joint_basis(prob.robot, j).rank:
+            side[:, j - 1] = gb.expected_side(tau[:, j - 1], gb.torque_std(prob.robot, prob.data.q, j))
+    return side
+
+
+def with_expected_sides(prob: FitProblem) -> FitProblem:
+    """``prob`` with every backlash on :func:`backlash_sides`."""
+    return prob.with_sides(backlash_sides(prob))
+
+
 def side_patterns(prob: FitProblem, joints, *, n_draws: int = N_PRIOR_DRAWS, seed: int = SEED) -> dict:
     """Candidate sides of a backlash per joint: ``{j: (K_j, n)}``, row 0 the current (expected) side
     of ``prob.conditions.side``, then the distinct sign patterns of prior draws of the torque
@@ -81,25 +99,13 @@ def unit_columns(prob: FitProblem, fit: Fit, joints) -> dict:
     side pattern's column is this one times the pattern (per pose)."""
     if not joints:
         return {}
-    saved = prob.conditions
-    side = (np.sign(prob.tau) if saved.side is None else saved.side).copy()
+    side = (np.sign(prob.tau) if prob.conditions.side is None else prob.conditions.side).copy()
     side[:, np.asarray(list(joints)) - 1] = 1.0
-    prob.conditions = dataclasses.replace(saved, side=side)
-    try:
-        n = prob.data.n
-        cands = [fx.Effect("backlash", j) for j in joints]
-        _, _, E = prob.response(fit.model, list(fit.effects) + cands, np.arange(n))
-    finally:
-        prob.conditions = saved
+    n = prob.data.n
+    cands = [fx.Effect("backlash", j) for j in joints]
+    _, _, E = prob.with_sides(side).response(fit.model, list(fit.effects) + cands, np.arange(n))
     k0 = fit.k
     return {j: E[:, :, k0 + i].reshape(-1) / prob.sigma for i, j in enumerate(joints)}
-
-
-def set_side(prob: FitProblem, joint: int, side: np.ndarray) -> None:
-    """Fit a backlash of ``joint`` with ``side`` (n,) from now on (in place)."""
-    s = (np.sign(prob.tau) if prob.conditions.side is None else prob.conditions.side).copy()
-    s[:, joint - 1] = side
-    prob.conditions = dataclasses.replace(prob.conditions, side=s)
 
 
 def side_penalty(bases, *, level: float = 0.01) -> float:

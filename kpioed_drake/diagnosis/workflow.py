@@ -15,12 +15,11 @@ Four steps on laser-tracker data (SPEC "Measured data and model discrepancy"; do
    (:mod:`kpioed_drake.diagnosis.report`); per cause its competing explanations
    (:mod:`~kpioed_drake.diagnosis.alternatives`) and plausibility
    (:mod:`~kpioed_drake.effects.physical`); the unexplained rest when the extended model still
-   fails the goodness-of-fit test (:mod:`~kpioed_drake.diagnosis.rest`).
+   fails the goodness-of-fit test (:func:`~kpioed_drake.diagnosis.report.unexplained_rest`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -30,18 +29,19 @@ from kpioed_drake import effects as fx
 from kpioed_drake.arguments import check_paths
 from kpioed_drake.calibration import hold_undetermined
 from kpioed_drake.diagnosis import report as rp
-from kpioed_drake.diagnosis.common import ALPHA, K_FOLDS, MAX_EFFECTS
-from kpioed_drake.diagnosis.elastic_basis import add_alternatives, upgrade_elasticity, use_expected_sides
+from kpioed_drake.diagnosis.alternatives import name_causes, settle
+from kpioed_drake.diagnosis.common import DiagnosisOptions
+from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, upgrade_elasticity
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
-from kpioed_drake.diagnosis.rest import unexplained_rest
+from kpioed_drake.diagnosis.records import Selection
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
-from kpioed_drake.diagnosis.sides import side_patterns
+from kpioed_drake.diagnosis.sides import side_patterns, with_expected_sides
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import Robot, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.scene3d import diagnosis_page
 from kpioed_drake.tracker.data import Measurements, as_measurements
 from kpioed_drake.tracker.formats import read_data
@@ -60,6 +60,37 @@ def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
     return prob
 
 
+def _prepared(
+    robot: Robot, data: Measurements, opts: DiagnosisOptions, cell
+) -> tuple[FitProblem, list, list]:
+    """The fit problem as calibrate's (parameters these poses do not determine held at nominal,
+    with a note), every backlash on its expected side (where the file's masses leave it uncertain),
+    and the candidates with the notes so far."""
+    prob = _problem(robot, data, opts.sigma_mm, opts.k_folds, cell)
+    warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
+    prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
+    if opts.candidates is None:
+        cands, notes = candidate_effects(data, prob.tau, robot=robot)
+    else:
+        cands, notes = [fx.parse_effect(c, model=prob.nominal) for c in opts.candidates], []
+    return prob, cands, warnings + notes
+
+
+def _baseline(prob: FitProblem, k_folds: int) -> tuple[Fit, np.ndarray]:
+    """The geometric fit and its held-out residuals; as strict as calibrate: the geometric fit alone
+    must be determined by the poses."""
+    data = prob.data
+    base = prob.fit([])
+    try:
+        covariance(base.J)
+    except np.linalg.LinAlgError:
+        raise InputError(
+            f"{data.source}: the {data.n} poses do not determine the {base.J.shape[1]} geometric parameters "
+            "(information matrix singular); use more, and more varied, poses"
+        ) from None
+    return base, prob.holdout(base, k=k_folds)
+
+
 def _gof_test(base: Fit, alpha: float) -> dict:
     p_gof = float(scipy.stats.chi2.sf(base.cost, base.dof))
     return {
@@ -72,81 +103,13 @@ def _gof_test(base: Fit, alpha: float) -> dict:
     }
 
 
-def diagnose(
-    robot: str | Path | Robot,
-    data: str | Path | Measurements,
-    *,
-    sigma_mm: float = 0.02,
-    alpha: float = ALPHA,
-    k_folds: int = K_FOLDS,
-    max_effects: int = MAX_EFFECTS,
-    candidates=None,
-    cell=None,
-    force: bool = False,
-) -> rp.DiagnosisReport:
-    """Diagnose the model discrepancy of a robot's laser-tracker data.
-
-    Args:
-        robot: model name, path or :class:`~kpioed_drake.robot.models.Robot`.
-        data: a path to a SPEC measurement CSV or :class:`~kpioed_drake.tracker.data.Measurements`.
-        sigma_mm: the known noise standard deviation per coordinate [mm].
-        alpha: level of the goodness-of-fit test and family-wise level of each selection step.
-        k_folds: folds of the cross-validation over poses.
-        max_effects: most effects to add.
-        candidates: override the candidate list (effects or texts).
-        cell: the cell (default: the robot's cell file).
-        force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), noted.
-
-    Returns:
-        :class:`~kpioed_drake.diagnosis.report.DiagnosisReport`.
-    """
-    robot = load_robot(robot) if isinstance(robot, str | Path) else robot
-    data = as_measurements(data, robot)
-    data.check()
-    prob = _problem(robot, data, sigma_mm, k_folds, cell)
-    warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=force)
-    # as calibrate: parameters these poses do not determine are held at nominal, with a note
-    prob.nominal = hold_undetermined(prob.nominal, data, False, warnings)
-    use_expected_sides(prob)  # a backlash's side where the file's masses leave it uncertain
-    if candidates is None:
-        cands, notes = candidate_effects(data, prob.tau, robot=robot)
-    else:
-        cands = [
-            fx.parse_effect(c, model=prob.nominal)
-            if isinstance(c, str)
-            else dataclasses.replace(c, values=None)
-            for c in candidates
-        ]
-        notes = []
-    notes = warnings + notes
-    prob.side_patterns = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
-
-    base = prob.fit([])
-    try:  # as strict as calibrate: the geometric fit alone must be determined by the poses
-        covariance(base.J)
-    except np.linalg.LinAlgError:
-        raise InputError(
-            f"{data.source}: the {data.n} poses do not determine the {base.J.shape[1]} geometric parameters "
-            "(information matrix singular); use more, and more varied, poses"
-        ) from None
-    base_hold = prob.holdout(base, k=k_folds)
-    test = _gof_test(base, alpha)
-    structure = score_tests(prob, base, cands)
-    sel = select_effects(prob, base, base_hold, cands, alpha=alpha, k_folds=k_folds, max_effects=max_effects)
-    basis_notes, basis_alts = upgrade_elasticity(prob, sel, alpha=alpha, k_folds=k_folds)  # masses off
-
-    causes = rp.causes(prob, sel, cands, alpha=alpha, k_folds=k_folds)
-    add_alternatives(prob, sel, causes, basis_alts, alpha=alpha)
-    notes += basis_notes
-    rest = unexplained_rest(prob, sel.fit, alpha=alpha)
-    for si in sel.stand_ins:
-        notes.append(
-            f"{si['candidate']} is significant (LR {si['lr_stat']:.1f}) but not named: it {si['reason']} "
-            "(a stand-in for the unexplained rest)"
-        )
-    baseline = rp.fit_summary(base, base_hold)
-    extended = rp.fit_summary(sel.fit, sel.holdout)
-    kpi = rp.kpi_summary(prob, base, sel.fit)
+def _closing_notes(sel: Selection, test: dict, causes, extended: dict, alpha: float) -> list[str]:
+    """The notes on the stand-ins left unnamed, a discrepancy without a cause and a poor final fit."""
+    notes = [
+        f"{si.name} is significant (LR {si.lr_stat:.1f}) but not named: it {si.reason} "
+        "(a stand-in for the unexplained rest)"
+        for si in sel.stand_ins
+    ]
     if test["rejects"] and not causes:
         notes.append(
             "the geometric model does not explain the data but no candidate effect is named: an "
@@ -157,41 +120,77 @@ def diagnose(
             f"the extended model still does not fit to the noise level (p = {extended['p_value']:.2g}): "
             "more effects or a larger sigma"
         )
+    return notes
+
+
+def diagnose(
+    robot: Robot, data: Measurements, options: DiagnosisOptions | None = None, *, cell: Cell | None = None
+) -> rp.DiagnosisReport:
+    """Diagnose the model discrepancy of a robot's laser-tracker data.
+
+    Args:
+        robot: the robot (:func:`~kpioed_drake.robot.models.load_robot`).
+        data: the measurements (:func:`~kpioed_drake.tracker.formats.read_data`,
+            :meth:`~kpioed_drake.tracker.data.Measurements.from_table`).
+        options: noise, levels, folds, candidates (default :class:`DiagnosisOptions`).
+        cell: the cell (default: the robot's cell file).
+
+    Returns:
+        :class:`~kpioed_drake.diagnosis.report.DiagnosisReport`.
+    """
+    opts = DiagnosisOptions() if options is None else options
+    alpha, k_folds = opts.alpha, opts.k_folds
+    data = as_measurements(data, robot)
+    data.check()
+    prob, cands, notes = _prepared(robot, data, opts, cell)
+    sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
+    base, base_hold = _baseline(prob, k_folds)
+    test = _gof_test(base, alpha)
+    structure = score_tests(prob, base, cands)
+    sel = select_effects(
+        prob, base, base_hold, cands, sides=sides, alpha=alpha, k_folds=k_folds, max_effects=opts.max_effects
+    )
+    sel, basis_notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
+    sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
+    causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    final = sel.problem
+    baseline = rp.fit_summary(base, base_hold)
+    extended = rp.fit_summary(sel.fit, sel.holdout)
+    kpi = rp.kpi_summary(final, base, sel.fit)
     return rp.DiagnosisReport(
         robot=robot.name,
         n_poses=data.n,
-        sigma_mm=prob.sigma,
+        sigma_mm=final.sigma,
         discrepancy=bool(test["rejects"] or causes),
         test=test,
-        causes=causes,
+        cause_records=causes,
         baseline=baseline,
         extended=extended,
-        gain=rp.gain(prob, baseline, extended, kpi),
+        gain=rp.gain(final, baseline, extended, kpi),
         kpi=kpi,
         residual_structure=structure,
-        steps=sel.steps,
-        notes=notes,
+        step_records=sel.steps,
+        notes=notes + basis_notes + _closing_notes(sel, test, causes, extended, alpha),
         details={
-            "prob": prob,
+            "prob": final,
             "base": base,
             "ext": sel.fit,
             "base_holdout": base_hold,
             "ext_holdout": sel.holdout,
             "candidates": cands,
         },
-        unexplained=rest,
+        unexplained=rp.unexplained_rest(final, sel.fit, alpha=alpha),
     )
 
 
 def diagnose_file(
-    robot: str,
+    robot: str | Path,
     data_path: str | Path,
+    options: DiagnosisOptions | None = None,
     *,
-    sigma_mm: float = 0.02,
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
     html: str | Path | None = None,
-    force: bool = False,
     data_format: str | Path | None = None,
 ) -> rp.DiagnosisReport:
     """Diagnose a measurement file (``kpioed diagnose``); outputs written after all succeeded.
@@ -199,19 +198,20 @@ def diagnose_file(
     Args:
         robot: model name or YAML path.
         data_path: the measurement CSV.
-        sigma_mm: the known noise standard deviation per coordinate [mm].
+        options: noise, levels, folds, candidates (default :class:`DiagnosisOptions`).
         json_path: JSON report to write.
         plots_dir: folder for the residual pictures (PNG).
         html: 3-D page (Meshcat) of the residuals before and after the named extension.
-        force: go on with implausible data, noted in the report.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
     """
-    check_sigma(sigma_mm)
+    opts = DiagnosisOptions() if options is None else options
+    check_sigma(opts.sigma_mm)
     check_paths(
         robot=robot, inputs=[data_path, data_format], outputs=[json_path], folders=[plots_dir], html=html
     )
     rob = load_robot(robot)
-    report = diagnose(rob, read_data(data_path, rob, data_format), sigma_mm=sigma_mm, force=force)
+    cell = load_cell(robot=rob)
+    report = diagnose(rob, read_data(data_path, rob, data_format), opts, cell=cell)
     with Outputs() as staged:
         if json_path:
             staged.add_json(json_path, report.to_json())
@@ -219,13 +219,12 @@ def diagnose_file(
             write_plots(report, staged.folder(plots_dir))
         if html:
             d = report.details
-            prob = d["prob"]
             label = ", ".join(c["effect"] for c in report.causes) or "no extension"
             page = diagnosis_page(
-                prob.robot,
-                prob.cell,
+                rob,
+                cell,
                 d["base"].model,
-                prob.data.q,
+                d["prob"].data.q,
                 d["base"].residuals,
                 d["ext"].residuals,
                 label=label,

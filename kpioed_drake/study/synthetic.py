@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import COUPLING_PAIRS
+from kpioed_drake.diagnosis.common import COUPLING_PAIRS, DiagnosisOptions
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import gravity_basis as gb
@@ -45,8 +45,9 @@ class SyntheticCase:
     sigma: float
 
     @property
-    def keys(self) -> set:
-        return {e.key for e in self.effects}
+    def names(self) -> set[str]:
+        """Names of the hidden effects (e.g. ``gear_cyclic:4:2``)."""
+        return {e.name for e in self.effects}
 
 
 def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell=None) -> np.ndarray:
@@ -176,7 +177,7 @@ def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES)
             text = f"{fam}:{i}:{j}"
         else:
             text = fam
-        if fx.parse_effect(text).key not in {fx.parse_effect(x).key for x in exclude}:
+        if fx.parse_effect(text).name not in {fx.parse_effect(x).name for x in exclude}:
             return text
 
 
@@ -216,20 +217,17 @@ def kpi_error(case: SyntheticCase, fit: Fit) -> float | None:
 
 CASE_KINDS = ("single", "pair", "clean")
 RATE_FAMILIES = fx.FAMILIES + ("joint_scale", "joint_coupling", "tracker_scale", "backlash")
-"""The families of the rate study (SPEC's four and four of :data:`~kpioed_drake.effects.EXTRA_FAMILIES`)."""
+"""The families of the rate study (SPEC's four and four further ones)."""
 NEAR_THRESHOLD = (15.0, 150.0)
 """Range of the hidden signal's non-centrality lambda (log-uniform) in ``near_threshold`` cases."""
 PAYLOAD_KG = (2.0, 15.0)
 """Range of the second payload level of a ``payload="changes"`` case (the first is 0 kg)."""
 
 
-def _key_name(k) -> str:
-    return ":".join(str(x) for x in k if x is not None)
-
-
-def _as_elasticity(k):
+def _as_elasticity(name: str) -> str:
     """A gravity-basis elasticity names the elasticity of its joint."""
-    return ("joint_elasticity", *k[1:]) if k[0] == BASIS_FAMILY else k
+    family, _, rest = name.partition(":")
+    return f"joint_elasticity:{rest}" if family == BASIS_FAMILY else name
 
 
 def run_synthetic_case(
@@ -249,8 +247,9 @@ def run_synthetic_case(
     simulate, diagnose, compare. Used by ``tests/test_diagnosis.py`` and
     ``studies/diagnosis_rates.py``. ``families`` restricts the draw (e.g. to ``("gear_cyclic",)``).
 
-    The harder harness (off by default): ``mass_spread`` (true link
-    masses and centres of mass off the file's, :func:`perturbed_masses`); ``payload="changes"``
+    The harder harness (defaults off; without it a case draws what the plain one draws):
+    ``mass_spread`` (true link masses and centres of mass off the file's,
+    :func:`perturbed_masses`); ``payload="changes"``
     (each pose carries 0 kg or a second level uniform in :data:`PAYLOAD_KG`, recorded in the data);
     ``near_threshold`` (each hidden effect rescaled so that its lambda is log-uniform in
     :data:`NEAR_THRESHOLD`; the same truth, poses and noise otherwise). ``explained``: every hidden
@@ -287,22 +286,22 @@ def run_synthetic_case(
             rng.bit_generator.state = state
             case = synthetic_case(robot, rng, effs, **kw)
     t0 = time.perf_counter()
-    rep = diagnose(robot, case.data, sigma_mm=sigma)
+    rep = diagnose(robot, case.data, DiagnosisOptions(sigma_mm=sigma))
     seconds = time.perf_counter() - t0
-    named = {_as_elasticity(k) for k in rep.cause_keys}
-    explain = [{_as_elasticity(k) for k in ks} for ks in rep.explanation_keys]
-    truth = case.keys
+    named = {_as_elasticity(k) for k in rep.cause_names}
+    explain = [{_as_elasticity(k) for k in ks} for ks in rep.explanation_names]
+    truth = case.names
     explained = all(any(k in ks for ks in explain) for k in truth) and all(ks & truth for ks in explain)
     return {
         "kind": kind,
         "seed": seed,
         "truth": [e.text() for e in case.effects],
-        "truth_names": sorted(_key_name(k) for k in truth),
+        "truth_names": sorted(truth),
         "lambda": detectability(case),
         "lambda_given_others": detectability(case, given_others=True),
-        "named": sorted(_key_name(k) for k in named),
+        "named": sorted(named),
         "named_raw": [c.get("name", c["effect"]) for c in rep.causes],
-        "alternatives": [sorted(_key_name(k) for k in ks) for ks in explain],
+        "alternatives": [sorted(ks) for ks in explain],
         "exact": named == truth,
         "explained": bool(explained),
         "all_named": truth <= named,

@@ -1,0 +1,282 @@
+"""The diagnosis's records: a candidate's test, a selection step, the selection, a named cause.
+
+Frozen dataclasses, passed between the modules and replaced (``dataclasses.replace``), never changed
+in place. Each holds the numbers the report shows (JSON built from them by
+:mod:`~kpioed_drake.diagnosis.report`) and what later steps need but the report does not (a
+candidate's projected basis, its fit and held-out residuals). Effects are named by their canonical
+text (:attr:`kpioed_drake.effects.Effect.name`, e.g. ``gear_cyclic:4:2``) throughout: the keys of
+``evidence`` and the names in ``removed``, ``added_with`` and the steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+import numpy as np
+
+from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis.fit import Fit, FitProblem
+
+
+def _statistics(test) -> dict:
+    """``{key: value}`` of a test's ``STATISTICS`` that are not None, in order (tuples as lists)."""
+    out = {}
+    for item in test.STATISTICS:
+        key, name = item if isinstance(item, tuple) else (item, item)
+        value = getattr(test, name)
+        if value is not None:
+            out[key] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CandidateTest:
+    """One candidate's test in a selection step (a row of the step's record).
+
+    Attributes:
+        effect: the candidate.
+        remaining, max_corr, condition: its identifiability beside the current model
+            (:func:`~kpioed_drake.diagnosis.selection.identifiability`).
+        score: score statistic (the linearised likelihood ratio) of its best side; None: not scored.
+        n_sides: sides a backlash was scored with (:mod:`~kpioed_drake.diagnosis.sides`); None: one.
+        lr_stat: likelihood ratio of the refit against the current model (chi2 difference); None:
+            not refitted. dof: its degrees of freedom (the candidate's parameters).
+        p_value: marginal p-value of ``lr_stat``; p_value_corrected: family-wise over the step
+            (weighted min-p, :mod:`~kpioed_drake.estimation.multiplicity`).
+        delta_bic: ``lr_stat - dof ln(3 n)``, less ``side_penalty`` for a backlash of several sides.
+        side_penalty: ``2 ln K_eff`` of the choice among its sides
+            (:func:`~kpioed_drake.diagnosis.sides.side_penalty`); None: one side.
+        holdout_rms_mm: held-out RMS of the model with it (the step's best candidate only) [mm].
+        status: why it was not refitted or not added, or None.
+        basis: (3 n, k) orthonormal basis of its columns outside the model's span, at its expected
+            side (for the pair step); None: not scored.
+        side: (n,) the side its score chose, for a backlash scored with several; None: the
+            problem's side.
+        side_bases: the bases of all its sides (for ``side_penalty``); None: one side.
+        weight: its normalized weight in the step's weighted min-p test; None: not scored.
+        fit: the refit with it, when it is significant with a BIC gain; None otherwise.
+        holdout: (n, 3) held-out residuals of ``fit`` (the step's best candidate only) [mm].
+    """
+
+    effect: fx.Effect
+    remaining: float
+    max_corr: float
+    condition: float
+    score: float | None = None
+    n_sides: int | None = None
+    lr_stat: float | None = None
+    dof: int | None = None
+    p_value: float | None = None
+    p_value_corrected: float | None = None
+    delta_bic: float | None = None
+    side_penalty: float | None = None
+    holdout_rms_mm: float | None = None
+    status: str | None = None
+    basis: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    side: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    side_bases: tuple | None = dataclasses.field(default=None, repr=False)
+    weight: float | None = None
+    fit: Fit | None = dataclasses.field(default=None, repr=False)
+    holdout: np.ndarray | None = dataclasses.field(default=None, repr=False)
+
+    @property
+    def effects(self) -> tuple[fx.Effect, ...]:
+        """What the test would add: the candidate."""
+        return (self.effect,)
+
+    STATISTICS = (
+        "remaining",
+        "max_corr",
+        "condition",
+        "score",
+        ("side_patterns", "n_sides"),
+        "lr_stat",
+        "dof",
+        "p_value",
+        "p_value_corrected",
+        "delta_bic",
+        "side_penalty",
+        "holdout_rms_mm",
+        "status",
+    )
+    """The report's keys of :meth:`statistics`, in order (``(key, attribute)`` where they differ)."""
+
+    def statistics(self) -> dict:
+        """The numbers of the test in the report's order (its row without the candidate's name)."""
+        return _statistics(self)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PairTest:
+    """The joint test of two correlated candidates (a row of a pair step, :mod:`.pairs`).
+
+    Attributes:
+        effects: the two candidates.
+        canonical_correlation: largest canonical correlation of their projected bases.
+        score: score statistic of the span of both; dof: its dimension.
+        p_value, p_value_corrected: marginal and family-wise over the step's pairs (min-p) p-values,
+            of ``score``, then of ``lr_stat`` once refitted.
+        lr_stat: likelihood ratio of the refit with both; None: not refitted.
+        delta_bic: ``lr_stat - (k_a + k_b) ln(3 n)``.
+        lr_given_other: likelihood ratio of each member given the other (a, b).
+        holdout_rms_mm: held-out RMS of the model with both [mm] (an accepted refit only).
+        status: why the pair was not added, or None.
+        fit, holdout: the refit with both and its (n, 3) held-out residuals [mm] (accepted refit only).
+    """
+
+    effects: tuple[fx.Effect, fx.Effect]
+    canonical_correlation: float
+    score: float
+    dof: int
+    p_value: float
+    p_value_corrected: float
+    lr_stat: float | None = None
+    delta_bic: float | None = None
+    lr_given_other: tuple[float, float] | None = None
+    holdout_rms_mm: float | None = None
+    status: str | None = None
+    fit: Fit | None = dataclasses.field(default=None, repr=False)
+    holdout: np.ndarray | None = dataclasses.field(default=None, repr=False)
+
+    STATISTICS = (
+        "canonical_correlation",
+        "score",
+        "dof",
+        "p_value",
+        "p_value_corrected",
+        "lr_stat",
+        "delta_bic",
+        "lr_given_other",
+        "holdout_rms_mm",
+        "status",
+    )
+    """The report's keys of :meth:`statistics`, in order."""
+
+    def statistics(self) -> dict:
+        """The numbers of the test in the report's order (its row without the pair's names)."""
+        return _statistics(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Swap:
+    """A cause replaced by a candidate that fits significantly better given the other causes.
+
+    Attributes:
+        replaced: the cause's name; by: the candidate's name.
+        lr_stat: likelihood ratio of the candidate given the other causes; lr_stat_replaced: the cause's.
+    """
+
+    replaced: str
+    by: str
+    lr_stat: float
+    lr_stat_replaced: float
+
+
+@dataclasses.dataclass(frozen=True)
+class StandIn:
+    """A significant candidate not named: a stand-in for an error outside the candidate list.
+
+    Attributes:
+        name: the candidate; holdout_gain: the fraction by which it lowers the held-out RMS;
+        lr_stat: its likelihood ratio; reason: why it is a stand-in (a phrase).
+    """
+
+    name: str
+    holdout_gain: float
+    lr_stat: float
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SelectionStep:
+    """One step of the stepwise selection (or a swap of a cause, :mod:`.alternatives`).
+
+    Attributes:
+        step: 1-based number.
+        candidates: the tests of the step's candidates (none for a swap).
+        holdout_rms_mm_before: held-out RMS of the model before the step [mm] (None for a swap).
+        chi2_before: chi2 of the model before the step (None for a swap).
+        pairs: the pair step's tests, when one ran after a step that added no single candidate.
+        added: names of what the step added: none, a candidate or a pair.
+        removed: names of the effects the backward step removed (for a swap: the replaced cause).
+        swap: the swap, for a swap step.
+    """
+
+    step: int
+    candidates: tuple[CandidateTest, ...] = ()
+    holdout_rms_mm_before: float | None = None
+    chi2_before: float | None = None
+    pairs: tuple[PairTest, ...] = ()
+    added: tuple[str, ...] = ()
+    removed: tuple[str, ...] = ()
+    swap: Swap | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Selection:
+    """The state and outcome of the selection (:func:`~kpioed_drake.diagnosis.selection.select_effects`),
+    replaced at each change.
+
+    Attributes:
+        problem: the fit problem of the current model: its conditions hold the side of each backlash
+            as last chosen by a step (the expected side until then) and the gravity torques (a
+            joint's torque fitted from the data once :mod:`.elastic_basis` has named one).
+        fit: the extended model's fit (the baseline if nothing was added).
+        holdout: (n, 3) its held-out residuals [mm].
+        steps: the selection steps.
+        evidence: per chosen effect's name, the statistics that put it in the model (JSON-ready;
+            replaced, not changed in place).
+        stand_ins: significant candidates left unnamed because their held-out gain was negligible
+            while the model still failed the goodness-of-fit test.
+        swaps: causes replaced by a candidate that fits significantly better given the other causes
+            (:func:`~kpioed_drake.diagnosis.alternatives.settle`).
+    """
+
+    problem: FitProblem
+    fit: Fit
+    holdout: np.ndarray
+    steps: tuple[SelectionStep, ...] = ()
+    evidence: Mapping[str, dict] = dataclasses.field(default_factory=dict)
+    stand_ins: tuple[StandIn, ...] = ()
+    swaps: tuple[Swap, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Alternative:
+    """A competing explanation of a cause: what the data cannot tell apart from it.
+
+    Attributes:
+        effect: the alternative, with its fitted values (a candidate refitted in the cause's
+            place) or without (the gravity basis of the cause's joint: the cause with other masses).
+        evidence: its statistics (JSON-ready).
+        plausible: whether its value is physically plausible (:mod:`~kpioed_drake.effects.physical`);
+            None for the gravity basis, which has no value of its own in the report.
+        plausible_reason: why not, or None.
+    """
+
+    effect: fx.Effect
+    evidence: dict
+    plausible: bool | None = None
+    plausible_reason: str | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Cause:
+    """A named effect of the extended model.
+
+    Attributes:
+        effect: the effect with its fitted values.
+        std: standard deviations of its values (display units, as ``effect.display_values``).
+        evidence: the statistics that named it, its final likelihood ratio given the other effects
+            and its size at the reflector (JSON-ready).
+        plausible: whether its value is physically plausible; plausible_reason: why not, or None.
+        alternatives: the competing explanations the data cannot tell apart from it.
+    """
+
+    effect: fx.Effect
+    std: tuple[float, ...]
+    evidence: dict
+    plausible: bool
+    plausible_reason: str | None
+    alternatives: tuple[Alternative, ...] = ()
