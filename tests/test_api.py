@@ -98,7 +98,8 @@ def test_calibrate(work):
     out = _cli("calibrate", "--robot", "kr16", work / "data_el.csv", "--extend", "joint_elasticity:3",
                "--json", cwd=work).stdout  # fmt: skip
     direct = api.calibrate("kr16", work / "data_el.csv", extend=["joint_elasticity:3"])
-    assert _plain(out) == _plain(direct)
+    assert _plain(out) == _plain(direct.to_dict())
+    assert [e["name"] for e in direct.to_dict()["effects"]] == ["joint_elasticity:3"]
 
 
 def test_diagnose(work):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration.extended import calibrate_extended
+from kpioed_drake.calibration import calibrate
 from kpioed_drake.cli import main
 from kpioed_drake.design.discriminate.explanations import parse_pair
 from kpioed_drake.diagnosis.common import DiagnosisOptions
@@ -24,6 +24,7 @@ from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
 from kpioed_drake.study.synthetic import detectability, perturbed_masses, synthetic_case
 from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.data import as_measurements
 from kpioed_drake.tracker.measurement import nominal_model
 
 ROBOTS = MODELS_DIR / "robots"
@@ -293,11 +294,13 @@ def column_case(lift7):
 
 
 def test_extended_model_fits_to_the_noise(lift7, column_case):
-    geo = calibrate_extended(lift7, column_case.data, [], sigma_mm=0.02)
-    ext = calibrate_extended(lift7, column_case.data, ["column_compliance:1"], sigma_mm=0.02)
+    geo = calibrate(lift7, as_measurements(column_case.data, lift7), effects=[], sigma_mm=0.02).to_dict()
+    ext = calibrate(
+        lift7, as_measurements(column_case.data, lift7), effects=["column_compliance:1"], sigma_mm=0.02
+    ).to_dict()
     assert geo["chi2_per_dof"] > 3.0
     assert ext["chi2_per_dof"] < 1.3
-    (c,) = ext["extensions"]
+    (c,) = ext["effects"]
     true = column_case.effects[0].values[0]
     assert c["unit"] == "1/(N m^2)" and abs(c["value"] - true) < 0.3 * true  # masses +-30 %
 
@@ -308,8 +311,10 @@ def test_extended_model_with_a_varying_payload(lift7):
     case = synthetic_case(
         lift7, np.random.default_rng(2), ["column_compliance:1=8e-7"], n_poses=80, payload_kg=(0.0, 40.0)
     )
-    ext = calibrate_extended(lift7, case.data, ["column_compliance:1"], sigma_mm=0.02)
-    assert ext["chi2_per_dof"] < 1.25 and ext["extensions"][0]["value"] == pytest.approx(8e-7, rel=0.05)
+    ext = calibrate(
+        lift7, as_measurements(case.data, lift7), effects=["column_compliance:1"], sigma_mm=0.02
+    ).to_dict()
+    assert ext["chi2_per_dof"] < 1.25 and ext["effects"][0]["value"] == pytest.approx(8e-7, rel=0.05)
 
 
 # ---------------------------------------------------------------------------------------------- diagnosis

@@ -13,7 +13,7 @@ import pytest
 from fd import central_fd
 
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration.extended import calibrate_extended
+from kpioed_drake.calibration import calibrate
 from kpioed_drake.cli import main as cli_main
 from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
@@ -21,6 +21,7 @@ from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.study.synthetic import perturbed_masses, run_synthetic_case, synthetic_case
+from kpioed_drake.tracker.data import as_measurements
 
 
 @pytest.fixture(scope="module")
@@ -166,13 +167,17 @@ def test_calibrate_extend_with_the_basis(kr16):
     rng = np.random.default_rng(4)
     eff = dataclasses.replace(fx.parse_effect("joint_elasticity:5"), tool_mm=0.5)
     case = synthetic_case(kr16, rng, [eff], n_poses=60, sigma=0.02, mass_spread=0.3, payload_kg=(0.0, 10.0))
-    rep = calibrate_extended(kr16, case.data, ["joint_elasticity_basis:5"], sigma_mm=0.02)
+    rep = calibrate(
+        kr16, as_measurements(case.data, kr16), effects=["joint_elasticity_basis:5"], sigma_mm=0.02
+    ).to_dict()
     assert rep["chi2_per_dof"] < 1.0 + 4.0 * np.sqrt(2.0 / (3 * 60 - 33 - 5))
-    (ext,) = rep["extensions"]
+    (ext,) = rep["effects"]
     assert ext["effect"] == "joint_elasticity_basis" and len(ext["value"]) == 5  # r_5 = 4, + payload
     assert ext["value"][-1] == pytest.approx(case.effects[0].values[0], rel=0.1)
     with pytest.raises(InputError, match="basis moments"):
-        calibrate_extended(kr16, case.data, ["joint_elasticity_basis:5=1,2"], sigma_mm=0.02)
+        calibrate(
+            kr16, as_measurements(case.data, kr16), effects=["joint_elasticity_basis:5=1,2"], sigma_mm=0.02
+        ).to_dict()
 
 
 def test_backlash_side_from_the_data_when_masses_are_off():

@@ -2,13 +2,14 @@
 
 One module per concern:
 
-- :mod:`.fit`: :func:`calibrate`, registration, least squares on the free geometric parameters,
-  outlier handling, goodness of fit, the KPI and its covariance;
+- :mod:`.fit`: :func:`calibrate`, registration, least squares on the free geometric parameters
+  (and the values of non-geometric effects: an extended model), outlier handling, goodness of fit,
+  the KPI and its covariance;
 - :mod:`.robust`: the outlier screening against ``max(sigma, robust scale of the residuals)``;
 - :mod:`.report`: :class:`CalibrationReport` (JSON report and text summary);
 - :mod:`.modelfile`: :func:`calibrated_robot_yaml`, the calibrated robot as a model file;
-- :mod:`.extended`: :func:`calibrate_extended`, geometry plus non-geometric effects
-  (``kpioed calibrate --extend``);
+- :mod:`.extended`: :func:`resolve_extension`, the effects of an extended calibration sized for the
+  robot and the data (``kpioed calibrate --extend``);
 - :mod:`.plots`: residual plots;
 - :mod:`.workflow`: :func:`calibrate_file`, the whole ``kpioed calibrate`` run;
 - :mod:`.common`: the working pose and the KPI shared by the plain and the extended fit.
@@ -17,7 +18,7 @@ Reading and validating the data: :mod:`kpioed_drake.tracker.data`.
 """
 
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
-from kpioed_drake.calibration.extended import calibrate_extended, extended_summary
+from kpioed_drake.calibration.extended import resolve_extension
 from kpioed_drake.calibration.fit import MIN_POSES_FOR_OUTLIER_TEST, calibrate, hold_undetermined
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
 from kpioed_drake.calibration.plots import plot_calibration
@@ -33,12 +34,11 @@ __all__ = [
     "Measurements",
     "calibrate",
     "hold_undetermined",
-    "calibrate_extended",
     "calibrate_file",
     "calibrated_robot_yaml",
-    "extended_summary",
     "kpi_and_covariance",
     "plot_calibration",
     "read_measurements",
+    "resolve_extension",
     "working_pose",
 ]

@@ -1,8 +1,10 @@
 """Calibration from measured data (SPEC "Measured data and model discrepancy").
 
 :func:`calibrate`: rigid registration of the tracker, Levenberg-Marquardt on the free geometric
-parameters (:func:`kpioed_drake.estimation.estimator.estimate`), robust outlier handling, goodness of fit and
-the KPI (TCP at ``q_work`` in W) with its covariance ``Js Cp Js^T`` (paper eq. 19, 24e).
+parameters and the values of the given non-geometric effects (an extended model,
+:func:`kpioed_drake.estimation.estimator.estimate` with ``effects``), robust outlier handling,
+goodness of fit and the KPI (TCP at ``q_work`` in W, no payload, reference temperature) with its
+covariance ``Js Cp Js^T`` (paper eq. 19, 24e). The same steps run with and without effects.
 
 Outlier test (normalised residuals): for every used pose i the studentised statistic
 ``t_i = r_i^T (sigma^2 (I - H_ii))^-1 r_i`` (``H_ii`` the 3x3 block of the hat matrix) is chi^2(3)
@@ -30,6 +32,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
+from kpioed_drake.calibration.extended import resolve_extension
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import (
     MIN_POSES_FOR_OUTLIER_TEST,
@@ -38,7 +41,6 @@ from kpioed_drake.calibration.robust import (
 )
 from kpioed_drake.errors import InputError, check_sigma, param
 from kpioed_drake.estimation.estimator import (
-    Conditions,
     EstimationResult,
     covariance,
     estimate,
@@ -175,8 +177,10 @@ def calibrate(
     max_iter: int = 100,
     force: bool = False,
     strict: bool = False,
+    effects=(),
 ) -> CalibrationReport:
-    """Calibrate the free geometric parameters (27 for six joints) from measured data.
+    """Calibrate the free geometric parameters (27 for six joints), and the values of ``effects``
+    if any, from measured data.
 
     Args:
         robot: model name, YAML path or :class:`Robot` (the nominal model to start from).
@@ -191,6 +195,9 @@ def calibrate(
         force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), warning.
         strict: refuse poses that do not determine every free parameter instead of holding the
             undetermined ones at nominal with a warning.
+        effects: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints) or
+            :class:`~kpioed_drake.effects.Effect` objects estimated with the geometry (the extended
+            model); their starting values are the given ones (0 when unknown).
 
     Returns:
         :class:`CalibrationReport`.
@@ -217,13 +224,14 @@ def calibrate(
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
     n = data.n
     nominal = hold_unused_targets(nominal, data.target)
-    warnings = check_data(nominal, data, n_params=nominal.layout.n_free, force=force)
+    effects, cond = resolve_extension(effects, nominal, data)
+    n_effect = sum(e.n_params for e in effects)
+    warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force)
     before = nominal.layout.free_names
     nominal = hold_undetermined(nominal, data, strict, warnings)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
-    cond = Conditions(target=data.target)
 
-    def fit(model, mask, *, register=False, singular_ok=False) -> EstimationResult:
+    def fit(model, mask, *, start=effects, register=False, singular_ok=False) -> EstimationResult:
         try:
             return estimate(
                 model,
@@ -235,16 +243,22 @@ def calibrate(
                 max_iter=max_iter,
                 conditions=cond,
                 singular_ok=singular_ok,
+                effects=start,
             )
         except InputError as exc:
-            raise InputError(f"{data.path}: {str(exc).removeprefix('estimate: ')}") from None
+            names = f" and {', '.join(e.name for e in effects)} together" if effects else ""
+            raise InputError(
+                f"{data.path}: the geometry{names}: {str(exc).removeprefix('estimate: ')}"
+                if names
+                else f"{data.path}: {str(exc).removeprefix('estimate: ')}"
+            ) from None
 
     res = fit(nominal, np.ones(n, dtype=bool), register=True, singular_ok=True)
     res, at_solution = _determined_at_solution(res, nominal, data, strict, warnings, fit)
     screen = screen_outliers(
         res,
         data,
-        lambda mask, prev: fit(prev.model, mask),
+        lambda mask, prev: fit(prev.model, mask, start=prev.effects),
         alpha=alpha,
         max_outlier_fraction=max_outlier_fraction,
         force=force,
@@ -306,7 +320,7 @@ def _determined_at_solution(res, nominal, data, strict, warnings, fit):
     """
     model, names = hold_at_solution(res, nominal, data, strict, warnings)
     if model is not None:
-        return fit(model, res.mask), names
+        return fit(model, res.mask, start=res.effects), names
     try:
         covariance(res.J)
     except np.linalg.LinAlgError:

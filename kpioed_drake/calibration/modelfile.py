@@ -19,6 +19,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.effects import effect_specs
 from kpioed_drake.robot.jointmap import joint_map_spec
 from kpioed_drake.robot.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
 from kpioed_drake.robot.urdfwrite import calibrated_sidecar, calibrated_urdf
@@ -78,8 +79,9 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
     Joint rows hold the estimated values (the gauge parameters theta1, d1, theta6, d6, a6, alpha6
     and the file's ``extra_gauge`` keep their nominal values); ``reflector_position_mm`` the
     estimated reflector offset; ``tracker_position_mm`` and ``tracker_rpy_deg`` the estimated
-    tracker pose of the calibration's data. Capsules, masses, limits, q_work and the joint map
-    are the nominal model's.
+    tracker pose of the calibration's data; ``effects`` the estimated non-geometric effects (an
+    extended model; none for a geometric calibration). Capsules, masses, limits, q_work and the
+    joint map are the nominal model's.
     """
     rob = report.robot
     spec = _robot_spec(rob)
@@ -106,6 +108,7 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
         spec.targets_mm = report.model.target_offsets.tolist()
     spec.tracker_position_mm = report.model.p_WT.tolist()
     spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
+    spec.effects = _effects(report)
     cal_note = _note(report) + (
         " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm "
         "(targets_mm: every target) and "
@@ -115,6 +118,11 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
     spec.notes = (spec.notes + " " if spec.notes else "") + cal_note
     header = "# Calibrated robot model file (kpioed-drake). Units: mm, deg, kg. Format: models/README.md.\n"
     return header + yaml_dump_typed(spec)
+
+
+def _effects(report: CalibrationReport) -> list:
+    """The model-file entries of the report's effects (display units, a-priori std)."""
+    return effect_specs(report.effects, report.effect_std()[0], robot=report.robot)
 
 
 def _note(report: CalibrationReport) -> str:
@@ -136,6 +144,12 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
     urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))
     targets = model.target_offsets if model.layout.n_targets > 1 else None
     side = calibrated_sidecar(
-        rob, p_FQ=model.p_FQ, p_WT=model.p_WT, R_WT=model.R_WT, targets=targets, note=note
+        rob,
+        p_FQ=model.p_FQ,
+        p_WT=model.p_WT,
+        R_WT=model.R_WT,
+        targets=targets,
+        note=note,
+        effects=_effects(report),
     )
     return urdf, side

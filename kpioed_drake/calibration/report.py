@@ -165,10 +165,39 @@ class CalibrationReport:
         Cp = self.result.Cp
         s = np.sqrt(np.diag(Cp))
         R = Cp / np.outer(s, s)
-        names = self.result.free_names
+        names = self.result.free_names + [n for e in self.result.effects for n in e.param_names]
         iu = np.triu_indices_from(R, 1)
         order = np.argsort(-np.abs(R[iu]))[:k]
         return [{"a": names[iu[0][j]], "b": names[iu[1][j]], "correlation": float(R[iu][j])} for j in order]
+
+    @property
+    def effects(self) -> tuple:
+        """The estimated non-geometric effects with their values (empty: the geometric model)."""
+        return tuple(self.result.effects)
+
+    def effect_std(self) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) a-priori and a-posteriori standard deviations of the effects' values (internal
+        units, in their order; the a-posteriori ones NaN without degrees of freedom)."""
+        n = self.model.layout.n_free
+        post = np.sqrt(np.diag(self.result.Cp_scaled))[n:] if self.dof > 0 else np.full(self.result.k, np.nan)
+        return self.result.std[n:], post
+
+    def effect_table(self) -> list[dict]:
+        """The estimated effects: name, values, std (a priori and a posteriori), unit (display units)."""
+        std, post = self.effect_std()
+        out, c = [], 0
+        for e in self.effects:
+            sl = slice(c, c + e.n_params)
+            c += e.n_params
+            row = e.to_dict()
+            row.update(
+                name=e.name,
+                values=e.display_values(),
+                std=e.display_values(std[sl]),
+                std_aposteriori=e.display_values(post[sl]) if self.dof > 0 else None,
+            )
+            out.append(row)
+        return out
 
     def kpi_reference(self) -> dict:
         """What the KPI shift is measured against: the model the user gave (``--robot``), with
@@ -277,6 +306,10 @@ class CalibrationReport:
                 "the registered nominal model before the fit, and on the Jacobian at the estimate",
             },
             "robust": dict(self.robust),
+            "effects": self.effect_table(),
+            "effects_note": "non-geometric effects estimated with the geometry (an extended model; empty: "
+            "the geometric model), display units as in the effect text syntax; the KPI is at no payload "
+            "and the reference temperature",
             "warnings": list(self.warnings),
         }
 
@@ -286,8 +319,9 @@ class CalibrationReport:
         rows = f"{d.data.n} poses"
         if d.data.n_targets > 1:  # a pose has one row per target (same joint angles)
             rows = f"{d.data.n} rows ({len(np.unique(d.data.q, axis=0))} poses, {d.data.n_targets} targets)"
+        model = f" + {', '.join(e.name for e in self.effects)}" if self.effects else ""
         lines = [
-            f"{d.robot.name}: calibrated from {d.data.path}: {rows}, "
+            f"{d.robot.name}{model}: calibrated from {d.data.path}: {rows}, "
             f"{int(np.count_nonzero(d.used))} used, {d.result.n_params} parameters, "
             f"sigma {d.result.sigma:g} mm",
             f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",
@@ -337,6 +371,11 @@ class CalibrationReport:
         for p in table[:6]:
             extra = f" (a-posteriori {p['std_aposteriori']:.5f})" if post else ""
             lines.append(f"    {p['name']:<12} {p['deviation']:+.5f} +- {p['std']:.5f}{extra} {p['unit']}")
+        if self.effects:
+            lines.append("  effects (estimated with the geometry):")
+        for row in self.effect_table():
+            vals = ", ".join(f"{v:.4g} +- {s:.2g}" for v, s in zip(row["values"], row["std"], strict=True))
+            lines.append(f"    {row['name']:<24} {vals} {row['unit']}")
         for w in d.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)

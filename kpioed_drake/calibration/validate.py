@@ -12,6 +12,11 @@ calibrated on base-frame data: the frame error estimated then) or else the ident
 Several targets (a ``target`` column): each row is predicted with its target's offset from the
 model file (``targets_mm``); the report gives the errors per target as well.
 
+An extended model (a model file with ``effects:``) predicts with its effects: the per-pose
+conditions they need come from the data (``temperature_C`` for thermal expansion and tracker scale,
+``time_s`` for tracker drift: an error names a missing column; ``payload_kg`` when given, else no
+payload), the tracker-frame prediction is taken to W with the model's tracker pose, then registered.
+
 Nothing robot-side is fitted, so the errors are prediction errors: for a nominal model they are its
 absolute accuracy (the "uncalibrated" error), for a calibrated one its accuracy after calibration.
 """
@@ -24,14 +29,19 @@ from pathlib import Path
 import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 
+from kpioed_drake import effects as fx
 from kpioed_drake.arguments import check_paths, require
+from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs, pyplot
 from kpioed_drake.robot.models import Robot, load_cell, load_robot
 from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
 from kpioed_drake.tracker.formats import read_data
-from kpioed_drake.tracker.measurement import nominal_model, reflector_world
+from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
+
+_NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}
+"""The data column an effect's prediction needs."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +56,7 @@ class ValidationResult:
         R_WT: (3, 3) tracker orientation used (registered or kept).
         p_WT: (3,) tracker position used [mm].
         registered: True if the tracker frame was re-registered to these data.
+        effects: the names of the model's non-geometric effects it predicted with (empty: geometric).
     """
 
     robot: str
@@ -55,6 +66,7 @@ class ValidationResult:
     R_WT: np.ndarray
     p_WT: np.ndarray
     registered: bool
+    effects: tuple[str, ...] = ()
 
     @property
     def errors_mm(self) -> np.ndarray:
@@ -98,6 +110,7 @@ class ValidationResult:
             "rows": [int(r) for r in self.data.rows],
             "row_convention": ROW_CONVENTION,
             "residuals_W_mm": self.residuals_W.tolist(),
+            "effects": list(self.effects),
             "tracker": {
                 "registered": self.registered,
                 "p_WT_mm": self.p_WT.tolist(),
@@ -120,7 +133,9 @@ class ValidationResult:
         ]
         return "\n".join(
             [
-                f"{self.robot}: validated on {self.data.path}: {self.data.n} poses, tracker frame {how}",
+                f"{self.robot}"
+                + (f" (with {', '.join(self.effects)})" if self.effects else "")
+                + f": validated on {self.data.path}: {self.data.n} poses, tracker frame {how}",
                 f"  3-D error: mean {d['mean_error_mm']:.4f} mm, 95 % {d['p95_error_mm']:.4f} mm, "
                 f"max {d['max_error_mm']:.4f} mm",
                 f"  RMS per coordinate {d['rms_mm']:.4f} mm (x, y, z: "
@@ -155,7 +170,8 @@ def validate(
     """
     model = nominal_model(robot, load_cell(cell_path, robot=robot))
     check_data(model, data, n_params=6)
-    p_W = reflector_world(model, data.q, data.target)
+    effects = fx.model_effects(robot)
+    p_W = predicted_world(model, data, effects)
     if keep_tracker and robot.X_WT is None and data.frame == "base":
         R_WT, p_WT = np.eye(3), np.zeros(3)
     elif keep_tracker:
@@ -171,7 +187,33 @@ def validate(
         R_WT=R_WT,
         p_WT=p_WT,
         registered=not keep_tracker,
+        effects=tuple(e.name for e in effects),
     )
+
+
+def predicted_world(model: TrackerModel, data: Measurements, effects=()) -> np.ndarray:
+    """(n, 3) the reflector positions ``model`` predicts at the data's poses, in W [mm]; with
+    ``effects`` under the data's conditions (taken to W with the model's tracker pose).
+
+    Raises:
+        InputError: a column an effect needs (``temperature_C``, ``time_s``) is missing.
+    """
+    if not effects:
+        return reflector_world(model, data.q, data.target)
+    for e in effects:
+        col = _NEEDS.get(e.family)
+        if col and getattr(data, col) is None:
+            raise InputError(f"{data.path}: the model's {e.name} needs the {col} column, which the data lack")
+    h = fx.true_measurements(
+        model,
+        data.q,
+        effects,
+        temperature_C=data.temperature_C,
+        time_s=data.time_s,
+        payload_kg=data.payload_kg,
+        target=data.target,
+    )
+    return h @ model.R_WT.T + model.p_WT
 
 
 def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:

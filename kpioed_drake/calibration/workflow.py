@@ -1,4 +1,5 @@
-"""The ``kpioed calibrate`` workflow: read, calibrate (geometric or extended), write the outputs.
+"""The ``kpioed calibrate`` workflow: read, calibrate (geometric or extended: the same fit and report), write
+the outputs.
 
 Outputs are staged while the work runs (:class:`~kpioed_drake.outputs.Outputs`) and written only
 after everything succeeded, each atomically; a failing run writes nothing.
@@ -9,12 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from kpioed_drake.arguments import check_paths, require
-from kpioed_drake.calibration.extended import calibrate_extended
 from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
-from kpioed_drake.errors import InputError, check_sigma
+from kpioed_drake.effects import model_effects
+from kpioed_drake.errors import check_sigma
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
@@ -39,7 +40,7 @@ def calibrate_file(
     force: bool = False,
     data_format: str | Path | None = None,
     strict: bool = False,
-) -> CalibrationReport | dict:
+) -> CalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``); outputs written after all succeeded.
 
     Args:
@@ -47,10 +48,11 @@ def calibrate_file(
         data_path: the measurement CSV.
         sigma_mm: noise standard deviation per coordinate [mm].
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
-        extend: effect texts (e.g. ``["joint_elasticity:2"]``): calibrate the geometry and these
-            effects together (:func:`calibrate_extended`; no outlier screening; only ``json_path``).
+        extend: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints): calibrate the
+            geometry and these effects together (the extended model; ``out`` writes it with its
+            ``effects:``); without it, the effects of an extended model file are re-estimated.
         outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
-        out: calibrated robot model file (YAML) to write.
+        out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
         json_path: JSON report to write.
         plots_dir: folder for the residual plots (PNG).
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
@@ -60,8 +62,7 @@ def calibrate_file(
             the undetermined ones at nominal with a warning (geometric calibration only).
 
     Returns:
-        :class:`CalibrationReport`, or with ``extend`` the JSON-ready dict of
-        :func:`calibrate_extended`.
+        :class:`CalibrationReport` (its ``effects`` the estimated ones with ``extend``).
     """
     check_sigma(sigma_mm)
     ok = isinstance(outlier_alpha, int | float) and 0 <= outlier_alpha < 1
@@ -77,21 +78,9 @@ def calibrate_file(
     rob = load_robot(robot)
     check_out_path(rob, out)
     qw = parse_q_work(q_work_deg, rob) if q_work_deg else None
-    if extend:
-        if out or plots_dir or html:
-            raise InputError(
-                "out, plots_dir and html are not available with extend (the report holds the fit)",
-                fields=("out", "plots_dir", "html", "extend"),
-            )
-        data = read_data(data_path, rob, data_format)
-        report = calibrate_extended(rob, data, list(extend), sigma_mm=sigma_mm, q_work=qw, force=force)
-        with Outputs() as staged:
-            if json_path:
-                staged.add_json(json_path, report)
-            staged.commit()
-        return report
     data = read_data(data_path, rob, data_format)
-    options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict)
+    effects = list(extend) if extend else model_effects(rob)  # an extended model file: its effects
+    options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict, effects=effects)
     report = calibrate(rob, data, sigma_mm=sigma_mm, cell_path=cell_path, **options)
     with Outputs() as staged:
         if out and side_out is not None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.calibration import extended_summary
 from kpioed_drake.cli.common import (
     add_data_outputs,
     add_extend,
@@ -56,11 +55,10 @@ def run(args) -> int:
         strict=args.strict,
         **data_outputs(args),
     )
-    data = report if args.extend else report.to_dict()
     if args.json == "-":
-        print_json(data)
+        print_json(report.to_dict())
         return 0
-    print(extended_summary(report, args.extend) if args.extend else report.summary())
+    print(report.summary())
     for path, what in ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page")):
         if path:
             print(f"  {what}: {path}")

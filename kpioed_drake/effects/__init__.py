@@ -140,6 +140,7 @@ from kpioed_drake.effects.response import (
     joint_deltas,
     true_measurements,
 )
+from kpioed_drake.effects.stored import effect_specs, model_effects
 
 __all__ = [
     "AIR_PPM_PER_K",
@@ -163,6 +164,7 @@ __all__ = [
     "augmented_jacobian",
     "augmented_response",
     "effect_kpi_columns",
+    "effect_specs",
     "effect_tcp_shift",
     "elastic_lever",
     "extension_columns",
@@ -170,6 +172,7 @@ __all__ = [
     "gravity_model",
     "gravity_torques",
     "joint_deltas",
+    "model_effects",
     "parse_effect",
     "parse_effects",
     "reference_poses",

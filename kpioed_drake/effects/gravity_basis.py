@@ -168,14 +168,7 @@ def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
     :data:`_N_REF` seeded reference poses in the joint box; directions with a singular value
     below ``_RANK_TOL`` times the largest (or all, if the torque is zero everywhere) are dropped."""
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
-    key = (
-        robot.name,
-        robot.geometry.tobytes(),
-        robot.masses.tobytes(),
-        robot.coms.tobytes(),
-        joint,
-        g.tobytes(),
-    )
+    key = _key(robot, joint, g)
     if key not in _CACHE:
         Y = link_regressor(robot, reference_poses(robot, _N_REF), joint, g=g)
         D = np.sqrt(np.mean(Y**2, axis=0))
@@ -189,6 +182,35 @@ def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
         beta = V.T @ (D * link_moments(robot, joint))
         _CACHE[key] = JointBasis(joint, D, V, beta, g)
     return _CACHE[key]
+
+
+def _key(robot: Robot, joint: int, g: np.ndarray) -> tuple:
+    return (
+        robot.name,
+        robot.geometry.tobytes(),
+        robot.masses.tobytes(),
+        robot.coms.tobytes(),
+        joint,
+        g.tobytes(),
+    )
+
+
+def store_basis(robot: Robot, joint: int, D, V) -> JointBasis:
+    """Make ``D`` (p,) and ``V`` (p, r) (a model file's stored basis) :func:`joint_basis`'s answer for
+    ``robot`` and ``joint``, so that stored values multiply the columns they were estimated with.
+
+    Raises:
+        InputError: ``D``/``V`` do not fit joint ``joint``'s full regressor of ``robot``.
+    """
+    D, V = np.asarray(D, dtype=float), np.asarray(V, dtype=float).reshape(len(D), -1)
+    p = link_moments(robot, joint).size
+    if D.shape != (p,) or np.any(D <= 0):
+        raise InputError(
+            f"joint {joint} of {robot.name}: expected {p} positive basis RMS values, got {D.size}"
+        )
+    g = gravity_model(robot).g
+    _CACHE[_key(robot, joint, g)] = JointBasis(joint, D, V, V.T @ (D * link_moments(robot, joint)), g)
+    return _CACHE[_key(robot, joint, g)]
 
 
 def payload_varies(payload_kg) -> bool:

@@ -228,7 +228,11 @@ def _joint(token: str, spec: str, n_joints: int = 6) -> int:
 
 
 def parse_effect(
-    text: str, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None
+    text: str,
+    rng: np.random.Generator | None = None,
+    *,
+    model: TrackerModel | None = None,
+    n_joints: int | None = None,
 ) -> Effect:
     """Parse an effect from its text form.
 
@@ -242,13 +246,15 @@ def parse_effect(
     Without a value: with ``rng`` a value of SPEC's realistic size is drawn (an elasticity as a tool
     displacement ``tool_mm``, turned into c by :func:`resolve` once the robot is known; pass
     ``model`` to resolve at once); without ``rng`` the values stay unknown (``values=None``: an
-    extension to estimate). ``thermal_expansion`` drawn with ``rng`` is steel (``STEEL_K``), not random;
+    extension to estimate). ``n_joints``: the robot's joint count when no ``model`` is given
+    (default six, a column seven). ``thermal_expansion`` drawn with ``rng`` is steel
+    (``STEEL_K``), not random;
     ``tracker_scale`` is air (``AIR_PPM_PER_K``); the other further families see ``_DRAW``.
 
     Raises:
         InputError: unknown family, bad joint or harmonic, wrong number of values.
     """
-    nj = 6 if model is None else model.robot.n_joints  # joints of the robot (six by default)
+    nj = model.robot.n_joints if model is not None else n_joints or 6  # joints of the robot
     spec = str(text).strip()
     lhs, eq, rhs = spec.partition("=")
     parts = [p.strip() for p in lhs.split(":")]
@@ -289,7 +295,7 @@ def parse_effect(
         ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
         return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
     if family in COMPLIANCE_FAMILIES:
-        eff = _parse_compliance(family, parts, given, rng, spec, model)
+        eff = _parse_compliance(family, parts, given, rng, spec, model, n_joints)
         return resolve(eff, model) if model is not None else eff
     if family in EXTRA_FAMILIES:
         eff = _parse_extra(family, parts, given, rng, spec, nj)
@@ -318,7 +324,7 @@ def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int =
     if family == BASIS_FAMILY:
         if len(parts) != 2:
             raise InputError(f"effect {spec!r}: expected {BASIS_FAMILY}:JOINT[=t1,t2,... rad]")
-        joint = _joint(parts[1], spec)
+        joint = _joint(parts[1], spec, nj)
         if given is None and rng is not None:
             raise InputError(f"effect {spec!r}: no size to draw; simulate joint_elasticity:{joint} instead")
         vals = None if given is None else _numbers(given, len(given.split(",")), spec)
@@ -349,10 +355,10 @@ def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int =
     return Effect(family, values=(float(_DRAW[family](rng)),), **kw)
 
 
-def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, model) -> Effect:
+def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, model, n_joints=None) -> Effect:
     """``column_compliance:JOINT[=c]`` (c = 1/EI [1/(N m^2)]) or ``base_compliance[=c]`` (c [rad/(N m)]);
     with a model the column joint is checked (prismatic, only prismatic joints below it)."""
-    nj = 7 if model is None else model.robot.n_joints  # a lift robot has one joint more than six
+    nj = model.robot.n_joints if model is not None else n_joints or 7  # a lift: one joint more than six
     if family == cp.COLUMN:
         if len(parts) != 2:
             raise InputError(f"effect {spec!r}: expected {cp.COLUMN}:JOINT[=c 1/(N m^2)], e.g. {cp.COLUMN}:1")
@@ -371,9 +377,11 @@ def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, mode
     return Effect(family, joint, tool_mm=float(rng.uniform(*COMPLIANCE_TOOL_MM)))
 
 
-def parse_effects(texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None):
+def parse_effects(
+    texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None, n_joints=None
+):
     """Parse several effects (a list, or one comma-free text per effect); duplicates are an error."""
-    effects = [parse_effect(t, rng, model=model) for t in texts]
+    effects = [parse_effect(t, rng, model=model, n_joints=n_joints) for t in texts]
     keys = [e.key for e in effects]
     for k in keys:
         if keys.count(k) > 1:

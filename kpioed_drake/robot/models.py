@@ -28,10 +28,12 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     MODELS_DIR,
     CapsuleSpec,
     CellSpec,
+    EffectSpec,
     JointSpec,
     LinkSpec,
     ObstacleSpec,
     RobotSpec,
+    checked_effects,
     list_robots,
     rated_payload,
     robot_path,
@@ -99,6 +101,9 @@ class Robot:
         compliant_base: the model file says the base or floor is compliant (``compliant_base:
             true``): ``base_compliance`` is a diagnosis candidate.
         rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
+        effects: the non-geometric effects of an extended model file (``effects:``, display units;
+            :func:`kpioed_drake.effects.model_effects` makes them effects).
+        effects_where: the file holding ``effects`` (for messages).
     """
 
     name: str
@@ -125,6 +130,8 @@ class Robot:
     targets: np.ndarray | None = None
     compliant_base: bool = False
     rated_payload_kg: float | None = None
+    effects: tuple[EffectSpec, ...] = ()
+    effects_where: str = ""
 
     @property
     def n_targets(self) -> int:
@@ -377,6 +384,8 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         targets=targets,
         compliant_base=bool(spec.compliant_base),
         rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
+        effects=checked_effects(spec.effects, where),
+        effects_where=where,
     )
 
 

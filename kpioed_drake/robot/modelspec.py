@@ -83,6 +83,61 @@ class LinkSpec:
 
 
 @dataclasses.dataclass
+class EffectSpec:
+    """One non-geometric effect of an extended model file (an entry of ``effects:``), as a
+    calibration estimated it; :func:`kpioed_drake.effects.model_effects` turns it into an effect
+    with values."""
+
+    name: str = ""
+    """The effect text without values (:func:`kpioed_drake.effects.parse_effect` syntax), e.g.
+    ``joint_elasticity:2``, ``gear_cyclic:4:2``, ``tracker_drift``."""
+    values: list[float] = dataclasses.field(default_factory=list)
+    """Its values in display units, as after ``=`` in the effect text (elasticity rad/(N m), gear
+    deg, drift mm/min, scale ppm, ...)."""
+    std: list[float] = dataclasses.field(default_factory=list)
+    """Their standard deviations from the calibration (same units; empty: not known)."""
+    unit: str = ""
+    """The display unit of ``values`` (e.g. ``rad/(N m)``); must be the family's when given."""
+    basis_rms: list[float] = dataclasses.field(default_factory=list)
+    """``joint_elasticity_basis`` only: the RMS ``D_j`` of each full gravity-regressor column of
+    joint j over the reference poses (:class:`kpioed_drake.effects.gravity_basis.JointBasis`)."""
+    basis_directions: list[list[float]] = dataclasses.field(default_factory=list)
+    """``joint_elasticity_basis`` only: the identifiable directions ``V_j``, one row per full
+    regressor column (p rows of r_j numbers), so that the file's values multiply the same columns."""
+
+
+def checked_effects(specs, where: str) -> tuple[EffectSpec, ...]:
+    """The ``effects:`` entries of a model file, with finite numbers and consistent sizes.
+
+    Raises:
+        InputError: ``where`` (the file), the field (``effects[k].values`` ...) and what was expected.
+    """
+    out = []
+    for k, e in enumerate(specs):
+        at = f"{where}: effects[{k}]"
+        if not str(e.name).strip() or "=" in e.name:
+            raise InputError(f"{at}.name: expected an effect text without values, got {e.name!r}")
+        for field in ("values", "std", "basis_rms"):
+            v = np.asarray(getattr(e, field), dtype=float).ravel()
+            if not np.all(np.isfinite(v)):
+                raise InputError(f"{at}.{field}: expected finite numbers, got {getattr(e, field)!r}")
+        if not e.values:
+            raise InputError(
+                f"{at}.values: {e.name} has no values (an extended model's effects are estimated)"
+            )
+        if e.std and len(e.std) != len(e.values):
+            raise InputError(f"{at}.std: expected {len(e.values)} numbers (one per value), got {len(e.std)}")
+        rows = [len(r) for r in e.basis_directions]
+        if (e.basis_rms or rows) and (len(rows) != len(e.basis_rms) or len(set(rows)) > 1):
+            raise InputError(
+                f"{at}.basis_directions: expected one row of equal length per basis_rms entry "
+                f"({len(e.basis_rms)}), got rows of {rows}"
+            )
+        out.append(e)
+    return tuple(out)
+
+
+@dataclasses.dataclass
 class RobotSpec:
     """A robot model file."""
 
@@ -115,6 +170,8 @@ class RobotSpec:
     rated_payload_kg: float = 0.0
     """Optional: the payload the robot may carry [kg] (0: not given); a discrimination design's payload
     plan may not exceed it."""
+    effects: list[EffectSpec] = dataclasses.field(default_factory=list)
+    """Optional: the non-geometric effects of an extended model (``calibrate`` with ``extend``)."""
 
 
 @dataclasses.dataclass
@@ -201,6 +258,8 @@ class SidecarSpec:
     """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
     rated_payload_kg: float = 0.0
     """The payload the robot may carry [kg] (0: not given)."""
+    effects: list[EffectSpec] = dataclasses.field(default_factory=list)
+    """The non-geometric effects of an extended model, as in the YAML files."""
     notes: str = ""
 
 

@@ -33,7 +33,7 @@ from pydrake.multibody.tree import PrismaticJoint
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.jointmap import joint_map_from_spec
-from kpioed_drake.robot.modelspec import SidecarSpec, rated_payload
+from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
 
 MM = 1e-3
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -259,6 +259,8 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         urdf=source,
         compliant_base=bool(side.compliant_base),
         rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
+        effects=checked_effects(side.effects, sw),
+        effects_where=sw,
     )
 
 

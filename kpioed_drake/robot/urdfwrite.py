@@ -79,9 +79,10 @@ def calibrated_urdf(robot: Robot, geometry: np.ndarray, note: str = "") -> str:
     return '<?xml version="1.0"?>\n' + comment + text + "\n"
 
 
-def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: str = "") -> str:
-    """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, and the
-    nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
+def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: str = "", effects=()) -> str:
+    """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, the
+    estimated effects (``effects``: :class:`~kpioed_drake.robot.modelspec.EffectSpec` entries) and
+    the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
     src = sidecar_path(Path(robot.urdf.path))
     side = load_yaml_typed(src, SidecarSpec) if src.is_file() else SidecarSpec()
     side = dataclasses.replace(
@@ -93,6 +94,7 @@ def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: st
         gauge=list(robot.gauge),
         targets_mm=[] if targets is None else np.asarray(targets, dtype=float).tolist(),
         notes=(side.notes + " " if side.notes else "") + note,
+        effects=list(effects),
     )
     header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"
     return header + yaml_dump_typed(side)

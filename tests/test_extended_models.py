@@ -1,0 +1,97 @@
+"""Extended models are models: ``calibrate --extend E --out`` writes the effects, every command
+reading ``--robot MODEL`` uses them (validate predicts with them), bad entries name file and field."""
+
+import json
+
+import numpy as np
+import pytest
+
+from kpioed_drake import api
+from kpioed_drake import effects as fx
+from kpioed_drake.cli import main
+from kpioed_drake.errors import InputError
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.study.synthetic import random_poses
+from kpioed_drake.tracker.csvio import write_design
+
+SIGMA = 0.02
+
+
+@pytest.fixture(scope="module")
+def kr16_case(tmp_path_factory):
+    """kr16 with a hidden joint_elasticity:2: 60 calibration poses and 40 fresh ones (same truth)."""
+    work = tmp_path_factory.mktemp("extmodels")
+    robot = load_robot("kr16")
+    for name, seed, n in (("d", 1, 60), ("f", 2, 40)):
+        write_design(work / f"{name}.csv", random_poses(robot, n, np.random.default_rng(seed)))
+        sim = ["simulate", "--robot", "kr16", "--design", str(work / f"{name}.csv"), "--seed", "3"]
+        assert main([*sim, "--effect", "joint_elasticity:2", "--out", str(work / f"{name}_data.csv")]) == 0
+    return work
+
+
+def test_extended_calibration_round_trips_and_validates_better(kr16_case):
+    w = kr16_case
+    rep = api.calibrate("kr16", w / "d_data.csv", extend=["joint_elasticity:2"], out=w / "ext.yaml")
+    geo = api.calibrate("kr16", w / "d_data.csv", out=w / "geo.yaml")
+    d = rep.to_dict()
+    (row,) = d["effects"]
+    assert row["name"] == "joint_elasticity:2" and row["unit"] == "rad/(N m)"
+    assert d["identifiability"] and d["robust"]["scale_mm"] > 0 and d["chi2_per_dof"] < 1.3
+    assert geo.chi2_per_dof > 3.0 and d["effects"] and not geo.to_dict()["effects"]
+    # round trip: the written file's effects are the estimated values
+    (back,) = fx.model_effects(load_robot(str(w / "ext.yaml")))
+    (est,) = rep.effects
+    np.testing.assert_allclose(back.values, est.values, rtol=1e-12)
+    assert load_robot(str(w / "ext.yaml")).effects[0].std == pytest.approx(row["std"], rel=1e-12)
+    # validation on fresh poses predicts with the effects; the extended model predicts better
+    ext_v = api.validate(str(w / "ext.yaml"), w / "f_data.csv")
+    geo_v = api.validate(str(w / "geo.yaml"), w / "f_data.csv")
+    e, g = ext_v.to_dict()["rms_mm"], geo_v.to_dict()["rms_mm"]
+    print("fresh RMS extended", e, "geometric", g)
+    assert ext_v.effects == ("joint_elasticity:2",) and e < 0.7 * g and e < 4 * SIGMA
+
+
+def test_cli_and_api_agree_and_json_has_effects(kr16_case, capsys):
+    w = kr16_case
+    args = ["calibrate", "--robot", "kr16", str(w / "d_data.csv"), "--extend", "joint_elasticity:2"]
+    assert main([*args, "--json", "-"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    direct = api.calibrate("kr16", w / "d_data.csv", extend=["joint_elasticity:2"]).to_dict()
+    assert cli["effects"][0]["values"] == pytest.approx(direct["effects"][0]["values"], rel=1e-12)
+    assert main([*args, "--plots", str(w / "plots"), "--html", str(w / "p.html")]) == 0
+    assert any((w / "plots").iterdir()) and (w / "p.html").is_file()
+
+
+def test_bad_effect_entry_names_file_and_field(kr16_case, capsys):
+    w = kr16_case
+    text = (w / "ext.yaml").read_text() if (w / "ext.yaml").is_file() else None
+    if text is None:
+        api.calibrate("kr16", w / "d_data.csv", extend=["joint_elasticity:2"], out=w / "ext.yaml")
+        text = (w / "ext.yaml").read_text()
+    bad = w / "bad.yaml"
+    bad.write_text(text.replace("name: joint_elasticity:2", "name: joint_elasticity:9"))
+    with pytest.raises(InputError, match=r"bad.yaml: effects\[0\].name/values: .*joint must be 1..6"):
+        fx.model_effects(load_robot(str(bad)))
+    bad.write_text(text.replace("unit: rad/(N m)", "unit: deg"))
+    assert main(["validate", "--robot", str(bad), str(w / "f_data.csv"), "--json", str(w / "v.json")]) == 2
+    assert "effects[0].unit" in capsys.readouterr().err and not (w / "v.json").exists()
+    bad.write_text(text.replace("values: [", "values: [.nan, "))
+    assert main(["validate", "--robot", str(bad), str(w / "f_data.csv")]) == 2
+    assert "effects[0].values" in capsys.readouterr().err
+
+
+def test_any_joint_of_the_robot_and_a_urdf_sidecar(tmp_path, capsys):
+    """lift7: ``--extend gear_cyclic:7:1`` (joint 7 of 7) is accepted, the sidecar carries it; joint
+    8 is refused naming the effect, nothing written."""
+    robot = load_robot("lift7")
+    write_design(tmp_path / "d.csv", random_poses(robot, 60, np.random.default_rng(5)), robot=robot)
+    sim = ["simulate", "--robot", "lift7", "--design", str(tmp_path / "d.csv"), "--seed", "2"]
+    assert main([*sim, "--effect", "gear_cyclic:7:1=0.02,-0.01", "--out", str(tmp_path / "data.csv")]) == 0
+    out = tmp_path / "cal.urdf"
+    cal = ["calibrate", "--robot", "lift7", str(tmp_path / "data.csv")]
+    assert main([*cal, "--extend", "gear_cyclic:8:1", "--out", str(out)]) == 2
+    assert "1..7" in capsys.readouterr().err and not out.exists()
+    assert main([*cal, "--extend", "gear_cyclic:7:1", "--out", str(out)]) == 0
+    (eff,) = fx.model_effects(load_robot(str(out)))
+    assert eff.name == "gear_cyclic:7:1"
+    np.testing.assert_allclose(np.rad2deg(eff.values), [0.02, -0.01], atol=3e-3)
