@@ -87,6 +87,7 @@ def diagnose(
     html=None,
     force: bool = False,
     data_format=None,
+    out=None,
 ) -> DiagnosisReport:
     """Diagnose a measurement file (``kpioed diagnose``): :func:`kpioed_drake.diagnosis.diagnose_file`
     with ``sigma_mm`` [mm] and ``force`` as its :class:`~kpioed_drake.diagnosis.DiagnosisOptions`.
@@ -100,6 +101,7 @@ def diagnose(
         html: 3-D page (Meshcat) of the residuals before and after the named extension.
         force: go on with implausible data, noted in the report.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
+        out: the extended model file to write (the geometry with the named causes).
     """
     return diagnose_file(
         robot,
@@ -109,4 +111,5 @@ def diagnose(
         plots_dir=plots_dir,
         html=html,
         data_format=data_format,
+        out=out,
     )

@@ -83,12 +83,8 @@ def calibrate_file(
     options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict, effects=effects)
     report = calibrate(rob, data, sigma_mm=sigma_mm, cell_path=cell_path, **options)
     with Outputs() as staged:
-        if out and side_out is not None:
-            urdf_text, side_text = calibrated_urdf_files(report)
-            staged.add_text(out, urdf_text)
-            staged.add_text(side_out, side_text)
-        elif out:
-            staged.add_text(out, calibrated_robot_yaml(report))
+        if out:
+            stage_model(staged, report, out)
         if json_path:
             staged.add_json(json_path, report.to_dict())
         if plots_dir:
@@ -107,3 +103,14 @@ def calibrate_file(
             staged.add_text(html, page)
         staged.commit()
     return report
+
+
+def stage_model(staged: Outputs, report: CalibrationReport, out: str | Path) -> None:
+    """Stage the calibrated (or extended) model of ``report`` as ``out``: a YAML model file, or for
+    a URDF robot the URDF file and its sidecar beside it."""
+    if Path(str(out)).suffix == ".urdf":
+        urdf_text, side_text = calibrated_urdf_files(report)
+        staged.add_text(out, urdf_text)
+        staged.add_text(sidecar_of(out), side_text)
+    else:
+        staged.add_text(out, calibrated_robot_yaml(report))

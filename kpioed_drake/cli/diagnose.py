@@ -25,6 +25,12 @@ def register(sub) -> None:
         help="measurements: q1_deg..q6_deg, x_mm, y_mm, z_mm [, temperature_C, time_s, payload_kg]",
     )
     add_sigma(p, default=0.02)
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="MODEL.yaml",
+        help="write the extended model of the named causes (the geometric one if none is named)",
+    )
     add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
     p.set_defaults(func=run, api_names=API_NAMES)
 
@@ -34,13 +40,18 @@ def run(args) -> int:
         args.robot,
         args.data,
         sigma_mm=args.sigma_mm,
+        out=args.out,
         **data_outputs(args),
     )
     if args.json == "-":
         print_json(report.to_json())
         return 0
     print(report.summary())
-    for path, what in ((args.plots, "plots"), (args.html, "3-D page")):
+    for path, what in (
+        (args.out, "extended model (use it as --robot FILE)"),
+        (args.plots, "plots"),
+        (args.html, "3-D page"),
+    ):
         if path:
             print(f"  {what}: {path}")
     return 0

@@ -27,7 +27,8 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import check_paths
-from kpioed_drake.calibration import hold_undetermined
+from kpioed_drake.calibration import calibrate, hold_undetermined
+from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import name_causes, settle
 from kpioed_drake.diagnosis.common import DiagnosisOptions
@@ -42,6 +43,7 @@ from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
+from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
 from kpioed_drake.scene3d import diagnosis_page
 from kpioed_drake.tracker.data import Measurements, as_measurements
 from kpioed_drake.tracker.formats import read_data
@@ -192,8 +194,10 @@ def diagnose_file(
     plots_dir: str | Path | None = None,
     html: str | Path | None = None,
     data_format: str | Path | None = None,
+    out: str | Path | None = None,
 ) -> rp.DiagnosisReport:
-    """Diagnose a measurement file (``kpioed diagnose``); outputs written after all succeeded.
+    """Diagnose a measurement file (``kpioed diagnose``); outputs written after all succeeded (a
+    picture that fails is a note in the report, the other outputs are still written).
 
     Args:
         robot: model name or YAML path.
@@ -203,20 +207,31 @@ def diagnose_file(
         plots_dir: folder for the residual pictures (PNG).
         html: 3-D page (Meshcat) of the residuals before and after the named extension.
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
+        out: the extended model file to write (the geometry calibrated with the named causes;
+            the geometric model when none is named): a YAML file, a URDF robot's ``.urdf``.
     """
     opts = DiagnosisOptions() if options is None else options
     check_sigma(opts.sigma_mm)
+    side = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
     check_paths(
-        robot=robot, inputs=[data_path, data_format], outputs=[json_path], folders=[plots_dir], html=html
+        robot=robot,
+        inputs=[data_path, data_format],
+        outputs=[json_path, out, side],
+        folders=[plots_dir],
+        html=html,
     )
     rob = load_robot(robot)
+    check_out_path(rob, out)
     cell = load_cell(robot=rob)
-    report = diagnose(rob, read_data(data_path, rob, data_format), opts, cell=cell)
+    data = read_data(data_path, rob, data_format)
+    report = diagnose(rob, data, opts, cell=cell)
     with Outputs() as staged:
+        if out:
+            stage_model(staged, extended_calibration(rob, data, report, opts), out)
+        if plots_dir:
+            _stage_plots(report, staged.folder(plots_dir))
         if json_path:
             staged.add_json(json_path, report.to_json())
-        if plots_dir:
-            write_plots(report, staged.folder(plots_dir))
         if html:
             d = report.details
             label = ", ".join(c["effect"] for c in report.causes) or "no extension"
@@ -232,3 +247,31 @@ def diagnose_file(
             staged.add_text(html, page)
         staged.commit()
     return report
+
+
+def extended_calibration(
+    robot: Robot, data: Measurements, report: rp.DiagnosisReport, opts: DiagnosisOptions
+):
+    """The calibration of the diagnosed extended model: the geometry with the plausible named causes
+    (started from their fitted values), as ``calibrate`` with ``effects`` runs it; a cause the
+    report flags implausible (a stand-in, :mod:`kpioed_drake.effects.physical`) is left out, with a
+    note in ``report``."""
+    keep = [c.effect for c in report.cause_records if c.plausible]
+    for c in report.cause_records:
+        if not c.plausible:
+            report.notes.append(
+                f"out: {c.effect.name} is not written into the model: its value is implausible "
+                f"({c.plausible_reason}); it stands in for something else"
+            )
+    cal = calibrate(robot, data, sigma_mm=opts.sigma_mm, effects=keep, force=opts.force)
+    names = ", ".join(e.name for e in keep) or "no effect (the geometric model)"
+    report.notes.append(f"out: the model written is the geometry calibrated with {names}")
+    return cal
+
+
+def _stage_plots(report: rp.DiagnosisReport, folder: Path) -> None:
+    """The residual pictures; one that fails is a note in the report (the JSON is still written)."""
+    try:
+        write_plots(report, folder)
+    except Exception as exc:  # a picture must not cost the results
+        report.notes.append(f"plots: a picture could not be drawn ({type(exc).__name__}: {exc})")
