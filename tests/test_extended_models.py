@@ -9,8 +9,11 @@ import pytest
 from kpioed_drake import api
 from kpioed_drake import effects as fx
 from kpioed_drake.cli import main
+from kpioed_drake.diagnosis import workflow
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import load_robot
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.study.synthetic import random_poses
 from kpioed_drake.tracker.csvio import write_design
 
@@ -118,3 +121,48 @@ def test_diagnose_out_writes_the_extended_model_that_validates(kr16_case, capsys
     # CLI: the same file, nothing written on a bad out suffix
     assert main(["diagnose", "--robot", "kr16", str(w / "d_data.csv"), "--out", str(w / "x.urdf")]) == 2
     assert "out" in capsys.readouterr().err and not (w / "x.urdf").exists()
+
+
+def _ext_model(w):
+    if not (w / "ext.yaml").is_file():
+        api.calibrate("kr16", w / "d_data.csv", extend=["joint_elasticity:2"], out=w / "ext.yaml")
+    return str(w / "ext.yaml")
+
+
+def test_simulate_and_design_use_the_file_effects(kr16_case):
+    """``--robot MODEL``: simulate's truth and evaluate/design's problem carry the file's effects."""
+    path = _ext_model(kr16_case)
+    robot = load_robot(path)
+    (stored,) = fx.model_effects(robot)
+    q = random_poses(robot, 20, np.random.default_rng(9))
+    _, truth = simulate(robot, q, sigma_mm=0.0, geometric_errors=False)
+    assert [e.name for e in truth["effects"]] == ["joint_elasticity:2"]
+    np.testing.assert_allclose(truth["effects"][0].values, stored.values, rtol=1e-12)
+    _, truth = simulate(robot, q, sigma_mm=0.0, effects=["joint_elasticity:2=1e-6"])
+    assert truth["effects"][0].values == pytest.approx((1e-6,))  # the given one replaces the file's
+    prob = make_problem(path, sigma_mm=0.02)
+    assert prob.param_names[-1] == "joint_elasticity:2.c" and prob.n_params == 28
+
+
+def test_a_failing_picture_is_a_note_and_the_json_is_written(kr16_case, monkeypatch):
+    def broken(report, folder):
+        raise ValueError("no picture")
+
+    monkeypatch.setattr(workflow, "write_plots", broken)
+    w = kr16_case
+    rep = workflow.diagnose_file("kr16", w / "d_data.csv", json_path=w / "pj.json", plots_dir=w / "pp")
+    notes = json.loads((w / "pj.json").read_text())["notes"]
+    assert any("plots: a picture could not be drawn (ValueError: no picture)" in n for n in notes)
+    assert rep.causes and (w / "pp").is_dir()
+
+
+def test_column_compliance_pictures(tmp_path):
+    """lift7 with a hidden column_compliance:1: diagnose draws every picture (no plots note)."""
+    robot = load_robot("lift7")
+    write_design(tmp_path / "d.csv", random_poses(robot, 80, np.random.default_rng(1)), robot=robot)
+    sim = ["simulate", "--robot", "lift7", "--design", str(tmp_path / "d.csv"), "--seed", "1"]
+    assert main([*sim, "--effect", "column_compliance:1", "--out", str(tmp_path / "data.csv")]) == 0
+    rep = workflow.diagnose_file("lift7", tmp_path / "data.csv", plots_dir=tmp_path / "p")
+    assert [c["effect"] for c in rep.causes] == ["column_compliance"]
+    assert {p.name for p in (tmp_path / "p").iterdir()} == {"residual_structure.png", "before_after.png"}
+    assert not any(n.startswith("plots:") for n in rep.notes)

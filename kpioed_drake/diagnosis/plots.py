@@ -184,6 +184,11 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
             "temperature [C]",
             "apparent scale error [ppm]",
         )
+    if effect.family in fx.COMPLIANCE_FAMILIES:  # a bend under the weight: along its own displacement
+        size = np.linalg.norm(sig, axis=1)
+        along = sig / np.maximum(size, 1e-300)[:, None]
+        x, xl = size, f"fitted {effect.name} displacement at the reflector [mm]"
+        return x, np.sum(r * along, axis=1), size, xl, "residual along that displacement [mm]"
     v = fit.effects[i].value_array()
     vdir = v / max(np.linalg.norm(v), 1e-300)
     y = (r @ R_TW) @ vdir  # residual in W along the drift direction

@@ -28,6 +28,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.effects import (
+    model_effects,
     COMPLIANCE_FAMILIES,
     JOINT_FAMILIES,
     effect_kpi_columns,
@@ -271,7 +272,9 @@ def make_problem(
         sigma_mm: noise per coordinate [mm]; default: the cell's ``noise_sigma_mm``.
         extend: model extensions, e.g. ``["joint_elasticity:2", "gear_cyclic:4:2"]`` (texts of
             :func:`kpioed_drake.effects.parse_effect`, values not needed). Only effects that do not
-            need per-pose temperature or time (elasticity, gear errors) can extend a design.
+            need per-pose temperature or time (elasticity, gear errors) can extend a design. An
+            extended model file (``effects:``) adds its joint-angle effects and compliances (with
+            their values) to these.
         kpi_weights: (K,) positive weights of the working poses, normalised to sum 1 (default:
             equal). Not allowed with ``kpi_aggregate="max"`` unless equal.
         kpi_aggregate: ``mean`` (weighted mean of the K variances tr(Cs_k)/3) or ``max`` (the
@@ -321,6 +324,7 @@ def make_problem(
     sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
+    exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
     if exts and robot.n_targets > 1:
         raise InputError(
             f"{robot.name}: extend is not available with several targets (targets_mm)", fields=("extend",)
@@ -366,6 +370,12 @@ def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
             fields=("kpi_weights", "kpi_aggregate"),
         )
     return w / w.sum()
+
+
+def _file_extensions(robot: Robot) -> tuple:
+    """The effects of an extended model file that a design can carry (joint-angle effects and
+    compliances; the others need per-pose temperature or time)."""
+    return tuple(e for e in model_effects(robot) if e.family in JOINT_FAMILIES + COMPLIANCE_FAMILIES)
 
 
 def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from kpioed_drake.effects import parse_effect, resolve, true_measurements
+from kpioed_drake.effects import model_effects, parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.robot.models import Robot, load_cell, load_robot
 from kpioed_drake.tracker.csvio import (
@@ -130,7 +130,8 @@ def simulate(
         sigma_mm: noise per coordinate [mm] (0 = noise free).
         seed: seed of ``numpy.random.default_rng`` (geometric errors, tracker frame, effects, noise).
         effects: effect specifications (strings parsed by ``effects.parse_effect``, or effect
-            objects); empty = purely geometric model.
+            objects); empty = purely geometric model. An extended model file's effects (with their
+            values) are part of the truth too, unless ``effects`` names the same.
         geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
         payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
         temperature_C, time_s: per pose; defaults see the module docstring.
@@ -149,6 +150,7 @@ def simulate(
     """
     rob = load_robot(robot) if isinstance(robot, str) else robot
     cell = load_cell(cell_path, robot=rob)
+    effects = _with_model_effects(rob, effects)
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]
     nj = rob.n_joints
@@ -194,6 +196,16 @@ def simulate(
         "condition_offsets": sorted(offsets),
     }
     return table, truth
+
+
+def _with_model_effects(robot: Robot, effects) -> list:
+    """``effects`` plus those of an extended model file (``effects:``, with their values) that
+    ``effects`` does not name: the file's model is part of the truth."""
+    if not robot.effects:
+        return effects
+    given = [parse_effect(e, n_joints=robot.n_joints) if isinstance(e, str) else e for e in effects]
+    keys = {e.key for e in given}
+    return list(effects) + [e for e in model_effects(robot) if e.key not in keys]
 
 
 def _conditions(n: int, rng: np.random.Generator, *, time_s, temperature_C, payload_kg, offsets: dict):
