@@ -105,7 +105,7 @@ def test_any_joint_of_the_robot_and_a_urdf_sidecar(tmp_path, capsys):
 
 def test_diagnose_out_writes_the_extended_model_that_validates(kr16_case, capsys):
     """diagnose names joint_elasticity:2 and writes its extended model; on fresh poses that model's
-    error is what diagnose's cross-validation reported (within 50 %) and below the geometric one's."""
+    error is what diagnose's cross-validation reported (within 25 %) and below half the geometric one's."""
     w = kr16_case
     rep = api.diagnose("kr16", w / "d_data.csv", out=w / "diag.yaml", json_path=w / "diag.json")
     assert [c["effect"] for c in rep.causes] == ["joint_elasticity"]
@@ -116,7 +116,7 @@ def test_diagnose_out_writes_the_extended_model_that_validates(kr16_case, capsys
     geo = api.validate(str(w / "geo2.yaml"), w / "f_data.csv").to_dict()["rms_mm"]
     held_out = rep.extended["holdout_rms_mm"]
     print("diagnose held-out", held_out, "fresh extended", fresh, "fresh geometric", geo)
-    assert abs(fresh - held_out) < 0.5 * held_out and fresh < 0.7 * geo
+    assert abs(fresh - held_out) < 0.25 * held_out and fresh < 0.5 * geo  # measured 0.0203, 0.0224, 0.0670
     assert any("out: the model written" in n for n in json.loads((w / "diag.json").read_text())["notes"])
     # CLI: the same file, nothing written on a bad out suffix
     assert main(["diagnose", "--robot", "kr16", str(w / "d_data.csv"), "--out", str(w / "x.urdf")]) == 2
