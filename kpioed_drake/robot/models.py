@@ -101,8 +101,7 @@ class Robot:
         compliant_base: the model file says the base or floor is compliant (``compliant_base:
             true``): ``base_compliance`` is a diagnosis candidate.
         rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
-        effects: the non-geometric effects of an extended model file (``effects:``, display units;
-            :func:`kpioed_drake.effects.model_effects` makes them effects).
+        effects: an extended model file's effects (``effects:``; :func:`kpioed_drake.effects.model_effects`).
         effects_where: the file holding ``effects`` (for messages).
     """
 
