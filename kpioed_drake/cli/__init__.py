@@ -26,7 +26,17 @@ from kpioed_drake.errors import (
     interrupted,
 )
 
-COMMANDS = ("info", "evaluate", "design", "simulate", "calibrate", "diagnose", "study", "validate")
+COMMANDS = (
+    "info",
+    "evaluate",
+    "design",
+    "simulate",
+    "calibrate",
+    "diagnose",
+    "study",
+    "validate",
+    "compensate",
+)
 
 
 class _Parser(argparse.ArgumentParser):
