@@ -127,7 +127,8 @@ def effects_argument(model: TrackerModel, effects) -> tuple[TrackerModel, tuple[
         e = resolve(parse_effect(e, model=model) if isinstance(e, str) else e, model)
         if e.values is None:
             raise InputError(
-                f"effects (--effect): {e.name} has no value; give the estimated one ('{e.name}=...')"
+                f"effects: {e.name} has no value; give the estimated one ('{e.name}=...')",
+                fields=("effects",),
             )
         out.append(e)
     return model, tuple(out)
@@ -141,12 +142,13 @@ def _nominal_robot(robot: Robot, nominal: str | None) -> Robot:
     try:
         nom = load_robot(name)
     except InputError as exc:
-        hint = "" if nominal is not None else f" (the nominal model of {robot.name}; give it with --nominal)"
-        raise InputError(f"{exc}{hint}") from None
+        hint = "" if nominal is not None else f" (the nominal model of {robot.name}; give it as nominal)"
+        raise InputError(f"{exc}{hint}", fields=(*exc.fields, "nominal")) from None
     if nom.n_joints != robot.n_joints or nom.conventions != robot.conventions:
         raise InputError(
-            f"--nominal {name}: its joints ({nom.n_joints}, {', '.join(nom.conventions)}) are not those of "
-            f"{robot.name} ({robot.n_joints}, {', '.join(robot.conventions)})"
+            f"nominal {name}: its joints ({nom.n_joints}, {', '.join(nom.conventions)}) are not those of "
+            f"{robot.name} ({robot.n_joints}, {', '.join(robot.conventions)})",
+            fields=("nominal",),
         )
     return nom
 
@@ -156,7 +158,9 @@ def _check_target(target, *robots: Robot) -> int:
     n = min(r.n_targets for r in robots)
     ok = isinstance(target, int | np.integer) and not isinstance(target, bool) and 1 <= target <= n
     require(
-        ok, f"--target: expected a target number in 1..{n} (the targets the models define), got {target!r}"
+        ok,
+        f"target: expected a number in 1..{n} (the targets the models define), got {target!r}",
+        fields=("target",),
     )
     return int(target) - 1
 
@@ -328,14 +332,21 @@ def compensate_file(
     """
     require(
         (program is None) != (targets is None),
-        "give exactly one of program (--program) and targets (--targets)",
+        "give exactly one of program and targets",
+        fields=("program", "targets"),
     )
-    require(angles in ANGLES, f"angles (--angles): expected one of {', '.join(ANGLES)}, got {angles!r}")
+    require(
+        angles in ANGLES, f"angles: expected one of {', '.join(ANGLES)}, got {angles!r}", fields=("angles",)
+    )
     require(
         isinstance(allow_unreachable, bool),
         f"allow_unreachable: expected True or False, got {allow_unreachable!r}",
     )
-    require(nominal is None or program is not None, "nominal (--nominal) is used with a program only")
+    require(
+        nominal is None or program is not None,
+        "nominal is used with a program only",
+        fields=("nominal", "program"),
+    )
     source = program if program is not None else targets
     check_paths(robot=robot, inputs=[source], outputs=[out])
     rob = load_robot(robot)
@@ -367,7 +378,8 @@ def compensate_file(
         raise SolverError(
             f"{source}: {bad.size} of {table.rows.size} rows cannot be reached within the joint "
             f"limits to {what}: "
-            f"{named} (nothing written; --allow-unreachable writes them marked reachable=0)"
+            f"{named} (nothing written; allow_unreachable writes them marked reachable=0)",
+            fields=("allow_unreachable",),
         )
     mode = "program" if program is not None else "targets"
     text = _output_text(table, rob, q_file, dq, res, mode)

@@ -6,6 +6,9 @@ from kpioed_drake import api
 from kpioed_drake.calibration.programs import ANGLES
 from kpioed_drake.cli.common import add_robot
 
+API_NAMES = {"effects": "effect"}
+"""API parameter -> this command's option dest where they differ (messages name the option)."""
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -41,7 +44,7 @@ def register(sub) -> None:
         action="store_true",
         help="write rows that cannot be reached (reachable=0) instead of failing",
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args) -> int:
