@@ -183,12 +183,12 @@ def section_lines(rows: list[str], worst: dict) -> list[str]:
     ]
 
 
-def replace_section(text: str, section: list[str]) -> str:
-    """``text`` (results.md) with this section replaced, or inserted before the closing line."""
+def replace_section(text: str, section: list[str], name: str = SECTION) -> str:
+    """``text`` (results.md) with the section ``name`` replaced, or inserted before the closing line."""
     lines = text.rstrip("\n").split("\n")
     new = [*section]
-    if SECTION in lines:
-        i = lines.index(SECTION)
+    if name in lines:
+        i = lines.index(name)
         j = next(
             (k for k in range(i + 1, len(lines)) if lines[k].startswith(("## ", "Total benchmark"))),
             len(lines),

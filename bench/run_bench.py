@@ -23,9 +23,11 @@ Wall times depend on the machine and on its load; CPU time of this process is re
 
 4. Calibration and diagnosis of 1000 poses (measured UR5 data and simulated kr16 data, sigma 0.02
    and 0.065 mm): wall time and peak memory of each ``kpioed`` command (``bench/fits_bench.py``).
+5. Compensation of 1000 program rows with a calibrated kr16 model (``bench/compensate_bench.py``).
 
 Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``;
-``--only fits`` runs section 4 alone and replaces only that section of the existing ``--out`` file.
+``--only fits`` (``--only compensate``) runs section 4 (5) alone and replaces only that section of
+the existing ``--out`` file.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from pathlib import Path
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import compensate_bench  # noqa: E402
 import numpy as np  # noqa: E402
 from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
 
@@ -411,12 +414,18 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="15,30,60,120,240", help="numbers of poses for the growth study")
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results.md"))
-    ap.add_argument("--skip", default="", help="sections to skip: derivatives,solvers,breakdown,sizes,fits")
-    ap.add_argument("--only", choices=["fits"], help="run only this section and replace it in --out")
+    skips = "derivatives,solvers,breakdown,sizes,fits,compensate"
+    ap.add_argument("--skip", default="", help=f"sections to skip: {skips}")
+    ap.add_argument(
+        "--only", choices=["fits", "compensate"], help="run only this section and replace it in --out"
+    )
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     if args.only == "fits":
         print("\n".join(update_results(args.out)))
+        return 0
+    if args.only == "compensate":
+        print("\n".join(compensate_bench.update_results(args.out)))
         return 0
     from importlib.metadata import version
 
@@ -460,6 +469,10 @@ def main(argv=None) -> int:
         print("fits ...", file=sys.stderr, flush=True)
         rows, summary["fits"] = bench_fits()
         sections += section_lines(rows, summary["fits"])
+    if "compensate" not in skip:
+        print("compensate ...", file=sys.stderr, flush=True)
+        rows, summary["compensate"] = compensate_bench.bench_compensate()
+        sections += compensate_bench.section_lines(rows, summary["compensate"])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:
@@ -482,6 +495,8 @@ def main(argv=None) -> int:
             )
     if "fits" in summary:
         targets += targets_lines(summary["fits"])
+    if "compensate" in summary:
+        targets += compensate_bench.targets_lines(summary["compensate"])
     foot = [
         "",
         f"Total benchmark time {time.perf_counter() - t0:.0f} s; load average at end: {load1[0]:.2f} "

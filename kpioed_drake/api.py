@@ -10,6 +10,7 @@
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.run_study` |
+| ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.calibration.programs.compensate_file` |
 
 Example::
 
@@ -22,6 +23,8 @@ Example::
     plan = api.design("kr16", discriminate="thermal_expansion|tracker_scale", given="first.csv", n=20,
                       condition_span="3K")                    # poses and their temperature
     print(plan.discrimination["plan"]["spans"], plan.plan_columns["temperature_offset_K"])
+    comp = api.compensate("kr16-cal.yaml", program="program.csv", out="compensated.csv")
+    print(comp.summary())                                     # rows reached, largest correction
 
 Every command function checks its arguments and its output paths before any work (an output may
 not overwrite an input, name a folder, or be named twice; :mod:`kpioed_drake.arguments`) and raises
@@ -35,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.calibration import calibrate_file as calibrate
+from kpioed_drake.calibration.programs import compensate_file as compensate
 from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.design import run_design as design
@@ -46,7 +50,17 @@ from kpioed_drake.simulation.workflow import simulate_file as simulate
 from kpioed_drake.study import run_study as study
 from kpioed_drake.tracker.csvio import q_to_file
 
-__all__ = ["calibrate", "design", "diagnose", "evaluate", "info", "simulate", "study", "validate"]
+__all__ = [
+    "calibrate",
+    "compensate",
+    "design",
+    "diagnose",
+    "evaluate",
+    "info",
+    "simulate",
+    "study",
+    "validate",
+]
 
 
 def info(robot: str, *, cell_path=None) -> dict:

@@ -1,6 +1,6 @@
 """The further effect families (joint_scale, joint_coupling, tracker_scale, backlash): text syntax,
 models against their definitions, closed-form Jacobian columns against central finite differences,
-and recovery by ``calibrate_extended`` from simulated KR 16 data."""
+and recovery by ``calibrate(..., effects=...)`` from simulated KR 16 data."""
 
 import numpy as np
 import pytest

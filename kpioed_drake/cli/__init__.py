@@ -31,7 +31,17 @@ from kpioed_drake.errors import (
     param_names,
 )
 
-COMMANDS = ("info", "evaluate", "design", "simulate", "calibrate", "diagnose", "study", "validate")
+COMMANDS = (
+    "info",
+    "evaluate",
+    "design",
+    "simulate",
+    "calibrate",
+    "diagnose",
+    "study",
+    "validate",
+    "compensate",
+)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,63 @@
+"""``kpioed compensate``: joint values with which a calibrated model is where the nominal one promised."""
+
+from __future__ import annotations
+
+from kpioed_drake import api
+from kpioed_drake.calibration.programs import ANGLES
+from kpioed_drake.cli.common import add_robot
+
+API_NAMES = {"effects": "effect"}
+"""API parameter -> this command's option dest where they differ (messages name the option)."""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "compensate",
+        help="compensate a program (nominal joint values) or reach target points with a calibrated model",
+    )
+    add_robot(p)
+    p.add_argument("--program", default=None, metavar="P.csv", help="nominal joint values (q1_deg, ...)")
+    p.add_argument("--targets", default=None, metavar="T.csv", help="points in W (x_mm, y_mm, z_mm)")
+    p.add_argument("--out", required=True, metavar="Q.csv", help="compensated joint values to write")
+    p.add_argument(
+        "--nominal",
+        default=None,
+        metavar="ROBOT",
+        help="the controller's nominal model (default: the name before '-calibrated' of --robot)",
+    )
+    p.add_argument("--target", type=int, default=1, metavar="K", help="target (1-based) to compensate")
+    p.add_argument(
+        "--angles",
+        choices=ANGLES,
+        default="model",
+        help="the joint columns hold model angles or controller angles (through the joint_map)",
+    )
+    p.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="EFFECT=VALUE",
+        help="an estimated effect with its value, e.g. joint_elasticity:2=7.7e-7 (repeatable)",
+    )
+    p.add_argument(
+        "--allow-unreachable",
+        action="store_true",
+        help="write rows that cannot be reached (reachable=0) instead of failing",
+    )
+    p.set_defaults(func=run, api_names=API_NAMES)
+
+
+def run(args) -> int:
+    report = api.compensate(
+        args.robot,
+        program=args.program,
+        targets=args.targets,
+        out=args.out,
+        nominal=args.nominal,
+        target=args.target,
+        angles=args.angles,
+        effects=args.effect,
+        allow_unreachable=args.allow_unreachable,
+    )
+    print(report.summary())
+    return 0
