@@ -28,12 +28,12 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.effects import (
-    model_effects,
     COMPLIANCE_FAMILIES,
     JOINT_FAMILIES,
     effect_kpi_columns,
     extension_columns,
     extension_param_names,
+    model_effects,
     parse_effect,
     resolve,
 )
