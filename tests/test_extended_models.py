@@ -8,14 +8,17 @@ import pytest
 
 from kpioed_drake import api
 from kpioed_drake import effects as fx
+from kpioed_drake.calibration.validate import predicted_world
 from kpioed_drake.cli import main
 from kpioed_drake.diagnosis import workflow
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.robot.models import load_robot
+from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.study.synthetic import random_poses
 from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import nominal_model, reflector_world
 
 SIGMA = 0.02
 
@@ -166,3 +169,14 @@ def test_column_compliance_pictures(tmp_path):
     assert [c["effect"] for c in rep.causes] == ["column_compliance"]
     assert {p.name for p in (tmp_path / "p").iterdir()} == {"residual_structure.png", "before_after.png"}
     assert not any(n.startswith("plots:") for n in rep.notes)
+
+
+def test_validate_names_a_missing_condition_column():
+    """A model with tracker_drift needs the time_s column to predict; its absence is named."""
+    robot = load_robot("kr16")
+    q = random_poses(robot, 12, np.random.default_rng(3))
+    data = Measurements.from_arrays(q, np.zeros((12, 3)))
+    model = nominal_model(robot, load_cell(robot=robot))
+    with pytest.raises(InputError, match="tracker_drift needs the time_s column"):
+        predicted_world(model, data, [fx.parse_effect("tracker_drift=0.01,0,0")])
+    np.testing.assert_allclose(predicted_world(model, data), reflector_world(model, q), atol=0)
