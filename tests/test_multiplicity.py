@@ -117,14 +117,38 @@ def test_side_weights_give_the_expected_side_one_test_and_the_other_sides_one():
     np.testing.assert_allclose(indep[1:], 1.0 / (0.01 / (1 - 0.99 ** (1 / 5))), rtol=0.25)
 
 
-def test_prior_moments_match_the_harness_prior(kr16):
-    """The prior draws of the link moments have the spread of the harness's perturbed masses."""
-    rng = np.random.default_rng(0)
-    draws = prior_moments(kr16, 4, rng, 4000)
-    ref = np.array([gb.link_moments(perturbed_masses(kr16, rng, 0.3), 4) for _ in range(4000)])
-    se = ref.std(axis=0) * np.sqrt(2.0 / 4000)  # standard error of the difference of the means
-    assert np.all(np.abs(draws.mean(axis=0) - ref.mean(axis=0)) < 4 * se)
-    np.testing.assert_allclose(draws.std(axis=0), ref.std(axis=0), rtol=0.1)
+def uniform_prior_moments(masses, coms, spread):
+    """Closed-form mean and std (L, 4) of ``m, m c_x, m c_y, m c_z`` when ``m = m0 (1 + a)`` and
+    ``c = c0 + d r`` (``r`` the centre-of-mass scale), ``a, d ~ U(-spread, spread)`` independent:
+    ``E[m c] = m0 c0``, ``E[(m c)^2] = m0^2 (1 + spread^2 / 3) (c0^2 + r^2 spread^2 / 3)``."""
+    v = spread**2 / 3.0  # variance of U(-spread, spread)
+    r = gb.com_scales(coms)[:, None]
+    m0 = masses[:, None]
+    mean = np.concatenate([m0, m0 * coms], axis=1)
+    second = np.concatenate([m0**2 * (1 + v), m0**2 * (1 + v) * (coms**2 + r**2 * v)], axis=1)
+    return mean, np.sqrt(second - mean**2)
+
+
+@pytest.mark.parametrize("joint", [4, 2])
+def test_prior_moments_have_the_closed_form_moments_of_the_uniform_prior(kr16, joint):
+    """The prior draws of the link moments and the harness's perturbed masses (``mass_spread`` 0.3)
+    both have the mean and spread of independent +-MASS_PRIOR_SPREAD uniform errors (closed form; 4
+    standard errors on the means, 5 % on the stds), and the masses stay within the +-30 %."""
+    assert gb.MASS_PRIOR_SPREAD == 0.3
+    ks = np.arange(joint, kr16.n_joints + 1)
+    mean, std = uniform_prior_moments(kr16.masses[ks], kr16.coms[ks], 0.3)
+    mean, std = mean.reshape(-1), std.reshape(-1)
+    n = 20000
+    draws = prior_moments(kr16, joint, np.random.default_rng(0), n)
+    rng = np.random.default_rng(1)
+    harness = np.array([gb.link_moments(perturbed_masses(kr16, rng, 0.3), joint) for _ in range(n // 5)])
+    for sample in (draws, harness):
+        se = std / np.sqrt(len(sample))
+        assert np.all(np.abs(sample.mean(axis=0) - mean) < 4 * se + 1e-12 * np.abs(mean))
+        np.testing.assert_allclose(sample.std(axis=0), std, rtol=0.05)
+        m = sample[:, ::4]
+        assert np.all(m >= 0.7 * kr16.masses[ks] - 1e-12) and np.all(m <= 1.3 * kr16.masses[ks] + 1e-12)
+        assert np.all(m.max(axis=0) > 1.29 * kr16.masses[ks])  # the whole range, not a narrower one
 
 
 def test_side_patterns_hold_the_expected_side_and_the_true_one(kr16):

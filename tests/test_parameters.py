@@ -4,7 +4,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.stats
 from numpy.testing import assert_allclose
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RotationMatrix
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake import simulation
@@ -110,19 +113,44 @@ def test_covariance_is_the_inverse_information_or_raises():
     assert_allclose(C, np.linalg.pinv(J.T @ J), rtol=1e-8, atol=1e-12)
 
 
+class Normals:
+    """A stand-in generator whose ``standard_normal`` returns the given numbers."""
+
+    def __init__(self, values):
+        self.values = np.asarray(values, dtype=float)
+
+    def standard_normal(self, size):
+        assert size == self.values.size
+        return self.values.copy()
+
+
 def test_one_rotation_sampler_for_simulation_and_harness(nominal):
-    g = np.random.default_rng(5).standard_normal(4)
-    w, x, y, z = g / np.linalg.norm(g)
-    explicit = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    assert_allclose(simulation.random_rotation(np.random.default_rng(5)), explicit, atol=1e-15)
+    """Drake's rotation of the same unit quaternion; a known rotation from both component orders;
+    the harness order is scipy's ``Rotation.random`` draw for draw; uniform on SO(3)."""
+    g = np.random.default_rng(5).standard_normal(4)  # read as (w, x, y, z)
+    drake = RotationMatrix(Quaternion(g / np.linalg.norm(g))).matrix()
+    assert_allclose(simulation.random_rotation(np.random.default_rng(5)), drake, atol=1e-15)
+    # 2.5 (cos 20 deg, sin 20 deg u): 40 degrees about u = (2, -1, 2) / 3, unnormalised on purpose
+    u, c, s = np.array([2.0, -1.0, 2.0]) / 3.0, np.cos(np.radians(40.0)), np.sin(np.radians(40.0))
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    rodrigues = np.eye(3) + s * K + (1 - c) * K @ K
+    half = 2.5 * np.array([np.cos(np.radians(20.0)), *(np.sin(np.radians(20.0)) * u)])
+    assert_allclose(simulation.random_rotation(Normals(half)), rodrigues, atol=1e-15)
+    last = simulation.random_rotation(Normals(np.roll(half, -1)), scalar_first=False)  # (x, y, z, w)
+    assert_allclose(last, rodrigues, atol=1e-15)
     R = simulation.random_rotation(np.random.default_rng(6), scalar_first=False)
     assert_allclose(R, Rotation.random(random_state=np.random.default_rng(6)).as_matrix(), atol=1e-15)
+    # uniform on SO(3): each entry is U(-1, 1) (mean 0, mean square 1/3), the trace 1 + 2 cos(angle)
+    # has mean 0; rotations: orthonormal, determinant +1
+    rng = np.random.default_rng(7)
+    Rs = np.array([simulation.random_rotation(rng) for _ in range(4000)])
+    assert_allclose(np.einsum("nji,njk->nik", Rs, Rs), np.broadcast_to(np.eye(3), Rs.shape), atol=1e-14)
+    assert_allclose(np.linalg.det(Rs), 1.0, atol=1e-14)
+    se = np.sqrt(1.0 / 3.0 / 4000)  # of an entry's mean
+    assert np.all(np.abs(Rs.mean(axis=0)) < 4 * se)
+    assert np.all(np.abs((Rs**2).mean(axis=0) - 1.0 / 3.0) < 4 * np.sqrt(4.0 / 45.0 / 4000))
+    assert abs(np.trace(Rs, axis1=1, axis2=2).mean()) < 4 * np.sqrt(1.0 / 4000)  # Var(trace) = 1
+    assert scipy.stats.kstest(Rs[:, 2, 0], scipy.stats.uniform(-1.0, 2.0).cdf).pvalue > 1e-3
     # the truth keeps the gauge parameters nominal and moves the tracker within the spread
     truth = simulation.true_model(nominal, np.random.default_rng(7), tracker_spread_mm=200.0)
     lay = nominal.layout

@@ -89,12 +89,12 @@ def hold_undetermined(
     registered = registered_model(nominal, data.q, data.eta, data.target)
     _, H = measurement_jacobian(registered, data.q, target=data.target)
     found = undetermined_parameters(H[:, :, lay.free].reshape(3 * data.n, -1), lay.free_names)
-    loose = [c for c in found.correlated if c[0] in lay.tracker_names]
+    loose = [c for c in found.correlated if c.held in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
         warnings.append(
             f"these {data.n} poses barely separate "
-            + "; ".join(f"{a} (correlation {r:+.6f} with {b})" for a, b, r in loose)
+            + "; ".join(c.text() for c in loose)
             + ": estimated with the others rather than held at the tracker registration (which the "
             "robot's own errors bias)"
         )
@@ -104,9 +104,10 @@ def hold_undetermined(
 def _hold(
     model: TrackerModel, found, what: str, data: Measurements, strict: bool, warnings, *, at_estimate=()
 ) -> TrackerModel:
-    """``model`` with the parameters ``found`` (:class:`~kpioed_drake.estimation.identifiability.Undetermined`)
-    no longer estimated, with a warning (``at_estimate``: those of them held at ``model``'s value, an
-    estimate, not at nominal); InputError with ``strict`` or too many."""
+    """``model`` with the parameters ``found``
+    (:class:`~kpioed_drake.estimation.identifiability.Undetermined`) no longer estimated, with a
+    warning naming them and, for a pair, both members (``at_estimate``: those of them held at
+    ``model``'s value, an estimate, not at nominal); InputError with ``strict`` or too many."""
     if not found.names:
         return model
     lay = model.layout

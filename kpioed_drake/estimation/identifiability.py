@@ -9,8 +9,9 @@ robot (``kpioed info``).
 :func:`undetermined_parameters` applies the same test to the user's own poses before a calibration
 (:func:`kpioed_drake.calibration.calibrate`): the parameters beyond the near-rank
 (``NEAR_RANK_RTOL``) and, of every pair whose a-priori correlation exceeds ``MAX_CORRELATION`` in
-magnitude, the one later in the pivoting order are held at nominal, so a calibration never writes
-values the data do not determine (e.g. the wrist parameters of a reflector on joint 6's axis).
+magnitude, the less determined one (the later in the parameter order when the two are tied,
+``CORRELATION_TIE``) are held at nominal, so a calibration never writes values the data do not
+determine (e.g. the wrist parameters of a reflector on joint 6's axis).
 """
 
 from __future__ import annotations
@@ -30,6 +31,15 @@ a design's determined columns lie decades above it and a reflector on joint 6's 
 a reflector slightly off the axis is left to the correlation test (docs/design.md)."""
 MAX_CORRELATION = 0.999
 """Pairs of parameters whose a-priori correlation exceeds this in magnitude are not separable."""
+CORRELATION_TIE = 1e-4
+"""Correlation magnitudes closer than this are tied when :func:`undetermined_parameters` chooses which
+pair to break first (pairs) and which member of a pair to hold (each member's multiple correlation
+with all the other parameters, ``sqrt(1 - 1 / C_ii)``): tied candidates are taken in the parameter
+order (the given columns'), so every machine holds the same one. Below it the choice would follow
+the last digits of the Jacobian: the column-pivoting order of unit columns starts from norms equal
+to rounding (lift7, base-compliance seed 91: tracker_ry 0.999680, tracker_z 0.999696, their pair
+-0.99924, held one or the other by machine). Differences of 1e-4 near 0.9997 are stds within about
+15 % of each other: both members are about equally undetermined and holding either is a gauge."""
 
 
 @dataclasses.dataclass
@@ -108,29 +118,63 @@ def unit_columns(J: np.ndarray) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True)
+class CorrelatedPair:
+    """A pair of parameters the poses do not separate (a-priori correlation above ``MAX_CORRELATION``).
+
+    Attributes:
+        held: the member held (not estimated): the one with the larger multiple correlation with
+            the other parameters, or the later in the parameter order when tied.
+        partner: the member kept.
+        correlation: their a-priori correlation (signed).
+        tied: the members' multiple correlations are within ``CORRELATION_TIE``: either could be
+            held, ``held`` is the later in the parameter order.
+    """
+
+    held: str
+    partner: str
+    correlation: float
+    tied: bool = False
+
+    def text(self) -> str:
+        """The pair and its correlation, both names first when tied (neither is the clear one)."""
+        if self.tied:
+            return f"{self.held} and {self.partner} (correlation {self.correlation:+.6f})"
+        return f"{self.held} (correlation {self.correlation:+.6f} with {self.partner})"
+
+    def describe(self) -> str:
+        """:meth:`text`, saying which member is held when they are tied."""
+        if self.tied:
+            return (
+                f"{self.held} and {self.partner} (correlation {self.correlation:+.6f}; tied, {self.held} "
+                "held as the later in the parameter order)"
+            )
+        return self.text()
+
+
+@dataclasses.dataclass(frozen=True)
 class Undetermined:
     """Result of :func:`undetermined_parameters`: the parameters to hold at nominal, and why.
 
     Attributes:
         rank: names beyond the near-rank of the column-normalised Jacobian, in pivoting order.
-        correlated: ``(held, partner, correlation)`` of every pair found above ``MAX_CORRELATION``
-            (``held`` is the one held at nominal).
+        correlated: every pair found above ``MAX_CORRELATION``, in the order they were broken
+            (:attr:`CorrelatedPair.held` is the one held at nominal).
     """
 
     rank: tuple[str, ...] = ()
-    correlated: tuple[tuple[str, str, float], ...] = ()
+    correlated: tuple[CorrelatedPair, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
         """Every parameter to hold at nominal."""
-        return self.rank + tuple(c[0] for c in self.correlated)
+        return self.rank + tuple(c.held for c in self.correlated)
 
     def describe(self) -> str:
         """Which parameters and why, one clause per reason."""
         parts = []
         if self.rank:
             parts.append(f"{', '.join(self.rank)} (Jacobian rank deficient)")
-        parts += [f"{a} (correlation {r:+.6f} with {b})" for a, b, r in self.correlated]
+        parts += [c.describe() for c in self.correlated]
         return "; ".join(parts)
 
 
@@ -145,12 +189,13 @@ def undetermined_parameters(
 
     QR with column pivoting of ``J`` with unit columns: the columns past the first diagonal entry
     below ``rtol`` times the largest are not determined. Of the others, while some pair's a-priori
-    correlation (from ``(F^T F)^-1``) exceeds ``max_correlation`` in magnitude, the one later in the
-    pivoting order (the less independent) is dropped too.
+    correlation (from ``C = (F^T F)^-1``) exceeds ``max_correlation`` in magnitude, one member of the
+    most correlated pair is dropped too (:func:`_break_pair`: the less determined one; ties within
+    ``CORRELATION_TIE`` go by the order of ``names``, never by the pivoting).
 
     Args:
         J: (m, k) weighted Jacobian of the estimated parameters (m >= k) [1 / parameter unit].
-        names: (k,) their names.
+        names: (k,) their names, in the parameter order (ties are broken by it).
         rtol: near-rank threshold on R's diagonal, relative to the largest.
         max_correlation: correlation magnitude above which a pair is not separable.
 
@@ -161,17 +206,40 @@ def undetermined_parameters(
     _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     rank = int(np.argmax(d <= rtol * d[0])) if np.any(d <= rtol * d[0]) else d.size
-    keep = list(piv[:rank])
+    keep = sorted(piv[:rank].tolist())  # the parameter order: ties are broken by it
     correlated = []
     while len(keep) > 1:
-        C = np.linalg.inv(F[:, keep].T @ F[:, keep])
-        s = np.sqrt(np.diag(C))
-        corr = C / np.outer(s, s)
-        np.fill_diagonal(corr, 0.0)
-        i, j = np.unravel_index(np.argmax(np.abs(corr)), corr.shape)
-        if abs(corr[i, j]) <= max_correlation:
+        pair = _break_pair(F[:, keep], max_correlation)
+        if pair is None:
             break
-        held, partner = (keep[j], keep[i]) if j > i else (keep[i], keep[j])
-        correlated.append((names[held], names[partner], float(corr[i, j])))
-        keep.remove(held)
+        held, partner, r, tied = pair
+        correlated.append(CorrelatedPair(names[keep[held]], names[keep[partner]], r, tied))
+        del keep[held]
     return Undetermined(rank=tuple(names[i] for i in piv[rank:]), correlated=tuple(correlated))
+
+
+def _break_pair(F: np.ndarray, max_correlation: float):
+    """The pair of columns of ``F`` (unit columns, in the parameter order) to break next.
+
+    The most correlated pair above ``max_correlation`` (of pairs within ``CORRELATION_TIE`` of the
+    largest magnitude, the first in the order); of it the member with the larger multiple correlation
+    with all the other columns (``sqrt(1 - 1 / C_ii)``: the larger a-priori std) is held, the later
+    one when the two are within ``CORRELATION_TIE``.
+
+    Returns:
+        (held, partner, correlation, tied): column indices into ``F``, the pair's correlation and
+        whether its members were tied; None when no pair exceeds ``max_correlation``.
+    """
+    C = np.linalg.inv(F.T @ F)
+    s = np.sqrt(np.diag(C))
+    corr = C / np.outer(s, s)
+    upper = np.abs(np.triu(corr, 1))
+    top = float(upper.max())
+    if top <= max_correlation:
+        return None
+    pairs = np.argwhere(upper > top - CORRELATION_TIE)  # row-major: the first pair in the order
+    i, j = (int(k) for k in pairs[0])
+    multiple = np.sqrt(np.clip(1.0 - 1.0 / np.diag(C)[[i, j]], 0.0, 1.0))
+    tied = bool(abs(multiple[0] - multiple[1]) < CORRELATION_TIE)
+    held, partner = (j, i) if tied or multiple[1] > multiple[0] else (i, j)
+    return held, partner, float(corr[i, j]), tied
