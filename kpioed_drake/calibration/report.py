@@ -74,8 +74,8 @@ class CalibrationReport:
     @property
     def held_at_nominal(self) -> list[str]:
         """Parameters the robot's layout estimates but this fit held at nominal (the poses do not
-        determine them: :func:`kpioed_drake.estimation.identifiability.undetermined_parameters`); a tracker-pose
-        coordinate held at the solution keeps its estimate and is in :attr:`held_at_estimate`."""
+        determine them: :func:`kpioed_drake.estimation.identifiability.undetermined_parameters`); a
+        tracker-pose coordinate held at the solution keeps its estimate and is in :attr:`held_at_estimate`."""
         return [n for n in self._held() if n not in self.model.layout.tracker_names]
 
     @property

@@ -151,7 +151,8 @@ def _add_kpi_options(p) -> None:
 
 
 def _weights(text: str | None) -> list[float] | None:
-    """``--kpi-weights w1,...,wK`` as numbers (checked by :func:`~kpioed_drake.estimation.problem.make_problem`)."""
+    """``--kpi-weights w1,...,wK`` as numbers (checked by
+    :func:`~kpioed_drake.estimation.problem.make_problem`)."""
     if text is None:
         return None
     try:

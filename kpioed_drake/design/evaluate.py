@@ -1,8 +1,9 @@
 """``kpioed evaluate``: the KPI variance, standard criterion and feasibility of a given design file.
 
-The covariance of eq. 19 (:meth:`~kpioed_drake.estimation.problem.Problem.covariances`) and the independent
-feasibility check with Drake's signed distances (:class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`,
-eq. 24b) of poses read from a CSV, optionally with the optimality certificate
+The covariance of eq. 19 (:meth:`~kpioed_drake.estimation.problem.Problem.covariances`) and the
+independent feasibility check with Drake's signed distances
+(:class:`~kpioed_drake.tracker.feasibility.FeasibilityChecker`, eq. 24b) of poses read from a CSV,
+optionally with the optimality certificate
 (:func:`~kpioed_drake.design.approximate.certificate.certify`) and a 3-D page.
 """
 

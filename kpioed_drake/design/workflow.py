@@ -5,8 +5,8 @@
 JSON record and a picture; with several working poses (``--q-work`` repeated or a CSV of
 working poses), poses already measured (``--given``) or a target variance (``--target-var``,
 :func:`~kpioed_drake.design.target.design_for_target`); and (unless ``--no-certify``) the
-optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`) of the design. :func:`demo`
-compares the heuristic, the standard (``param``) and the KPI design of one robot (default: the
+optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`) of the design.
+:func:`demo` compares the heuristic, the standard (``param``) and the KPI design of one robot (default: the
 KR 16) in the default cell.
 """
 
