@@ -18,8 +18,8 @@ $(STAMP): pyproject.toml
 demo: setup   ## KPI design for kr16 in the default cell: heuristic vs standard vs KPI, CSV + picture
 	$(PY) -c "from kpioed_drake.design import demo; demo('out/demo')"
 
-test: setup   ## the default test run (slow studies excluded)
-	$(PY) -m pytest -q
+test: setup   ## the default test run (slow studies excluded), one worker per core (pytest-xdist)
+	$(PY) -m pytest -q -n auto
 
 test-slow: setup   ## the slow tests only (full-size checks)
 	$(PY) -m pytest -q -m slow

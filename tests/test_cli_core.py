@@ -37,7 +37,9 @@ def test_info_json(capsys):
 def test_evaluate_matches_library(capsys, design_file, tmp_path):
     path, q = design_file
     js = tmp_path / "r.json"
-    code, out, _ = _run(capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--json", str(js))
+    # the certificate: tests/test_design_start.py
+    ev = ["evaluate", "--robot", "kr16", "--design", str(path), "--no-certify"]
+    code, out, _ = _run(capsys, *ev, "--json", str(js))
     assert code == 0 and "tr(Cs)/3" in out
     d = json.loads(js.read_text())
     prob = make_problem("kr16")
@@ -47,29 +49,15 @@ def test_evaluate_matches_library(capsys, design_file, tmp_path):
     assert d["n_params"] == 27 and len(d["poses"]) == 30
     assert isinstance(d["feasible"], bool)
     # noise scales the covariance quadratically
-    code, out, _ = _run(
-        capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--sigma-mm", "0.1", "--json", "-"
-    )
+    code, out, _ = _run(capsys, *ev, "--sigma-mm", "0.1", "--json", "-")
     assert json.loads(out)["kpi_avg_var_mm2"] == pytest.approx(0.01 * d["kpi_avg_var_mm2"], rel=1e-9)
 
 
 def test_q_work_override_changes_kpi(capsys, design_file):
     path, _ = design_file
-    base = json.loads(_run(capsys, "evaluate", "--robot", "kr16", "--design", str(path), "--json", "-")[1])
-    other = json.loads(
-        _run(
-            capsys,
-            "evaluate",
-            "--robot",
-            "kr16",
-            "--design",
-            str(path),
-            "--q-work",
-            "0,-90,90,0,30,0",
-            "--json",
-            "-",
-        )[1]
-    )
+    ev = ["evaluate", "--robot", "kr16", "--design", str(path), "--no-certify", "--json", "-"]
+    base = json.loads(_run(capsys, *ev)[1])
+    other = json.loads(_run(capsys, *ev, "--q-work", "0,-90,90,0,30,0")[1])
     assert other["q_work_deg"] == [0, -90, 90, 0, 30, 0]
     assert other["kpi_avg_var_mm2"] != pytest.approx(base["kpi_avg_var_mm2"], rel=1e-3)
 

@@ -315,14 +315,16 @@ def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monk
         return opts
 
     monkeypatch.setattr(design_solve, "solver_options", one_iteration)
-    with pytest.raises(DesignError, match="failed") as exc:
-        optimize_design(kr16, criterion="kpi", n=12)
+    with pytest.raises(DesignError, match="failed") as exc:  # the heuristic start: no start search
+        optimize_design(kr16, criterion="kpi", n=12, start="heuristic")
     assert exc.value.result is not None and not exc.value.result.success
-    res = optimize_design(kr16, criterion="kpi", n=12, allow_infeasible=True)
+    res = optimize_design(kr16, criterion="kpi", n=12, start="heuristic", allow_infeasible=True)
     assert not res.success and "snopt info" in res.status
 
     out, js = tmp_path / "d.csv", tmp_path / "d.json"
-    code = main(f"design --robot kr16 --criterion kpi --n 12 --out {out} --json {js}".split())
+    code = main(
+        f"design --robot kr16 --criterion kpi --n 12 --start heuristic --out {out} --json {js}".split()
+    )
     assert code == 3
     assert not out.exists()
     rec = json.loads(js.read_text())
@@ -331,9 +333,8 @@ def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monk
 
 def test_cli_writes_a_design_that_evaluate_reads(tmp_path, capsys):
     out, js, png = tmp_path / "kpi.csv", tmp_path / "kpi.json", tmp_path / "kpi.png"
-    code = main(
-        f"design --robot kr16 --criterion kpi --n 15 --seed 1 --out {out} --json {js} --plot {png}".split()
-    )
+    cmd = f"design --robot kr16 --criterion kpi --n 15 --seed 1 --no-certify --out {out} --json {js}"
+    code = main([*cmd.split(), "--plot", str(png)])  # the certificate: tests/test_design_start.py
     assert code == 0
     text = capsys.readouterr().out
     assert "tr(Cs)/3" in text and "15/15 poses feasible" in text
@@ -344,7 +345,7 @@ def test_cli_writes_a_design_that_evaluate_reads(tmp_path, capsys):
     problem = make_problem("kr16")
     q = read_design(out, problem.robot)
     assert q.shape == (15, 6)
-    ev = api.evaluate("kr16", str(out))
+    ev = api.evaluate("kr16", str(out), certify=False)  # the certificate: test_design_start
     assert_allclose(ev["kpi_avg_var_mm2"], rec["values"]["kpi_avg_var_mm2"], rtol=1e-4)
     assert ev["feasible"]
     assert png.stat().st_size > 10_000

@@ -236,6 +236,8 @@ def test_target_var_with_given_poses_counts_the_new_ones(kr16):
 
 
 def test_target_var_reports_the_certificate_bound_or_why_it_is_missing(kr16, monkeypatch):
+    """The bound of the design found, or why it is missing (the heuristic's search: the bound is
+    reported the same way for every criterion)."""
     calls = []
 
     def fake_certify(problem, q, *, collision, seed):
@@ -243,21 +245,26 @@ def test_target_var_reports_the_certificate_bound_or_why_it_is_missing(kr16, mon
         return {"bound_mm2": 0.05, "efficiency": 0.5, "method": "fake"}
 
     monkeypatch.setattr(design_target, "certify", fake_certify)
-    res = design_for_target(kr16, 0.5)
+    res = design_for_target(kr16, 0.5, criterion="heuristic")
     assert calls == [res.n] and res.target["bound_mm2"] == 0.05 and "fake" in res.target["bound_note"]
 
     def broken(*args, **kwargs):
         raise RuntimeError("no pool")
 
     monkeypatch.setattr(design_target, "certify", broken)
-    res = design_for_target(kr16, 0.5)
+    res = design_for_target(kr16, 0.5, criterion="heuristic")
     assert res.target["bound_mm2"] is None and "no pool" in res.target["bound_note"]
 
 
 # ----------------------------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------------------------
-def test_cli_several_working_poses_from_a_file_and_repeated(tmp_path, capsys, kr16, path):
+def test_cli_several_working_poses_from_a_file_and_repeated(
+    tmp_path, capsys, kr16, path, quick_certificate, quick_start
+):
+    """The mean of 3 weighted working poses from a file, with its certificate (the smaller searches
+    of the start and the certificate: the bound still rigorous), then the worst case of the same
+    poses given as --q-work."""
     wp = tmp_path / "path.csv"
     write_design(wp, path, {"weight": np.array([1.0, 1.0, 2.0])})
     q_file, w_file = read_working_poses(wp, kr16.robot)

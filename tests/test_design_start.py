@@ -11,7 +11,6 @@ import pytest
 from kpioed_drake import api
 from kpioed_drake.cli import main
 from kpioed_drake.design import START_METHODS, approximate_start, check_design, optimize_design, resolve_start
-from kpioed_drake.design.approximate import certificate
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.tracker.csvio import write_design
@@ -20,18 +19,6 @@ from kpioed_drake.tracker.csvio import write_design
 @pytest.fixture(scope="module")
 def kr16():
     return make_problem("kr16")
-
-
-@pytest.fixture
-def quick_certificate(monkeypatch):
-    """A smaller search behind the certificate (the bound stays rigorous for the poses evaluated)."""
-    for name, value in (
-        ("CERTIFY_ROUNDS", 2),
-        ("VERIFY_ROUNDS", 1),
-        ("VERIFY_POOL", 500),
-        ("VERIFY_STARTS", 8),
-    ):
-        monkeypatch.setattr(certificate, name, value)
 
 
 def _run(capsys, *argv):
@@ -156,7 +143,9 @@ def cache(monkeypatch, tmp_path):
     return folder
 
 
-def test_every_design_record_has_its_bound_and_efficiency(capsys, tmp_path, quick_certificate, cache):
+def test_every_design_record_has_its_bound_and_efficiency(
+    capsys, tmp_path, quick_certificate, quick_start, cache
+):
     for crit in ("heuristic", "param", "kpi"):
         js = tmp_path / f"{crit}.json"
         res = api.design("kr16", criterion=crit, n=20, json_path=js)

@@ -56,32 +56,16 @@ def test_extend_rejects_effects_that_need_per_pose_inputs():
 
 
 def test_design_cli_with_extension(tmp_path, capsys):
+    """design and evaluate take --extend (28 parameters); the certificate is tests/test_design_start.py's."""
     out, js = tmp_path / "d.csv", tmp_path / "d.json"
-    code = main(
-        [
-            "design",
-            "--robot",
-            "kr16",
-            "--criterion",
-            "kpi",
-            "--n",
-            "20",
-            "--extend",
-            "joint_elasticity:2",
-            "--out",
-            str(out),
-            "--json",
-            str(js),
-        ]
-    )
+    ext = ["--robot", "kr16", "--extend", "joint_elasticity:2", "--no-certify"]
+    code = main(["design", *ext, "--criterion", "kpi", "--n", "20", "--out", str(out), "--json", str(js)])
     assert code == 0
     capsys.readouterr()
-    code = main(
-        ["evaluate", "--robot", "kr16", "--design", str(out), "--extend", "joint_elasticity:2", "--json", "-"]
-    )
+    code = main(["evaluate", *ext, "--design", str(out), "--json", "-"])
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and d["n_params"] == 28 and d["extensions"] == ["joint_elasticity:2"]
-    assert d["feasible"]
+    assert d["feasible"] and json.loads(js.read_text())["feasible"]
 
 
 def test_calibrate_with_extension_recovers_elasticity(tmp_path):

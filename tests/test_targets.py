@@ -334,9 +334,10 @@ def test_diagnose_three_targets_finds_the_effect(kr16):
     assert report.n_poses == 60 and report.cause_names == {"joint_elasticity:2"}, report.summary()
 
 
-def test_design_and_evaluate_cli_with_two_targets(tmp_path, capsys):
+def test_design_and_evaluate_cli_with_two_targets(tmp_path, capsys, quick_certificate):
     """The commands take a several-target model: the approximate start (its cones hold a pose's 6
-    rows) and the certificate, whose bound is below the design's value."""
+    rows) and the certificate (the smaller search: still rigorous), whose bound is below the
+    design's value."""
     rfile = robot_file(tmp_path, [[-89.58, -2.84, 327.03], [-89.58, 60.0, 300.0]])
     out, js = tmp_path / "des.csv", tmp_path / "des.json"
     base = ["design", "--robot", str(rfile), "--criterion", "kpi", "--n", "10", "--out", str(out)]
