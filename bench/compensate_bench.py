@@ -30,7 +30,7 @@ import pandas as pd
 from fits_bench import replace_section, run_command
 
 from kpioed_drake import api
-from kpioed_drake.calibration import calibrate, calibrated_robot_yaml
+from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
 from kpioed_drake.calibration.compensate import model_pose
 from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.robot.models import load_cell, load_robot
@@ -55,8 +55,10 @@ def _inputs(folder: Path) -> dict:
     )
     data = Measurements.from_table(table, robot)
     model_file = folder / "kr16-cal.yaml"
-    model_file.write_text(calibrated_robot_yaml(calibrate(robot, data, sigma_mm=0.02)))
-    extended = calibrate(robot, data, sigma_mm=0.02, effects=["joint_elasticity:2"]).to_dict()
+    model_file.write_text(calibrated_robot_yaml(calibrate(robot, data, CalibrationOptions(sigma_mm=0.02))))
+    extended = calibrate(
+        robot, data, CalibrationOptions(sigma_mm=0.02, effects=["joint_elasticity:2"])
+    ).to_dict()
     span = robot.upper - robot.lower
     q = robot.lower + span * np.random.default_rng(1).uniform(0.05, 0.95, (N_ROWS, robot.n_joints))
     write_design(folder / "program.csv", q, robot=robot)

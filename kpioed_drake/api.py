@@ -37,7 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from kpioed_drake.calibration import calibrate_file as calibrate
+from kpioed_drake.calibration import CalibrationReport, calibrate_file
+from kpioed_drake.calibration.common import CalibrationOptions
 from kpioed_drake.calibration.programs import compensate_file as compensate
 from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.design import evaluate_file as evaluate
@@ -89,6 +90,68 @@ def info(robot: str, *, cell_path=None) -> dict:
         "unidentifiable": rep.unidentifiable,
         "car_shift_x_mm": rob.car_shift_x,
     }
+
+
+def calibrate(
+    robot: str,
+    data_path,
+    *,
+    sigma_mm: float = 0.02,
+    q_work_deg: str | None = None,
+    extend=(),
+    outlier_alpha: float = 0.01,
+    out=None,
+    json_path=None,
+    plots_dir=None,
+    html=None,
+    cell_path=None,
+    force: bool = False,
+    data_format=None,
+    strict: bool = False,
+) -> CalibrationReport:
+    """Calibrate from a measurement file (``kpioed calibrate``):
+    :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
+    ``outlier_alpha``, ``force`` and ``strict`` as its
+    :class:`~kpioed_drake.calibration.common.CalibrationOptions`.
+
+    Args:
+        robot: model name or YAML path.
+        data_path: the measurement CSV.
+        sigma_mm: noise standard deviation per coordinate [mm].
+        q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
+        extend: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints): calibrate the
+            geometry and these effects together (the extended model; ``out`` writes it with its
+            ``effects:``); without it, the effects of an extended model file are re-estimated.
+        outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
+        out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
+        json_path: JSON report to write.
+        plots_dir: folder for the residual plots (PNG).
+        html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
+        cell_path: cell file (default ``models/cell.yaml``).
+        force: go on with implausible data, with a warning.
+        data_format: format file of a measurement file of another layout (docs/data-formats.md).
+        strict: refuse poses that do not determine every parameter instead of holding the
+            undetermined ones at nominal with a warning.
+    """
+    options = CalibrationOptions(
+        sigma_mm=sigma_mm,
+        effects=tuple(extend or ()),
+        outlier_alpha=outlier_alpha,
+        force=force,
+        strict=strict,
+    )
+    return calibrate_file(
+        robot,
+        data_path,
+        options,
+        q_work_deg=q_work_deg,
+        out=out,
+        json_path=json_path,
+        plots_dir=plots_dir,
+        html=html,
+        cell_path=cell_path,
+        data_format=data_format,
+    )
 
 
 def diagnose(

@@ -32,6 +32,7 @@ RANK = {
     "errors": 0,
     "outputs": 0,
     "paper": 0,
+    "options": 0,
     "robot": 1,
     "tracker": 2,
     "effects": 3,

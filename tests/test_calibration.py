@@ -104,7 +104,7 @@ def test_recovers_parameters_and_kpi_with_an_outlier(robot, design, tmp_path):
     path = tmp_path / "data.csv"
     path.write_text(simulation.table_csv_text(table))
     data = read_measurements(path, robot)
-    rep = calibration.calibrate(robot, data, sigma_mm=SIGMA)
+    rep = calibration.calibrate(robot, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
     assert rep.result.converged
     assert rep.outliers == [k_bad]
     assert rep.outlier_rows == [k_bad + 2]
@@ -118,14 +118,18 @@ def test_recovers_parameters_and_kpi_with_an_outlier(robot, design, tmp_path):
     d = rep.to_dict()
     assert d["n_outliers"] == 1 and d["outlier_rows"] == [18]
     # without the outlier test the estimate is visibly worse
-    rep0 = calibration.calibrate(robot, data, sigma_mm=SIGMA, outlier_threshold=None)
+    rep0 = calibration.calibrate(
+        robot, data, calibration.CalibrationOptions(sigma_mm=SIGMA, outlier_alpha=0)
+    )
     assert rep0.chi2_per_dof > 3.0
     assert rep0.outliers == []
 
 
 def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     table, truth = simulated(robot, design, seed=12)
-    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
+    rep = calibration.calibrate(
+        robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=SIGMA)
+    )
     dof = rep.dof
     assert dof == 3 * 60 - 27
     lo, hi = chi2.ppf(0.0005, dof) / dof, chi2.ppf(0.9995, dof) / dof
@@ -140,7 +144,7 @@ def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     # so no pose is removed; the warnings say so, and the a-posteriori standard deviations
     # (a-priori x sqrt(chi2/dof)) recover those of the right sigma
     data = Measurements.from_table(table, robot)
-    rep2 = calibration.calibrate(robot, data, sigma_mm=0.005)
+    rep2 = calibration.calibrate(robot, data, calibration.CalibrationOptions(sigma_mm=0.005))
     assert 10.0 < rep2.chi2_per_dof < 25.0
     assert rep2.outliers == [] and rep2.to_dict()["robust"]["n_removed"] == 0
     assert 0.015 < rep2.to_dict()["robust"]["scale_mm"] < 0.025
@@ -164,7 +168,9 @@ def test_monte_carlo_kpi_coverage(robot, design):
     d2 = np.empty(N)
     for seed in range(N):
         table, truth = simulated(robot, design, seed=1000 + seed)
-        rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
+        rep = calibration.calibrate(
+            robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=SIGMA)
+        )
         d2[seed] = kpi_distance2(rep, truth["model"])
     coverage = np.mean(d2 <= q95)
     print(f"KPI 95 % coverage {coverage:.3f}, mean d2 {d2.mean():.3f}")

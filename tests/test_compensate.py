@@ -21,7 +21,7 @@ import pytest
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from kpioed_drake import api
-from kpioed_drake.calibration import calibrate, calibrated_robot_yaml
+from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
 from kpioed_drake.calibration.compensate import compensate_program, model_pose, rotation_error
 from kpioed_drake.cli import main
 from kpioed_drake.design.heuristic import heuristic_design
@@ -94,9 +94,9 @@ def elastic_case(folder: Path, q_design: np.ndarray, seed: int = 0) -> Case:
     robot = load_robot("kr16")
     table, truth = simulate(robot, q_design, sigma_mm=0.02, seed=seed, effects=ELASTIC)
     data = Measurements.from_table(table, robot)
-    extended = calibrate(robot, data, sigma_mm=0.02, effects=ELASTIC).to_dict()
+    extended = calibrate(robot, data, CalibrationOptions(sigma_mm=0.02, effects=ELASTIC)).to_dict()
     geometric = folder / "kr16-geometric.yaml"
-    geometric.write_text(calibrated_robot_yaml(calibrate(robot, data, sigma_mm=0.02)))
+    geometric.write_text(calibrated_robot_yaml(calibrate(robot, data, CalibrationOptions(sigma_mm=0.02))))
     q_program = program_poses(robot)
     program = folder / "program.csv"
     write_design(program, q_program, robot=robot)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import main
 from kpioed_drake.design.discriminate.explanations import parse_pair
 from kpioed_drake.diagnosis.common import DiagnosisOptions
@@ -294,9 +294,13 @@ def column_case(lift7):
 
 
 def test_extended_model_fits_to_the_noise(lift7, column_case):
-    geo = calibrate(lift7, as_measurements(column_case.data, lift7), effects=[], sigma_mm=0.02).to_dict()
+    geo = calibrate(
+        lift7, as_measurements(column_case.data, lift7), CalibrationOptions(effects=[], sigma_mm=0.02)
+    ).to_dict()
     ext = calibrate(
-        lift7, as_measurements(column_case.data, lift7), effects=["column_compliance:1"], sigma_mm=0.02
+        lift7,
+        as_measurements(column_case.data, lift7),
+        CalibrationOptions(effects=["column_compliance:1"], sigma_mm=0.02),
     ).to_dict()
     assert geo["chi2_per_dof"] > 3.0
     assert ext["chi2_per_dof"] < 1.3
@@ -312,7 +316,9 @@ def test_extended_model_with_a_varying_payload(lift7):
         lift7, np.random.default_rng(2), ["column_compliance:1=8e-7"], n_poses=80, payload_kg=(0.0, 40.0)
     )
     ext = calibrate(
-        lift7, as_measurements(case.data, lift7), effects=["column_compliance:1"], sigma_mm=0.02
+        lift7,
+        as_measurements(case.data, lift7),
+        CalibrationOptions(effects=["column_compliance:1"], sigma_mm=0.02),
     ).to_dict()
     assert ext["chi2_per_dof"] < 1.25 and ext["effects"][0]["value"] == pytest.approx(8e-7, rel=0.05)
 

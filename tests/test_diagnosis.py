@@ -16,7 +16,7 @@ import pytest
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.study import synthetic as syn
@@ -160,7 +160,7 @@ def test_undetermined_geometry_is_handled_like_calibrate(kr16):
     assert rep.details["prob"].nominal.layout.n_free == 27 - len(held)
     assert any("held at nominal" in n for n in rep.notes)
     with pytest.raises(InputError, match="do not determine"):
-        calibrate(kr16, case.data, strict=True)
+        calibrate(kr16, case.data, CalibrationOptions(strict=True))
 
 
 def test_candidates_follow_the_data(kr16):
@@ -209,7 +209,7 @@ def test_options_load_from_yaml(tmp_path):
     )
     assert D.load_options(data="k_folds: 3\n") == D.DiagnosisOptions(k_folds=3)
     assert D.load_options(data="{}") == D.DiagnosisOptions()
-    with pytest.raises(RuntimeError, match="unknown"):
+    with pytest.raises(InputError, match="unknown"):
         D.load_options(data="sigma: 0.03\n")
     with pytest.raises(dataclasses.FrozenInstanceError):
         opts.sigma_mm = 0.02

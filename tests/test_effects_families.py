@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.errors import InputError
 from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.csvio import read_design
@@ -153,7 +153,9 @@ def test_calibrate_extended_recovers_the_value(kr16, tmp_path, text):
     path = tmp_path / "data.csv"
     table.to_csv(path, index=False)
     eff = fx.parse_effect(text)
-    rep = calibrate(kr16, as_measurements(path, kr16), effects=[eff.name], sigma_mm=0.02).to_dict()
+    rep = calibrate(
+        kr16, as_measurements(path, kr16), CalibrationOptions(effects=[eff.name], sigma_mm=0.02)
+    ).to_dict()
     (ext,) = rep["effects"]
     true = eff.display_values()[0]
     print(text, "estimate", ext["value"], "+-", ext["std"], "chi2/dof", rep["chi2_per_dof"])
@@ -168,13 +170,13 @@ def test_calibrate_extended_refuses_what_the_data_does_not_vary(kr16, tmp_path):
     path = tmp_path / "data.csv"
     table.to_csv(path, index=False)
     with pytest.raises(InputError, match="temperature_C"):
-        calibrate(kr16, as_measurements(path, kr16), effects=["tracker_scale"]).to_dict()
+        calibrate(kr16, as_measurements(path, kr16), CalibrationOptions(effects=["tracker_scale"])).to_dict()
     # backlash: joint 3's gravity torque of one sign only (the poses where it is positive)
     tau = fx.gravity_torques(kr16, q)
     table, _ = simulate(kr16, q[tau[:, 2] > 0], sigma_mm=0.02, seed=7)
     table.to_csv(path, index=False)
     with pytest.raises(InputError, match="both signs"):
-        calibrate(kr16, as_measurements(path, kr16), effects=["backlash:3"]).to_dict()
-    assert calibrate(kr16, as_measurements(path, kr16), effects=["joint_scale:3"]).to_dict()[
-        "effects"
-    ]  # the data itself is usable
+        calibrate(kr16, as_measurements(path, kr16), CalibrationOptions(effects=["backlash:3"])).to_dict()
+    assert calibrate(
+        kr16, as_measurements(path, kr16), CalibrationOptions(effects=["joint_scale:3"])
+    ).to_dict()["effects"]  # the data itself is usable

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignObjective
 from kpioed_drake.errors import InputError
@@ -75,7 +75,9 @@ def test_calibrate_with_extension_recovers_elasticity(tmp_path):
     path = tmp_path / "data.csv"
     df.to_csv(path, index=False)
     rep = calibrate(
-        robot, as_measurements(str(path), robot), effects=["joint_elasticity:3"], sigma_mm=0.02
+        robot,
+        as_measurements(str(path), robot),
+        CalibrationOptions(effects=["joint_elasticity:3"], sigma_mm=0.02),
     ).to_dict()
     (hidden,) = truth["effects"]
     (e,) = rep["effects"]

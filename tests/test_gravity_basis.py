@@ -13,7 +13,7 @@ import pytest
 from fd import central_fd
 
 from kpioed_drake import effects as fx
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import main as cli_main
 from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
@@ -168,7 +168,9 @@ def test_calibrate_extend_with_the_basis(kr16):
     eff = dataclasses.replace(fx.parse_effect("joint_elasticity:5"), tool_mm=0.5)
     case = synthetic_case(kr16, rng, [eff], n_poses=60, sigma=0.02, mass_spread=0.3, payload_kg=(0.0, 10.0))
     rep = calibrate(
-        kr16, as_measurements(case.data, kr16), effects=["joint_elasticity_basis:5"], sigma_mm=0.02
+        kr16,
+        as_measurements(case.data, kr16),
+        CalibrationOptions(effects=["joint_elasticity_basis:5"], sigma_mm=0.02),
     ).to_dict()
     assert rep["chi2_per_dof"] < 1.0 + 4.0 * np.sqrt(2.0 / (3 * 60 - 33 - 5))
     (ext,) = rep["effects"]
@@ -176,7 +178,9 @@ def test_calibrate_extend_with_the_basis(kr16):
     assert ext["value"][-1] == pytest.approx(case.effects[0].values[0], rel=0.1)
     with pytest.raises(InputError, match="basis moments"):
         calibrate(
-            kr16, as_measurements(case.data, kr16), effects=["joint_elasticity_basis:5=1,2"], sigma_mm=0.02
+            kr16,
+            as_measurements(case.data, kr16),
+            CalibrationOptions(effects=["joint_elasticity_basis:5=1,2"], sigma_mm=0.02),
         ).to_dict()
 
 

@@ -70,7 +70,7 @@ def test_on_axis_reflector_holds_the_wrist_parameters(on_axis, design):
     the warning names the held pair, it stays nominal, the other parameters within 3 sigma."""
     truth_robot = dataclasses.replace(on_axis, extra_gauge=WRIST)
     data, truth = measurements(truth_robot, design, seed=3)
-    report = calibration.calibrate(on_axis, data, sigma_mm=SIGMA)
+    report = calibration.calibrate(on_axis, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
     held = report.held_at_nominal
     assert len(held) == 2 and set(held) <= set(WRIST)
     warning = next(w for w in report.warnings if "do not determine" in w)
@@ -92,7 +92,7 @@ def test_on_axis_kpi_is_consistent_with_any_truth(on_axis, design):
     """With random errors on every parameter (the held pair too) the determined quantity, the
     KPI, still agrees with the true robot's within its covariance (chi^2(3) at 0.1 %)."""
     data, truth = measurements(on_axis, design, seed=4)
-    report = calibration.calibrate(on_axis, data, sigma_mm=SIGMA)
+    report = calibration.calibrate(on_axis, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
     assert len(report.held_at_nominal) == 2 and set(report.held_at_nominal) <= set(WRIST)
     d = report.kpi - measurement.kpi_jacobian(truth, report.q_work)[0]
     assert float(d @ np.linalg.solve(report.kpi_cov, d)) < 16.27
@@ -126,7 +126,7 @@ def test_strict_refuses_on_axis_data_and_writes_nothing(on_axis, design, tmp_pat
 def test_well_posed_data_unchanged_by_the_check(kr16, design):
     """No warning, nothing held, and the same numbers as the estimator on the full free set."""
     data, _ = measurements(kr16, design, seed=5)
-    report = calibration.calibrate(kr16, data, sigma_mm=SIGMA, strict=True)
+    report = calibration.calibrate(kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA, strict=True))
     assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
     assert report.to_dict()["held_at_nominal"] == []
     nominal = measurement.nominal_model(kr16, models.load_cell(robot=kr16))
@@ -198,7 +198,7 @@ def test_poses_moving_two_joints_are_refused_not_held(kr16):
     q[:, 1] += 0.3 * np.sin(np.linspace(0.0, 6.0, 60))
     data, _ = measurements(kr16, q, seed=3)
     with pytest.raises(InputError, match="too many to hold"):
-        calibration.calibrate(kr16, data, sigma_mm=SIGMA)
+        calibration.calibrate(kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
 
 
 UR5_DATA = Path(os.environ.get("KPIOED_SHARED_DATA", REPO.parent / "shared" / "data")) / "ur5-laser-tracker"
@@ -209,7 +209,9 @@ def test_ur5_extra_gauge_leaves_nothing_to_hold():
     """The UR5's model file already holds theta5 and alpha5 (reflector on joint 6's axis)."""
     robot = models.load_robot("ur5")
     grid = read_data(UR5_DATA / "ur5_grid.csv", robot, REPO / "models" / "formats" / "ur5-laser-tracker.yaml")
-    report = calibration.calibrate(robot, grid.subset(np.arange(0, 1000, 5)), sigma_mm=0.065, strict=True)
+    report = calibration.calibrate(
+        robot, grid.subset(np.arange(0, 1000, 5)), calibration.CalibrationOptions(sigma_mm=0.065, strict=True)
+    )
     assert report.held_at_nominal == [] and not any("do not determine" in w for w in report.warnings)
 
 
@@ -224,7 +226,7 @@ def test_identifiability_at_the_solution(kr16, on_axis, design):
     truth_robot = dataclasses.replace(on_axis, extra_gauge=WRIST)
     data, truth = measurements(truth_robot, design, seed=3)
     nominal = dataclasses.replace(kr16, p_FQ=np.array(OFF_AXIS_MM))
-    report = calibration.calibrate(nominal, data, sigma_mm=SIGMA)
+    report = calibration.calibrate(nominal, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
     ident = report.to_dict()["identifiability"]
     assert ident["at_nominal"] == [] and len(ident["at_solution"]) == 2
     assert set(ident["at_solution"]) <= set(WRIST) and report.held_at_nominal == ident["at_solution"]
@@ -239,12 +241,12 @@ def test_identifiability_at_the_solution(kr16, on_axis, design):
     z = (res.model.p[res.free] - truth.p[res.free]) / res.std
     assert np.max(np.abs(z[robot_side])) < 3.0  # the reflector found on the axis, within 3 sigma
     with pytest.raises(InputError, match="at the estimated parameters.*do not determine"):
-        calibration.calibrate(nominal, data, sigma_mm=SIGMA, strict=True)
+        calibration.calibrate(nominal, data, calibration.CalibrationOptions(sigma_mm=SIGMA, strict=True))
 
 
 def test_hold_at_solution_finds_nothing_on_well_posed_data(kr16, design):
     data, _ = measurements(kr16, design, seed=5)
-    report = calibration.calibrate(kr16, data, sigma_mm=SIGMA)
+    report = calibration.calibrate(kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
     assert report.to_dict()["identifiability"]["at_solution"] == []
     warnings: list[str] = []
     model, names = calibration.fit.hold_at_solution(report.result, report.nominal, data, False, warnings)
@@ -299,7 +301,7 @@ def test_tracker_parameter_that_only_correlates_is_estimated_not_held_at_registr
     )
     assert r["named"] == ["base_compliance"], r
     assert r["holdout_base_over_sigma"] < 2.0 and r["holdout_ext_over_sigma"] < 1.3
-    rep = calibration.calibrate(seen["robot"], seen["data"], sigma_mm=SIGMA)
+    rep = calibration.calibrate(seen["robot"], seen["data"], calibration.CalibrationOptions(sigma_mm=SIGMA))
     assert rep.chi2_per_dof < 1.5
     assert rep.held_at_nominal == [] and len(rep.held_at_estimate) == 1
     (held,) = rep.held_at_estimate

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import api
-from kpioed_drake.calibration import calibrate
+from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import COMMANDS, build_parser, main, option_names
 from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.errors import InputError, check_sigma, name_fields, param, param_names
@@ -147,7 +147,7 @@ def test_every_workflow_checks_sigma_alike(kr16):
     meas = Measurements.from_arrays(q, np.zeros((12, 3)))
     refusals = [
         lambda: make_problem(kr16, sigma_mm=0.0),
-        lambda: calibrate(kr16, meas, sigma_mm=0.0),
+        lambda: calibrate(kr16, meas, CalibrationOptions(sigma_mm=0.0)),
         lambda: diagnose(kr16, meas, DiagnosisOptions(sigma_mm=0.0)),
         lambda: simulate(kr16, q, sigma_mm=-1.0),
     ]

@@ -59,7 +59,9 @@ def test_robust_scale_factor_of_chi2_samples():
 def test_gross_errors_removed_at_any_sigma(kr16, clean, sigma):
     """3 % of 5 mm errors: exactly those rows removed, at the right sigma and one 4x too small."""
     table, bad = with_gross_errors(clean, 0.03, seed=33)
-    rep = calibration.calibrate(kr16, Measurements.from_table(table, kr16), sigma_mm=sigma)
+    rep = calibration.calibrate(
+        kr16, Measurements.from_table(table, kr16), calibration.CalibrationOptions(sigma_mm=sigma)
+    )
     assert sorted(rep.outliers) == bad.tolist()
     d = rep.to_dict()["robust"]
     assert d["n_removed"] == bad.size and d["n_downweighted"] == 0 and not d["capped"]
@@ -72,7 +74,9 @@ def test_gross_errors_removed_at_any_sigma(kr16, clean, sigma):
 
 @pytest.mark.parametrize("sigma", [SIGMA, SIGMA / 4])
 def test_clean_data_keep_every_pose(kr16, clean, sigma):
-    rep = calibration.calibrate(kr16, Measurements.from_table(clean, kr16), sigma_mm=sigma)
+    rep = calibration.calibrate(
+        kr16, Measurements.from_table(clean, kr16), calibration.CalibrationOptions(sigma_mm=sigma)
+    )
     assert rep.outliers == [] and rep.to_dict()["robust"]["n_removed"] == 0
     rest = [w for w in rep.warnings if "non-geometric rest" in w]
     assert bool(rest) == (sigma < SIGMA)  # said plainly only when the residuals exceed sigma
@@ -83,15 +87,17 @@ def test_heavy_tailed_data_refused_unless_forced(kr16, clean):
     table, _ = with_gross_errors(clean, 0.45, seed=34)
     data = Measurements.from_table(table, kr16)
     with pytest.raises(InputError, match=r"fail the outlier test even at the residuals' own scale"):
-        calibration.calibrate(kr16, data, sigma_mm=SIGMA)
-    rep = calibration.calibrate(kr16, data, sigma_mm=SIGMA, force=True)
+        calibration.calibrate(kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA))
+    rep = calibration.calibrate(kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA, force=True))
     assert rep.outliers == [] and any(w.startswith("forced:") for w in rep.warnings)
 
 
 def test_cap_reached_is_reported(kr16, clean):
     """More gross errors than the cap allows: the removal stops at the cap and says so."""
     table, bad = with_gross_errors(clean, 0.15, seed=35)
-    rep = calibration.calibrate(kr16, Measurements.from_table(table, kr16), sigma_mm=SIGMA)
+    rep = calibration.calibrate(
+        kr16, Measurements.from_table(table, kr16), calibration.CalibrationOptions(sigma_mm=SIGMA)
+    )
     assert len(rep.outliers) == int(0.1 * N_POSES) and set(rep.outliers) <= set(bad.tolist())
     assert rep.to_dict()["robust"]["capped"]
     assert any("outlier removal stopped" in w for w in rep.warnings)

@@ -75,7 +75,12 @@ def three(kr16, design):
     robot = with_targets(kr16, THREE)
     table, truth = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=7)
     data = Measurements.from_table(table, robot)
-    return robot, data, truth["model"], calibration.calibrate(robot, data, sigma_mm=SIGMA)
+    return (
+        robot,
+        data,
+        truth["model"],
+        calibration.calibrate(robot, data, calibration.CalibrationOptions(sigma_mm=SIGMA)),
+    )
 
 
 # --- model ------------------------------------------------------------------------------------
@@ -167,14 +172,20 @@ def test_one_smr_on_axis_warns_three_off_axis_do_not(kr16, design):
     robot = with_targets(kr16, ON_AXIS)
     table, _ = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=3, n_targets=1)
     assert "target" not in table
-    alone = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA)
+    alone = calibration.calibrate(
+        robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=SIGMA)
+    )
     warning = next(w for w in alone.warnings if "do not determine" in w)
     wrist = [n for n in alone.held_at_nominal if n in WRIST]
     assert len(wrist) == 2 and named(warning, WRIST) == 2
     unused = {f"reflector_{a}{t}" for t in (2, 3) for a in "xyz"}  # targets 2, 3 have no rows
     assert set(alone.held_at_nominal) == set(wrist) | unused
     table, _ = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=3)
-    all3 = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=SIGMA, strict=True)
+    all3 = calibration.calibrate(
+        robot,
+        Measurements.from_table(table, robot),
+        calibration.CalibrationOptions(sigma_mm=SIGMA, strict=True),
+    )
     assert all3.held_at_nominal == [] and not any("do not determine" in w for w in all3.warnings)
 
 
@@ -185,8 +196,12 @@ def test_one_target_is_the_reflector_model(kr16, design):
     a, _ = simulation.simulate(kr16, q, sigma_mm=SIGMA, seed=1)
     b, _ = simulation.simulate(one, q, sigma_mm=SIGMA, seed=1)
     assert a.equals(b)
-    ra = calibration.calibrate(kr16, Measurements.from_table(a, kr16), sigma_mm=SIGMA)
-    rb = calibration.calibrate(one, Measurements.from_table(b, one), sigma_mm=SIGMA)
+    ra = calibration.calibrate(
+        kr16, Measurements.from_table(a, kr16), calibration.CalibrationOptions(sigma_mm=SIGMA)
+    )
+    rb = calibration.calibrate(
+        one, Measurements.from_table(b, one), calibration.CalibrationOptions(sigma_mm=SIGMA)
+    )
     assert np.array_equal(ra.result.model.p, rb.result.model.p) and np.array_equal(ra.result.Cp, rb.result.Cp)
 
 
@@ -372,7 +387,7 @@ def test_in_memory_data_naming_unknown_targets_are_refused(kr16, design):
     data = Measurements.from_table(table, kr16)
     bad = dataclasses.replace(data, target=np.arange(20) % 2)
     with pytest.raises(InputError, match="field 'target'.*defines 1"):
-        calibration.calibrate(kr16, bad, sigma_mm=SIGMA)
+        calibration.calibrate(kr16, bad, calibration.CalibrationOptions(sigma_mm=SIGMA))
     with pytest.raises(InputError, match="field 'target'"):
         validate_model(kr16, bad)
     with pytest.raises(InputError, match="target"):

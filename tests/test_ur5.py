@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import api
-from kpioed_drake.calibration import calibrate, calibrated_robot_yaml
+from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
 from kpioed_drake.calibration.validate import validate
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.robot.models import load_cell, load_robot
@@ -74,7 +74,7 @@ def test_all_estimated_parameters_are_identifiable():
 
 def _calibrate_and_validate(robot, grid, random, tmp_path, sigma_mm=SIGMA_MM):
     t0 = time.perf_counter()
-    report = calibrate(robot, grid, sigma_mm=sigma_mm)
+    report = calibrate(robot, grid, CalibrationOptions(sigma_mm=sigma_mm))
     seconds = time.perf_counter() - t0
     (tmp_path / "ur5-cal.yaml").write_text(calibrated_robot_yaml(report))
     calibrated = load_robot(str(tmp_path / "ur5-cal.yaml"))

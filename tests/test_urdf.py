@@ -43,8 +43,12 @@ def test_twin_calibrates_the_same_data_as_the_yaml():
     ur5, twin = load_robot("ur5"), load_robot(str(ROBOTS / "ur5.urdf"))
     q = np.random.default_rng(0).uniform(ur5.lower, ur5.upper, size=(40, 6))
     table, _ = simulation.simulate(ur5, q, sigma_mm=0.02, seed=1, geometric_errors=False)
-    a = calibration.calibrate(ur5, Measurements.from_table(table, ur5), sigma_mm=0.02)
-    b = calibration.calibrate(twin, Measurements.from_table(table, twin), sigma_mm=0.02)
+    a = calibration.calibrate(
+        ur5, Measurements.from_table(table, ur5), calibration.CalibrationOptions(sigma_mm=0.02)
+    )
+    b = calibration.calibrate(
+        twin, Measurements.from_table(table, twin), calibration.CalibrationOptions(sigma_mm=0.02)
+    )
     assert a.result.converged and b.result.converged and a.dof == b.dof
     assert b.chi2 == pytest.approx(a.chi2, rel=1e-6)
     assert np.abs(b.kpi - a.kpi).max() < 1e-6
@@ -55,7 +59,9 @@ def test_lift7_recovers_the_true_parameters():
     robot = load_robot("lift7")
     q = heuristic_design(make_problem(robot, sigma_mm=0.02), n=40, seed=1)
     table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=0)
-    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=0.02)
+    rep = calibration.calibrate(
+        robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=0.02)
+    )
     assert rep.result.converged and rep.warnings == []
     assert rep.result.free.size == 29
     z = _z_scores(rep, truth["model"])
@@ -81,7 +87,7 @@ def test_lift7_cli_design_simulate_calibrate(tmp_path, capsys):
     rep = json.loads(open(c).read())
     assert rep["converged"] and rep["n_poses"] == 12
     # the calibrated model file (URDF + sidecar) predicts what the calibration's model predicts
-    report = calibration.calibrate(load_robot("lift7"), data, force=True)
+    report = calibration.calibrate(load_robot("lift7"), data, calibration.CalibrationOptions(force=True))
     again = load_robot(cal)
     assert again.gauge == load_robot("lift7").gauge and again.p_FQ is not None
     model = nominal_model(again, load_cell(robot=again))
@@ -274,7 +280,9 @@ def test_several_targets_of_a_urdf_robot(tmp_path):
     assert lay.n_free == 27 + 6  # 27 with one target off every axis, plus 3 for each further target
     q = np.random.default_rng(8).uniform(robot.lower, robot.upper, size=(30, 6))
     table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=3)
-    rep = calibration.calibrate(robot, Measurements.from_table(table, robot), sigma_mm=0.02)
+    rep = calibration.calibrate(
+        robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=0.02)
+    )
     assert rep.result.converged and np.max(np.abs(_z_scores(rep, truth["model"]))) < 3.0
     urdf, side_text = calibrated_urdf_files(rep)
     (tmp_path / "c.urdf").write_text(urdf)

@@ -12,12 +12,13 @@ One module per concern:
   robot and the data (``kpioed calibrate --extend``);
 - :mod:`.plots`: residual plots;
 - :mod:`.workflow`: :func:`calibrate_file`, the whole ``kpioed calibrate`` run;
-- :mod:`.common`: the working pose and the KPI shared by the plain and the extended fit.
+- :mod:`.common`: :class:`CalibrationOptions`, the working pose and the KPI shared by the plain
+  and the extended fit.
 
 Reading and validating the data: :mod:`kpioed_drake.tracker.data`.
 """
 
-from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
+from kpioed_drake.calibration.common import CalibrationOptions, kpi_and_covariance, working_pose
 from kpioed_drake.calibration.extended import resolve_extension
 from kpioed_drake.calibration.fit import MIN_POSES_FOR_OUTLIER_TEST, calibrate, hold_undetermined
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
@@ -30,6 +31,7 @@ __all__ = [
     "MIN_POSES_FOR_OUTLIER_TEST",
     "N_CORRELATIONS",
     "ROW_CONVENTION",
+    "CalibrationOptions",
     "CalibrationReport",
     "Measurements",
     "calibrate",

@@ -31,7 +31,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.calibration.common import kpi_and_covariance, working_pose
+from kpioed_drake.calibration.common import CalibrationOptions, kpi_and_covariance, working_pose
 from kpioed_drake.calibration.extended import resolve_extension
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import (
@@ -39,7 +39,7 @@ from kpioed_drake.calibration.robust import (
     non_geometric_warning,
     screen_outliers,
 )
-from kpioed_drake.errors import InputError, check_sigma, param
+from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.estimator import (
     EstimationResult,
     covariance,
@@ -49,7 +49,7 @@ from kpioed_drake.estimation.estimator import (
 from kpioed_drake.estimation.identifiability import undetermined_parameters
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.estimation.residuals import normalized_residuals
-from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import (
@@ -167,56 +167,40 @@ def hold_at_solution(
 
 
 def calibrate(
-    robot: str | Robot,
+    robot: Robot,
     data: Measurements,
+    options: CalibrationOptions | None = None,
     *,
-    sigma_mm: float = 0.02,
     q_work=None,
-    outlier_threshold: float | None = 0.01,
-    max_outlier_fraction: float = 0.1,
-    cell_path=None,
-    max_iter: int = 100,
-    force: bool = False,
-    strict: bool = False,
-    effects=(),
+    cell: Cell | None = None,
 ) -> CalibrationReport:
-    """Calibrate the free geometric parameters (27 for six joints), and the values of ``effects``
-    if any, from measured data.
+    """Calibrate the free geometric parameters (27 for six joints), and the values of
+    ``options.effects`` if any, from measured data.
 
     Args:
-        robot: model name, YAML path or :class:`Robot` (the nominal model to start from).
+        robot: the nominal model to start from.
         data: :class:`~kpioed_drake.tracker.data.Measurements` (e.g. from
-            :func:`~kpioed_drake.tracker.data.read_measurements`).
-        sigma_mm: noise standard deviation per coordinate [mm].
-        q_work: (6,) working pose [rad] for the KPI; default: the model file's.
-        outlier_threshold: family-wise false-alarm probability alpha of the outlier test
-            (Bonferroni: each pose is tested at alpha / n); None or 0 disables the test.
-        max_outlier_fraction: remove at most this fraction of the poses.
-        cell_path: cell file (default models/cell.yaml): nominal tracker position, reflector offset.
-        force: go on with implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`), warning.
-        strict: refuse poses that do not determine every free parameter instead of holding the
-            undetermined ones at nominal with a warning.
-        effects: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints) or
-            :class:`~kpioed_drake.effects.Effect` objects estimated with the geometry (the extended
-            model); their starting values are the given ones (0 when unknown).
+            :func:`~kpioed_drake.tracker.formats.read_data`).
+        options: :class:`CalibrationOptions` (noise, effects, outlier test, holds; default: its
+            defaults).
+        q_work: (n_joints,) working pose [rad] for the KPI; default: the model file's.
+        cell: the measuring cell (nominal tracker position, reflector offset); default
+            ``models/cell.yaml``.
 
     Returns:
         :class:`CalibrationReport`.
 
     Raises:
-        InputError: bad sigma or q_work, too few poses (no degree of freedom), implausible data
-            (unless ``force``), or poses that do not determine the parameters (exactly singular,
-            or with ``strict`` near-singular).
+        InputError: bad q_work, too few poses (no degree of freedom), implausible data (unless
+            ``options.force``), or poses that do not determine the parameters (exactly singular,
+            or with ``options.strict`` near-singular).
     """
-    rob = load_robot(robot) if isinstance(robot, str) else robot
-    check_sigma(sigma_mm)
+    rob, options = robot, options or CalibrationOptions()
+    sigma_mm, strict, force, max_iter = options.sigma_mm, options.strict, options.force, options.max_iter
+    max_outlier_fraction = options.max_outlier_fraction
     q_work = working_pose(rob, q_work)
-    alpha = float(outlier_threshold) if outlier_threshold else None
-    if alpha is not None and not 0 < alpha < 1:
-        raise InputError(
-            f"outlier threshold (family-wise level) must be in (0, 1), got {outlier_threshold!r}"
-        )
-    cell = load_cell(cell_path, robot=rob)
+    alpha = float(options.outlier_alpha) or None
+    cell = load_cell(robot=rob) if cell is None else cell
     nominal = nominal_model(rob, cell)
     if data.frame == "base":  # positions given in W: the tracker frame starts at the identity
         p0 = nominal.p.copy()
@@ -225,7 +209,7 @@ def calibrate(
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
     n = data.n
     nominal = hold_unused_targets(nominal, data.target)
-    effects, cond = resolve_extension(effects, nominal, data)
+    effects, cond = resolve_extension(list(options.effects), nominal, data)
     n_effect = sum(e.n_params for e in effects)
     warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force)
     before = nominal.layout.free_names

@@ -7,81 +7,73 @@ after everything succeeded, each atomically; a failing run writes nothing.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
-from kpioed_drake.arguments import check_paths, require
+from kpioed_drake.arguments import check_paths
+from kpioed_drake.calibration.common import CalibrationOptions
 from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import model_effects
-from kpioed_drake.errors import check_sigma
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
 from kpioed_drake.scene3d import calibration_page
 from kpioed_drake.tracker.csvio import parse_q_work
+from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.formats import read_data
 
 
 def calibrate_file(
     robot: str,
     data_path: str | Path,
+    options: CalibrationOptions | None = None,
     *,
-    sigma_mm: float = 0.02,
     q_work_deg: str | None = None,
-    extend=(),
-    outlier_alpha: float = 0.01,
     out: str | Path | None = None,
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
     html: str | Path | None = None,
     cell_path=None,
-    force: bool = False,
     data_format: str | Path | None = None,
-    strict: bool = False,
 ) -> CalibrationReport:
-    """Calibrate from a measurement file (``kpioed calibrate``); outputs written after all succeeded.
+    """Calibrate from a measurement file (``kpioed calibrate``): load the robot, cell and data once,
+    :func:`~kpioed_drake.calibration.fit.calibrate`, write the outputs after all succeeded.
 
     Args:
         robot: model name or YAML path.
         data_path: the measurement CSV.
-        sigma_mm: noise standard deviation per coordinate [mm].
+        options: :class:`~kpioed_drake.calibration.common.CalibrationOptions`; without effects, the
+            effects of an extended model file are re-estimated.
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
-        extend: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints): calibrate the
-            geometry and these effects together (the extended model; ``out`` writes it with its
-            ``effects:``); without it, the effects of an extended model file are re-estimated.
-        outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
-        out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
+        out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write,
+            with the estimated ``effects:`` of an extended model.
         json_path: JSON report to write.
         plots_dir: folder for the residual plots (PNG).
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
-        force: go on with implausible data (:mod:`kpioed_drake.estimation.plausibility`), with a warning.
+        cell_path: cell file (default ``models/cell.yaml``).
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
-        strict: refuse poses that do not determine every parameter (InputError) instead of holding
-            the undetermined ones at nominal with a warning (geometric calibration only).
 
     Returns:
-        :class:`CalibrationReport` (its ``effects`` the estimated ones with ``extend``).
+        :class:`CalibrationReport` (its ``effects`` the estimated ones of an extended model).
     """
-    check_sigma(sigma_mm)
-    ok = isinstance(outlier_alpha, int | float) and 0 <= outlier_alpha < 1
-    require(ok, f"outlier_alpha: expected a number in [0, 1), got {outlier_alpha!r}")
-    side_out = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
-    check_paths(
-        robot=robot,
-        inputs=[data_path, data_format],
-        outputs=[out, side_out, json_path],
+    options = options or CalibrationOptions()
+    rob, cell, data = read_inputs(
+        robot,
+        data_path,
+        data_format,
+        cell_path=cell_path,
+        model_out=out,
+        outputs=[json_path],
         folders=[plots_dir],
         html=html,
     )
-    rob = load_robot(robot)
-    check_out_path(rob, out)
     qw = parse_q_work(q_work_deg, rob) if q_work_deg else None
-    data = read_data(data_path, rob, data_format)
-    effects = list(extend) if extend else model_effects(rob)  # an extended model file: its effects
-    options = dict(q_work=qw, outlier_threshold=outlier_alpha, force=force, strict=strict, effects=effects)
-    report = calibrate(rob, data, sigma_mm=sigma_mm, cell_path=cell_path, **options)
+    if not options.effects:  # an extended model file: its effects
+        options = dataclasses.replace(options, effects=tuple(model_effects(rob)))
+    report = calibrate(rob, data, options, q_work=qw, cell=cell)
     with Outputs() as staged:
         if out:
             stage_model(staged, report, out)
@@ -93,7 +85,7 @@ def calibrate_file(
             res = report.result
             page = calibration_page(
                 rob,
-                load_cell(cell_path, robot=rob),
+                cell,
                 report.model,
                 data.q,
                 data.eta,
@@ -103,6 +95,43 @@ def calibrate_file(
             staged.add_text(html, page)
         staged.commit()
     return report
+
+
+def read_inputs(
+    robot: str | Path,
+    data_path: str | Path,
+    data_format: str | Path | None = None,
+    *,
+    cell_path=None,
+    model_out=None,
+    outputs=(),
+    folders=(),
+    html=None,
+) -> tuple[Robot, Cell, Measurements]:
+    """The robot, cell and measurements of a command on a data file, each loaded once, after the
+    paths are checked (:func:`~kpioed_drake.arguments.check_paths`).
+
+    Args:
+        model_out: a model file to write (a ``.urdf`` brings its sidecar; it must suit the robot).
+        outputs, folders, html: the command's other output files, output folders and 3-D page.
+
+    Returns:
+        (robot, cell, data).
+
+    Raises:
+        InputError: a bad path, robot, cell or data file.
+    """
+    side = sidecar_of(model_out) if model_out is not None and Path(str(model_out)).suffix == ".urdf" else None
+    check_paths(
+        robot=robot,
+        inputs=[data_path, data_format],
+        outputs=[model_out, side, *outputs],
+        folders=list(folders),
+        html=html,
+    )
+    rob = load_robot(robot)
+    check_out_path(rob, model_out)
+    return rob, load_cell(cell_path, robot=rob), read_data(data_path, rob, data_format)
 
 
 def stage_model(staged: Outputs, report: CalibrationReport, out: str | Path) -> None:

@@ -4,10 +4,9 @@ run (:class:`DiagnosisOptions`)."""
 from __future__ import annotations
 
 import dataclasses
-import typing
 from pathlib import Path
 
-from pydrake.common.yaml import yaml_load_typed
+from kpioed_drake import options
 
 ALPHA = 0.01
 """Level of the goodness-of-fit test and family-wise level of each selection step."""
@@ -70,32 +69,6 @@ class DiagnosisOptions:
     (:func:`~kpioed_drake.estimation.plausibility.check_data`), noted in the report."""
 
 
-def _yaml_schema(cls) -> type:
-    """A mutable dataclass with the fields of the frozen ``cls`` for Drake's ``yaml_load_typed``,
-    which fills a schema field by field (``tuple[T, ...]`` read as ``list[T]``)."""
-
-    def listed(t):
-        args = typing.get_args(t)
-        if typing.get_origin(t) is tuple:
-            return list[args[0]]
-        if args and type(None) in args:
-            return listed(args[0]) | None
-        return t
-
-    hints = typing.get_type_hints(cls)
-    fields = [
-        (f.name, listed(hints[f.name]), dataclasses.field(default=f.default)) for f in dataclasses.fields(cls)
-    ]
-    return dataclasses.make_dataclass(f"{cls.__name__}Yaml", fields)
-
-
 def load_options(*, filename: str | Path | None = None, data: str | None = None) -> DiagnosisOptions:
-    """:class:`DiagnosisOptions` from a YAML file or text (Drake's ``yaml_load_typed``: a field left
-    out keeps its default; an unknown field is an error)."""
-    raw = yaml_load_typed(
-        schema=_yaml_schema(DiagnosisOptions), filename=None if filename is None else str(filename), data=data
-    )
-    values = {f.name: getattr(raw, f.name) for f in dataclasses.fields(DiagnosisOptions)}
-    if values["candidates"] is not None:
-        values["candidates"] = tuple(values["candidates"])
-    return DiagnosisOptions(**values)
+    """:class:`DiagnosisOptions` from a YAML file or text (:func:`kpioed_drake.options.load_options`)."""
+    return options.load_options(DiagnosisOptions, filename=filename, data=data)

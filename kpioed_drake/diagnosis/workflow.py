@@ -26,9 +26,9 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.arguments import check_paths
 from kpioed_drake.calibration import calibrate, hold_undetermined
-from kpioed_drake.calibration.workflow import stage_model
+from kpioed_drake.calibration.common import CalibrationOptions
+from kpioed_drake.calibration.workflow import read_inputs, stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import name_causes, settle
 from kpioed_drake.diagnosis.common import DiagnosisOptions
@@ -42,11 +42,9 @@ from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
-from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
+from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.scene3d import diagnosis_page
 from kpioed_drake.tracker.data import Measurements, as_measurements
-from kpioed_drake.tracker.formats import read_data
 
 
 def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
@@ -212,18 +210,9 @@ def diagnose_file(
     """
     opts = DiagnosisOptions() if options is None else options
     check_sigma(opts.sigma_mm)
-    side = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
-    check_paths(
-        robot=robot,
-        inputs=[data_path, data_format],
-        outputs=[json_path, out, side],
-        folders=[plots_dir],
-        html=html,
+    rob, cell, data = read_inputs(
+        robot, data_path, data_format, model_out=out, outputs=[json_path], folders=[plots_dir], html=html
     )
-    rob = load_robot(robot)
-    check_out_path(rob, out)
-    cell = load_cell(robot=rob)
-    data = read_data(data_path, rob, data_format)
     report = diagnose(rob, data, opts, cell=cell)
     with Outputs() as staged:
         if out:
@@ -263,7 +252,9 @@ def extended_calibration(
                 f"out: {c.effect.name} is not written into the model: its value is implausible "
                 f"({c.plausible_reason}); it stands in for something else"
             )
-    cal = calibrate(robot, data, sigma_mm=opts.sigma_mm, effects=keep, force=opts.force)
+    cal = calibrate(
+        robot, data, CalibrationOptions(sigma_mm=opts.sigma_mm, effects=tuple(keep), force=opts.force)
+    )
     names = ", ".join(e.name for e in keep) or "no effect (the geometric model)"
     report.notes.append(f"out: the model written is the geometry calibrated with {names}")
     return cal
