@@ -34,7 +34,7 @@ from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_r
 from kpioed_drake.calibration.compensate import model_pose
 from kpioed_drake.outputs import atomic_write_text
 from kpioed_drake.robot.models import load_cell, load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.tracker.csvio import q_columns, read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model
@@ -51,7 +51,9 @@ def _inputs(folder: Path) -> dict:
     """The model file, the extended fit's report, the program and the target file."""
     robot = load_robot("kr16")
     table, _ = simulate(
-        robot, read_design(DESIGN, robot), sigma_mm=0.02, seed=0, effects=["joint_elasticity:2"]
+        robot,
+        read_design(DESIGN, robot),
+        SimulationOptions(sigma_mm=0.02, seed=0, effects=["joint_elasticity:2"]),
     )
     data = Measurements.from_table(table, robot)
     model_file = folder / "kr16-cal.yaml"

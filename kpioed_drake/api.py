@@ -47,7 +47,8 @@ from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_f
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
-from kpioed_drake.simulation.workflow import simulate_file as simulate
+from kpioed_drake.simulation.truth import SimulationOptions
+from kpioed_drake.simulation.workflow import simulate_file
 from kpioed_drake.study import run_study as study
 from kpioed_drake.tracker.csvio import q_to_file
 
@@ -151,6 +152,47 @@ def calibrate(
         html=html,
         cell_path=cell_path,
         data_format=data_format,
+    )
+
+
+def simulate(
+    robot: str,
+    design: str,
+    out: str,
+    *,
+    sigma_mm: float = 0.02,
+    seed: int = 0,
+    effects=(),
+    geometric_errors: bool = True,
+    payload_kg: float = 0.0,
+    truth_path: str | None = None,
+    cell_path=None,
+    n_targets: int | None = None,
+):
+    """Simulated laser-tracker data of a design file (``kpioed simulate``):
+    :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
+    ``geometric_errors`` and ``n_targets`` as its
+    :class:`~kpioed_drake.simulation.truth.SimulationOptions`.
+
+    Args:
+        robot: model name or YAML path; design: design CSV; out: measurement CSV to write.
+        sigma_mm: noise per coordinate [mm]; seed: seed of the true robot, tracker frame and noise.
+        effects: non-geometric effects (e.g. ``["joint_elasticity:2"]``).
+        geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
+        payload_kg: payload at the reflector [kg] (>= 0).
+        truth_path: also write the true parameters as JSON.
+        cell_path: cell file (default ``models/cell.yaml``).
+        n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
+            default all): one row per pose and target, with a ``target`` column when several.
+
+    Returns:
+        (table, truth): the measurement table (pandas) and the truth dict.
+    """
+    options = SimulationOptions(
+        sigma_mm=sigma_mm, seed=seed, effects=effects, geometric_errors=geometric_errors, n_targets=n_targets
+    )
+    return simulate_file(
+        robot, design, out, options, payload_kg=payload_kg, truth_path=truth_path, cell_path=cell_path
     )
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from kpioed_drake.cli import main
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.tracker.csvio import write_design
 
 REPO = Path(__file__).resolve().parents[1]
@@ -38,14 +38,16 @@ def files(tmp_path_factory):
     design = np.loadtxt(REPO / "studies/results/designs/kr16_kpi_ca.csv", delimiter=",", skiprows=1)
     q = np.deg2rad(design)
     write_design(d / "design.csv", q)
-    table, _ = simulate(robot, q, sigma_mm=0.02, seed=3)
+    table, _ = simulate(robot, q, SimulationOptions(sigma_mm=0.02, seed=3))
     table.to_csv(d / "data.csv", index=False)
     text = (d / "data.csv").read_text()
     table.assign(temperature_C=20.0).to_csv(d / "const_temp.csv", index=False)
     q_flat = np.tile(robot.q_work, (60, 1))  # only joints 1 and 2 move: the wrist is undetermined
     q_flat[:, 0] += np.linspace(-1.0, 1.0, 60)
     q_flat[:, 1] += 0.3 * np.sin(np.linspace(0.0, 6.0, 60))
-    simulate(robot, q_flat, sigma_mm=0.02, seed=3)[0].to_csv(d / "degenerate.csv", index=False)
+    simulate(robot, q_flat, SimulationOptions(sigma_mm=0.02, seed=3))[0].to_csv(
+        d / "degenerate.csv", index=False
+    )
     lines = text.splitlines()
     f = {
         "design": d / "design.csv",

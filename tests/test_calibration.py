@@ -32,7 +32,7 @@ def design(robot):
 
 
 def simulated(robot, q, seed, sigma=SIGMA):
-    table, truth = simulation.simulate(robot, q, sigma_mm=sigma, seed=seed)
+    table, truth = simulation.simulate(robot, q, simulation.SimulationOptions(sigma_mm=sigma, seed=seed))
     return table, truth
 
 
@@ -80,13 +80,15 @@ def test_simulation_table_and_truth(robot, design):
     assert 0.01 < np.std(dev_ang[dev_ang != 0]) < 0.15  # SPEC size 0.05 deg
     assert_allclose(model.R_WT @ model.R_WT.T, np.eye(3), atol=1e-12)
     # noise free the table is exactly the model response (up to the 1e-6 mm rounding of the file)
-    t0, tr0 = simulation.simulate(robot, design, sigma_mm=0.0, seed=5)
+    t0, tr0 = simulation.simulate(robot, design, simulation.SimulationOptions(sigma_mm=0.0, seed=5))
     eta = t0[["x_mm", "y_mm", "z_mm"]].to_numpy()
     assert_allclose(eta, measurement.measure(tr0["model"], design), atol=1e-6)
 
 
 def test_noise_free_nominal_robot_calibrates_to_nominal(robot, design):
-    table, truth = simulation.simulate(robot, design, sigma_mm=0.0, seed=1, geometric_errors=False)
+    table, truth = simulation.simulate(
+        robot, design, simulation.SimulationOptions(sigma_mm=0.0, seed=1, geometric_errors=False)
+    )
     rep = calibration.calibrate(robot, Measurements.from_table(table, robot))
     joint_ref = np.r_[rep.result.free[:18], 30, 31, 32]
     assert_allclose(rep.model.p[joint_ref], rep.nominal.p[joint_ref], atol=1e-7)
@@ -118,9 +120,7 @@ def test_recovers_parameters_and_kpi_with_an_outlier(robot, design, tmp_path):
     d = rep.to_dict()
     assert d["n_outliers"] == 1 and d["outlier_rows"] == [18]
     # without the outlier test the estimate is visibly worse
-    rep0 = calibration.calibrate(
-        robot, data, calibration.CalibrationOptions(sigma_mm=SIGMA, outlier_alpha=0)
-    )
+    rep0 = calibration.calibrate(robot, data, calibration.CalibrationOptions(sigma_mm=SIGMA, outlier_alpha=0))
     assert rep0.chi2_per_dof > 3.0
     assert rep0.outliers == []
 
@@ -283,7 +283,7 @@ def test_simulate_cli_then_calibrate(robot, design, tmp_path, capsys):
 # bad input
 # ----------------------------------------------------------------------------------------------
 def _good_table(robot, design, n=12):
-    table, _ = simulation.simulate(robot, design[:n], sigma_mm=SIGMA, seed=3)
+    table, _ = simulation.simulate(robot, design[:n], simulation.SimulationOptions(sigma_mm=SIGMA, seed=3))
     return simulation.table_csv_text(table)
 
 

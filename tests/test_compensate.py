@@ -31,7 +31,7 @@ from kpioed_drake.effects.gravity import reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import MODELS_DIR, RobotSpec, load_cell, load_robot
-from kpioed_drake.simulation.truth import simulate, true_model
+from kpioed_drake.simulation.truth import SimulationOptions, simulate, true_model
 from kpioed_drake.tracker.csvio import q_columns, q_from_file, read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model
@@ -92,7 +92,7 @@ class Case:
 def elastic_case(folder: Path, q_design: np.ndarray, seed: int = 0) -> Case:
     """Simulated truth (geometric errors + elasticity of joint 2, sigma 0.02 mm), both calibrations."""
     robot = load_robot("kr16")
-    table, truth = simulate(robot, q_design, sigma_mm=0.02, seed=seed, effects=ELASTIC)
+    table, truth = simulate(robot, q_design, SimulationOptions(sigma_mm=0.02, seed=seed, effects=ELASTIC))
     data = Measurements.from_table(table, robot)
     extended = calibrate(robot, data, CalibrationOptions(sigma_mm=0.02, effects=ELASTIC)).to_dict()
     geometric = folder / "kr16-geometric.yaml"

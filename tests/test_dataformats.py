@@ -10,7 +10,7 @@ import pytest
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.tracker.formats import read_data
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ def sim():
     robot = load_robot("kr16")
     rng = np.random.default_rng(3)
     q = robot.q_work + rng.uniform(-0.3, 0.3, size=(30, 6))
-    table, _ = simulate(robot, q, sigma_mm=0.02, seed=1)
+    table, _ = simulate(robot, q, SimulationOptions(sigma_mm=0.02, seed=1))
     return robot, table
 
 

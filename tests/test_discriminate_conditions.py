@@ -33,7 +33,8 @@ from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.simulation import simulate, table_csv_text
+from kpioed_drake.robot.models import load_robot
+from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.study.synthetic import random_poses
 from kpioed_drake.tracker.csvio import design_csv_text
 
@@ -166,7 +167,11 @@ def test_condition_span_parsing(kr16):
 def _write_first(problem, path, n=40, seed=0):
     q1, cond1 = _first_data(problem, n, seed)
     table, _ = simulate(
-        "kr16", q1, sigma_mm=SIGMA, seed=9, temperature_C=cond1["temperature_C"], time_s=cond1["time_s"]
+        load_robot("kr16"),
+        q1,
+        SimulationOptions(sigma_mm=SIGMA, seed=9),
+        temperature_C=cond1["temperature_C"],
+        time_s=cond1["time_s"],
     )
     path.write_text(table_csv_text(table))
     return q1, cond1
@@ -255,11 +260,9 @@ def _case(problem, tmp_path, pair, truth, *, n_first, n, sec=30.0, span=None):
         + res.plan_columns.get("time_offset_s", 0.0)
     )
     table, _ = simulate(
-        "kr16",
+        load_robot("kr16"),
         np.concatenate([q1, res.q]),
-        sigma_mm=SIGMA,
-        seed=1,
-        effects=[truth],
+        SimulationOptions(sigma_mm=SIGMA, seed=1, effects=[truth]),
         temperature_C=np.concatenate([cond1["temperature_C"], temp2]),
         time_s=np.concatenate([cond1["time_s"], time2]),
     )

@@ -34,7 +34,7 @@ from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError, param_names
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import MODELS_DIR, load_robot
-from kpioed_drake.simulation import simulate, table_csv_text
+from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.study.synthetic import random_poses
 
 SIGMA = 0.02
@@ -177,7 +177,10 @@ def test_first_data_cannot_separate_elasticity_from_scale_and_the_payload_plan_d
     pay = np.concatenate([np.zeros(len(q1)), res.plan_columns["payload_offset_kg"]])
     truth = ex.parse_pair(PAIR, kr16.model)[0].effect  # the design's size: 0.1 mm at the tool
     table, _ = simulate(
-        "kr16", np.concatenate([q1, res.q]), sigma_mm=SIGMA, seed=1, effects=[truth], payload_kg=pay
+        load_robot("kr16"),
+        np.concatenate([q1, res.q]),
+        SimulationOptions(sigma_mm=SIGMA, seed=1, effects=[truth]),
+        payload_kg=pay,
     )
     (tmp_path / "first.csv").write_text(table_csv_text(table.iloc[: len(q1)]))
     (tmp_path / "all.csv").write_text(table_csv_text(table))

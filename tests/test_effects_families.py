@@ -8,7 +8,7 @@ import pytest
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.errors import InputError
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.tracker.csvio import read_design
 from kpioed_drake.tracker.data import as_measurements
 from kpioed_drake.tracker.measurement import measure
@@ -149,7 +149,7 @@ def test_kpi_columns(model):
 )
 def test_calibrate_extended_recovers_the_value(kr16, tmp_path, text):
     q = read_design(DESIGN, kr16)
-    table, _ = simulate(kr16, q, sigma_mm=0.02, seed=7, effects=[text])
+    table, _ = simulate(kr16, q, SimulationOptions(sigma_mm=0.02, seed=7, effects=[text]))
     path = tmp_path / "data.csv"
     table.to_csv(path, index=False)
     eff = fx.parse_effect(text)
@@ -166,14 +166,16 @@ def test_calibrate_extended_recovers_the_value(kr16, tmp_path, text):
 
 def test_calibrate_extended_refuses_what_the_data_does_not_vary(kr16, tmp_path):
     q = read_design(DESIGN, kr16)
-    table, _ = simulate(kr16, q, sigma_mm=0.02, seed=7, temperature_C=np.full(len(q), 20.0))
+    table, _ = simulate(
+        kr16, q, SimulationOptions(sigma_mm=0.02, seed=7), temperature_C=np.full(len(q), 20.0)
+    )
     path = tmp_path / "data.csv"
     table.to_csv(path, index=False)
     with pytest.raises(InputError, match="temperature_C"):
         calibrate(kr16, as_measurements(path, kr16), CalibrationOptions(effects=["tracker_scale"])).to_dict()
     # backlash: joint 3's gravity torque of one sign only (the poses where it is positive)
     tau = fx.gravity_torques(kr16, q)
-    table, _ = simulate(kr16, q[tau[:, 2] > 0], sigma_mm=0.02, seed=7)
+    table, _ = simulate(kr16, q[tau[:, 2] > 0], SimulationOptions(sigma_mm=0.02, seed=7))
     table.to_csv(path, index=False)
     with pytest.raises(InputError, match="both signs"):
         calibrate(kr16, as_measurements(path, kr16), CalibrationOptions(effects=["backlash:3"])).to_dict()

@@ -14,7 +14,7 @@ from kpioed_drake.diagnosis import workflow
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import load_cell, load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.study.synthetic import random_poses
 from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements
@@ -138,10 +138,10 @@ def test_simulate_and_design_use_the_file_effects(kr16_case):
     robot = load_robot(path)
     (stored,) = fx.model_effects(robot)
     q = random_poses(robot, 20, np.random.default_rng(9))
-    _, truth = simulate(robot, q, sigma_mm=0.0, geometric_errors=False)
+    _, truth = simulate(robot, q, SimulationOptions(sigma_mm=0.0, geometric_errors=False))
     assert [e.name for e in truth["effects"]] == ["joint_elasticity:2"]
     np.testing.assert_allclose(truth["effects"][0].values, stored.values, rtol=1e-12)
-    _, truth = simulate(robot, q, sigma_mm=0.0, effects=["joint_elasticity:2=1e-6"])
+    _, truth = simulate(robot, q, SimulationOptions(sigma_mm=0.0, effects=["joint_elasticity:2=1e-6"]))
     assert truth["effects"][0].values == pytest.approx((1e-6,))  # the given one replaces the file's
     prob = make_problem(path, sigma_mm=0.02)
     assert prob.param_names[-1] == "joint_elasticity:2.c" and prob.n_params == 28

@@ -12,7 +12,7 @@ from kpioed_drake.design import DesignObjective
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.study.synthetic import random_poses
 from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import as_measurements
@@ -71,7 +71,7 @@ def test_design_cli_with_extension(tmp_path, capsys):
 def test_calibrate_with_extension_recovers_elasticity(tmp_path):
     robot = load_robot("kr16")
     q = random_poses(robot, 80, np.random.default_rng(4))
-    df, truth = simulate(robot, q, sigma_mm=0.02, seed=5, effects=["joint_elasticity:3"])
+    df, truth = simulate(robot, q, SimulationOptions(sigma_mm=0.02, seed=5, effects=["joint_elasticity:3"]))
     path = tmp_path / "data.csv"
     df.to_csv(path, index=False)
     rep = calibrate(

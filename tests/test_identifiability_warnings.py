@@ -61,7 +61,7 @@ def design(kr16):
 
 
 def measurements(robot, q, seed):
-    table, truth = simulation.simulate(robot, q, sigma_mm=SIGMA, seed=seed)
+    table, truth = simulation.simulate(robot, q, simulation.SimulationOptions(sigma_mm=SIGMA, seed=seed))
     return Measurements.from_table(table, robot), truth["model"]
 
 

@@ -20,7 +20,7 @@ from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.errors import InputError, check_sigma, name_fields, param, param_names
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 from kpioed_drake.tracker.data import Measurements
 
 REPO = Path(__file__).resolve().parents[1]
@@ -42,7 +42,7 @@ def kr16():
 def data(tmp_path_factory, kr16):
     """A measurement CSV of kr16 (60 poses of the study's KPI design) with noise 0.002 mm."""
     design = np.loadtxt(REPO / "studies/results/designs/kr16_kpi_ca.csv", delimiter=",", skiprows=1)
-    table, _ = simulate(kr16, np.deg2rad(design), sigma_mm=0.002, seed=3)
+    table, _ = simulate(kr16, np.deg2rad(design), SimulationOptions(sigma_mm=0.002, seed=3))
     path = tmp_path_factory.mktemp("messages") / "data.csv"
     table.to_csv(path, index=False)
     return path
@@ -149,11 +149,11 @@ def test_every_workflow_checks_sigma_alike(kr16):
         lambda: make_problem(kr16, sigma_mm=0.0),
         lambda: calibrate(kr16, meas, CalibrationOptions(sigma_mm=0.0)),
         lambda: diagnose(kr16, meas, DiagnosisOptions(sigma_mm=0.0)),
-        lambda: simulate(kr16, q, sigma_mm=-1.0),
+        lambda: simulate(kr16, q, SimulationOptions(sigma_mm=-1.0)),
     ]
     for refuse in refusals:
         with pytest.raises(InputError, match=r"^sigma_mm must be a (positive|non-negative) number") as err:
             refuse()
         assert err.value.fields == ("sigma_mm",)
-    table, _ = simulate(kr16, q, sigma_mm=0.0, seed=0)
+    table, _ = simulate(kr16, q, SimulationOptions(sigma_mm=0.0, seed=0))
     assert len(table) == 12

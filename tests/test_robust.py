@@ -31,7 +31,7 @@ def kr16():
 @pytest.fixture(scope="module")
 def clean(kr16):
     q = np.random.default_rng(31).uniform(kr16.lower, kr16.upper, size=(N_POSES, 6))
-    table, _ = simulation.simulate(kr16, q, sigma_mm=SIGMA, seed=32)
+    table, _ = simulation.simulate(kr16, q, simulation.SimulationOptions(sigma_mm=SIGMA, seed=32))
     return table
 
 

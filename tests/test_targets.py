@@ -73,7 +73,7 @@ def design(kr16):
 def three(kr16, design):
     """kr16 with three SMRs, simulated (seed 7) and calibrated."""
     robot = with_targets(kr16, THREE)
-    table, truth = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=7)
+    table, truth = simulation.simulate(robot, design, simulation.SimulationOptions(sigma_mm=SIGMA, seed=7))
     data = Measurements.from_table(table, robot)
     return (
         robot,
@@ -170,7 +170,9 @@ def test_three_smrs_recover_tracker_and_every_target(three):
 
 def test_one_smr_on_axis_warns_three_off_axis_do_not(kr16, design):
     robot = with_targets(kr16, ON_AXIS)
-    table, _ = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=3, n_targets=1)
+    table, _ = simulation.simulate(
+        robot, design, simulation.SimulationOptions(sigma_mm=SIGMA, seed=3, n_targets=1)
+    )
     assert "target" not in table
     alone = calibration.calibrate(
         robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=SIGMA)
@@ -180,7 +182,7 @@ def test_one_smr_on_axis_warns_three_off_axis_do_not(kr16, design):
     assert len(wrist) == 2 and named(warning, WRIST) == 2
     unused = {f"reflector_{a}{t}" for t in (2, 3) for a in "xyz"}  # targets 2, 3 have no rows
     assert set(alone.held_at_nominal) == set(wrist) | unused
-    table, _ = simulation.simulate(robot, design, sigma_mm=SIGMA, seed=3)
+    table, _ = simulation.simulate(robot, design, simulation.SimulationOptions(sigma_mm=SIGMA, seed=3))
     all3 = calibration.calibrate(
         robot,
         Measurements.from_table(table, robot),
@@ -193,8 +195,8 @@ def test_one_target_is_the_reflector_model(kr16, design):
     """A model file whose targets_mm is the reflector alone gives the numbers of the plain model."""
     q = design[:20]
     one = with_targets(kr16, models.load_cell(robot=kr16).p_FQ[None, :])
-    a, _ = simulation.simulate(kr16, q, sigma_mm=SIGMA, seed=1)
-    b, _ = simulation.simulate(one, q, sigma_mm=SIGMA, seed=1)
+    a, _ = simulation.simulate(kr16, q, simulation.SimulationOptions(sigma_mm=SIGMA, seed=1))
+    b, _ = simulation.simulate(one, q, simulation.SimulationOptions(sigma_mm=SIGMA, seed=1))
     assert a.equals(b)
     ra = calibration.calibrate(
         kr16, Measurements.from_table(a, kr16), calibration.CalibrationOptions(sigma_mm=SIGMA)
@@ -344,7 +346,9 @@ def test_diagnose_three_targets_finds_the_effect(kr16):
     """The diagnosis fits the shared geometry, the three target offsets and the effects."""
     robot = with_targets(kr16, THREE)
     q = np.random.default_rng(1).uniform(kr16.lower, kr16.upper, size=(20, 6))
-    table, _ = simulation.simulate(robot, q, sigma_mm=SIGMA, seed=2, effects=["joint_elasticity:2"])
+    table, _ = simulation.simulate(
+        robot, q, simulation.SimulationOptions(sigma_mm=SIGMA, seed=2, effects=["joint_elasticity:2"])
+    )
     report = diagnose(robot, Measurements.from_table(table, robot), DiagnosisOptions(sigma_mm=SIGMA))
     assert report.n_poses == 60 and report.cause_names == {"joint_elasticity:2"}, report.summary()
 
@@ -383,7 +387,7 @@ def test_exchange_changes_with_two_targets_are_exact():
 def test_in_memory_data_naming_unknown_targets_are_refused(kr16, design):
     """Measurements built in Python (no file check) naming a target the model lacks: InputError
     from calibrate and validate, naming the field."""
-    table, _ = simulation.simulate(kr16, design[:20], sigma_mm=SIGMA, seed=1)
+    table, _ = simulation.simulate(kr16, design[:20], simulation.SimulationOptions(sigma_mm=SIGMA, seed=1))
     data = Measurements.from_table(table, kr16)
     bad = dataclasses.replace(data, target=np.arange(20) % 2)
     with pytest.raises(InputError, match="field 'target'.*defines 1"):

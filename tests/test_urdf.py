@@ -42,7 +42,9 @@ def test_twin_calibrates_the_same_data_as_the_yaml():
     """Noise-only data (the true robot is the nominal one, which both models contain): the same fit."""
     ur5, twin = load_robot("ur5"), load_robot(str(ROBOTS / "ur5.urdf"))
     q = np.random.default_rng(0).uniform(ur5.lower, ur5.upper, size=(40, 6))
-    table, _ = simulation.simulate(ur5, q, sigma_mm=0.02, seed=1, geometric_errors=False)
+    table, _ = simulation.simulate(
+        ur5, q, simulation.SimulationOptions(sigma_mm=0.02, seed=1, geometric_errors=False)
+    )
     a = calibration.calibrate(
         ur5, Measurements.from_table(table, ur5), calibration.CalibrationOptions(sigma_mm=0.02)
     )
@@ -58,7 +60,7 @@ def test_twin_calibrates_the_same_data_as_the_yaml():
 def test_lift7_recovers_the_true_parameters():
     robot = load_robot("lift7")
     q = heuristic_design(make_problem(robot, sigma_mm=0.02), n=40, seed=1)
-    table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=0)
+    table, truth = simulation.simulate(robot, q, simulation.SimulationOptions(sigma_mm=0.02, seed=0))
     rep = calibration.calibrate(
         robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=0.02)
     )
@@ -279,7 +281,7 @@ def test_several_targets_of_a_urdf_robot(tmp_path):
     lay = nominal_model(robot, load_cell(robot=robot)).layout
     assert lay.n_free == 27 + 6  # 27 with one target off every axis, plus 3 for each further target
     q = np.random.default_rng(8).uniform(robot.lower, robot.upper, size=(30, 6))
-    table, truth = simulation.simulate(robot, q, sigma_mm=0.02, seed=3)
+    table, truth = simulation.simulate(robot, q, simulation.SimulationOptions(sigma_mm=0.02, seed=3))
     rep = calibration.calibrate(
         robot, Measurements.from_table(table, robot), calibration.CalibrationOptions(sigma_mm=0.02)
     )

@@ -11,7 +11,7 @@ from kpioed_drake import api
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import simulate
+from kpioed_drake.simulation.truth import SimulationOptions, simulate
 
 KEYS = ("n_poses", "rms_mm", "mean_error_mm", "p95_error_mm", "max_error_mm", "errors_mm")
 
@@ -25,8 +25,8 @@ def work(tmp_path_factory):
     rng = np.random.default_rng(7)
     q_cal = robot.q_work + rng.uniform(-0.6, 0.6, size=(60, 6))
     q_val = robot.q_work + rng.uniform(-0.5, 0.5, size=(20, 6))
-    simulate(robot, q_cal, sigma_mm=0.02, seed=4)[0].to_csv(d / "cal.csv", index=False)
-    simulate(robot, q_val, sigma_mm=0.02, seed=4)[0].to_csv(d / "val.csv", index=False)
+    simulate(robot, q_cal, SimulationOptions(sigma_mm=0.02, seed=4))[0].to_csv(d / "cal.csv", index=False)
+    simulate(robot, q_val, SimulationOptions(sigma_mm=0.02, seed=4))[0].to_csv(d / "val.csv", index=False)
     status = main(["calibrate", "--robot", "kr16", str(d / "cal.csv"), "--out", str(d / "cal.yaml")])
     assert status == 0
     return d

@@ -32,9 +32,10 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from kpioed_drake.arguments import check_seed
 from kpioed_drake.effects import model_effects, parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError, check_sigma
-from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.tracker.csvio import (
     OFFSET_COLUMNS,
     q_columns,
@@ -107,40 +108,57 @@ def parameters_table(model: TrackerModel) -> list[dict]:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class SimulationOptions:
+    """The settings of one simulation (:func:`simulate`); read from YAML with
+    :func:`kpioed_drake.options.load_options`."""
+
+    sigma_mm: float = 0.02
+    """Measurement noise per coordinate [mm] (0: noise free)."""
+    seed: int = 0
+    """Seed of ``numpy.random.default_rng``: geometric errors, tracker frame, effects and noise."""
+    effects: tuple = ()
+    """Non-geometric effects of the truth (texts parsed by ``effects.parse_effect``, or effect
+    objects); empty: the geometric model (and an extended model file's own effects)."""
+    geometric_errors: bool = True
+    """Draw random geometric errors (False: the true robot is the nominal one)."""
+    n_targets: int | None = None
+    """Targets measured at every pose, the first of the model file's ``targets_mm`` (None: all)."""
+
+    def __post_init__(self):
+        check_sigma(self.sigma_mm, zero_ok=True)
+        check_seed(self.seed)
+        if isinstance(self.effects, str):
+            object.__setattr__(self, "effects", (self.effects,))
+        object.__setattr__(self, "effects", tuple(self.effects or ()))
+
+
 def simulate(
-    robot: str | Robot,
+    robot: Robot,
     q,
+    options: SimulationOptions | None = None,
     *,
-    sigma_mm: float = 0.02,
-    seed: int = 0,
-    effects=(),
-    geometric_errors: bool = True,
     payload_kg=0.0,
     temperature_C=None,
     time_s=None,
     condition_offsets: dict | None = None,
-    cell_path=None,
-    n_targets: int | None = None,
+    cell: Cell | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated measurement table of the poses ``q``.
 
     Args:
-        robot: model name, YAML path or :class:`Robot`.
-        q: (n, 6) commanded joint angles [rad].
-        sigma_mm: noise per coordinate [mm] (0 = noise free).
-        seed: seed of ``numpy.random.default_rng`` (geometric errors, tracker frame, effects, noise).
-        effects: effect specifications (strings parsed by ``effects.parse_effect``, or effect
-            objects); empty = purely geometric model. An extended model file's effects (with their
-            values) are part of the truth too, unless ``effects`` names the same.
-        geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
+        robot: the nominal robot.
+        q: (n, n_joints) commanded joint angles [rad].
+        options: :class:`SimulationOptions` (noise, seed, effects, geometric errors, targets). An
+            extended model file's effects (with their values) are part of the truth too, unless
+            ``options.effects`` names the same.
         payload_kg: payload, one value or one per pose [kg]; the column is written if nonzero.
         temperature_C, time_s: per pose; defaults see the module docstring.
         condition_offsets: a measurement plan's offsets per pose added to them,
             ``{"temperature_C": [K], "time_s": [s], "payload_kg": [kg]}`` (any of them; a design
             CSV's ``temperature_offset_K`` / ``time_offset_s`` / ``payload_offset_kg``,
             :func:`~kpioed_drake.tracker.csvio.read_condition_offsets`).
-        n_targets: targets measured at every pose, the first ones of the model file's
-            ``targets_mm`` (default: all; 1 for a model with one reflector).
+        cell: the measuring cell (default ``models/cell.yaml``).
 
     Returns:
         (table, truth): the table has columns ``q1_deg``..``q6_deg``, ``x_mm``, ``y_mm``, ``z_mm``,
@@ -148,15 +166,20 @@ def simulate(
         :class:`TrackerModel`), ``parameters`` (33 entries, mm/deg), ``R_WT``, ``p_WT_mm``,
         ``effects``, ``sigma_mm``, ``seed``.
     """
-    rob = load_robot(robot) if isinstance(robot, str) else robot
-    cell = load_cell(cell_path, robot=rob)
-    effects = _with_model_effects(rob, effects)
+    rob, options = robot, options or SimulationOptions()
+    sigma_mm, seed, geometric_errors, n_targets = (
+        options.sigma_mm,
+        options.seed,
+        options.geometric_errors,
+        options.n_targets,
+    )
+    cell = load_cell(robot=rob) if cell is None else cell
+    effects = _with_model_effects(rob, list(options.effects))
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]
     nj = rob.n_joints
     if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
         raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
-    check_sigma(sigma_mm, zero_ok=True)
     n_t = rob.n_targets if n_targets is None else n_targets
     if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
         raise InputError(

@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from kpioed_drake.arguments import check_paths, check_positive, check_seed
-from kpioed_drake.errors import check_sigma
+from kpioed_drake.arguments import check_paths, check_positive
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, simulate
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, SimulationOptions, simulate
 from kpioed_drake.tracker.csvio import read_condition_offsets, read_design
 
 
@@ -54,35 +53,27 @@ def simulate_file(
     robot: str,
     design: str,
     out: str,
+    options: SimulationOptions | None = None,
     *,
-    sigma_mm: float = 0.02,
-    seed: int = 0,
-    effects=(),
-    geometric_errors: bool = True,
     payload_kg: float = 0.0,
     truth_path: str | None = None,
     cell_path=None,
-    n_targets: int | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``), written atomically.
 
     Args:
         robot: model name or YAML path; design: design CSV; out: measurement CSV to write.
-        sigma_mm: noise per coordinate [mm]; seed: seed of the true robot, tracker frame and noise.
-        effects: non-geometric effects (e.g. ``["joint_elasticity:2"]``).
-        geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
+        options: :class:`~kpioed_drake.simulation.truth.SimulationOptions` (noise, seed, effects,
+            geometric errors, targets per pose: one row per pose and target, with a ``target``
+            column when several).
         payload_kg: payload at the reflector [kg] (>= 0).
         truth_path: also write the true parameters as JSON.
         cell_path: cell file (default ``models/cell.yaml``).
-        n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
-            default all): one row per pose and target, with a ``target`` column when several.
 
     Returns:
         (table, truth): the measurement table (pandas) and the truth dict. Nothing is written unless
         the whole simulation succeeds.
     """
-    check_sigma(sigma_mm)
-    check_seed(seed)
     check_positive("payload_kg", payload_kg, zero_ok=True)
     check_paths(robot=robot, inputs=[design], outputs=[out, truth_path])
     rob = load_robot(robot)
@@ -90,14 +81,10 @@ def simulate_file(
     table, truth = simulate(
         rob,
         q,
-        sigma_mm=sigma_mm,
-        seed=seed,
-        effects=effects,
-        geometric_errors=geometric_errors,
+        options,
         payload_kg=payload_kg,
         condition_offsets=read_condition_offsets(design),
-        cell_path=cell_path,
-        n_targets=n_targets,
+        cell=load_cell(cell_path, robot=rob),
     )
     with Outputs() as staged:
         staged.add_text(out, table_csv_text(table))
