@@ -41,10 +41,11 @@ from kpioed_drake.calibration import CalibrationReport, calibrate_file
 from kpioed_drake.calibration.common import CalibrationOptions
 from kpioed_drake.calibration.programs import compensate_file as compensate
 from kpioed_drake.calibration.validate import validate_file as validate
+from kpioed_drake.design import DesignOptions, DesignResult, run_design
 from kpioed_drake.design import evaluate_file as evaluate
-from kpioed_drake.design import run_design as design
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
+from kpioed_drake.options import options_from
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.simulation.truth import SimulationOptions
@@ -91,6 +92,52 @@ def info(robot: str, *, cell_path=None) -> dict:
         "unidentifiable": rep.unidentifiable,
         "car_shift_x_mm": rob.car_shift_x,
     }
+
+
+def design(
+    robot: str,
+    *,
+    options: DesignOptions | None = None,
+    q_work_deg=None,
+    q_work_file=None,
+    kpi_weights=None,
+    given=None,
+    out=None,
+    json_path=None,
+    plot=None,
+    html=None,
+    **settings,
+) -> DesignResult:
+    """A design for a robot in the default cell, with its files (``kpioed design``):
+    :func:`kpioed_drake.design.run_design`.
+
+    Args:
+        robot: model name (``kr16``, ``notional-850-800``) or path to a robot file.
+        options: a :class:`~kpioed_drake.design.DesignOptions` record (default: its defaults) ...
+        **settings: ... with these of its fields replaced: ``criterion`` (``kpi``, ``param``,
+            ``heuristic``), ``n``, ``sigma_mm`` [mm], ``collision``, ``solver``, ``seed``,
+            ``starts``, ``start``, ``allow_infeasible``, ``certify``, ``extend``,
+            ``kpi_aggregate``, ``target_var_mm2`` [mm^2], ``discriminate`` (``"A|B"``),
+            ``condition_span``.
+        q_work_deg, q_work_file, kpi_weights: the working poses [deg] and their weights.
+        given: design CSV of poses already measured (their information held fixed).
+        out, json_path, plot, html: the design CSV, the JSON record, a picture, a 3-D page.
+
+    Returns:
+        :class:`~kpioed_drake.design.DesignResult`.
+    """
+    return run_design(
+        robot,
+        options_from(DesignOptions, options, **settings),
+        q_work_deg=q_work_deg,
+        q_work_file=q_work_file,
+        kpi_weights=kpi_weights,
+        given=given,
+        out=out,
+        json_path=json_path,
+        plot=plot,
+        html=html,
+    )
 
 
 def calibrate(

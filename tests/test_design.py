@@ -286,7 +286,10 @@ def test_bad_arguments_are_input_errors(kr16, kwargs, match):
 def test_q_work_outside_limits_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="outside"):
         design.run_design(
-            "kr16", criterion="heuristic", n=12, q_work_deg="0,0,0,0,179,0", out=tmp_path / "d.csv"
+            "kr16",
+            design.DesignOptions(criterion="heuristic", n=12),
+            q_work_deg="0,0,0,0,179,0",
+            out=tmp_path / "d.csv",
         )
     assert not (tmp_path / "d.csv").exists()
 

@@ -7,7 +7,9 @@ replaces them by the options of the command's parser; text that is not an error 
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -96,10 +98,16 @@ def test_option_names_of_a_command():
 
 @pytest.mark.parametrize("command", COMMANDS)
 def test_api_names_are_parameters_of_the_api_function(command):
-    """A command's ``api_names`` maps parameters its API function has (to dests ``option_names``
-    found, else building the parser fails)."""
+    """A command's ``api_names`` maps parameters its API function has, or fields of the options
+    record it takes (to dests ``option_names`` found, else building the parser fails)."""
     api_names = _commands()[command].get_default("api_names") or {}
-    assert set(api_names) <= set(inspect.signature(getattr(api, command)).parameters)
+    function = getattr(api, command)
+    names = set(inspect.signature(function).parameters)
+    record = typing.get_type_hints(function).get("options")
+    for cls in typing.get_args(record) or (record,):
+        if dataclasses.is_dataclass(cls):
+            names |= {f.name for f in dataclasses.fields(cls)}
+    assert set(api_names) <= names
 
 
 def test_name_fields_replaces_whole_words_outside_backticks():

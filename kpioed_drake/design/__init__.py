@@ -40,6 +40,7 @@ Modules, in dependency order:
   already measured held fixed: ``given``, sequential re-identification);
 - :mod:`~kpioed_drake.design.target`: :func:`design_for_target`, the fewest poses reaching a target
   tr(Cs)/3 (paper, Conclusion);
+- :mod:`~kpioed_drake.design.options`: :class:`DesignOptions`, the settings of one design;
 - :mod:`~kpioed_drake.design.plots` and :mod:`~kpioed_drake.design.workflow`: pictures, the
   ``kpioed design`` file workflow (:func:`run_design`) and :func:`demo`;
 - :mod:`~kpioed_drake.design.discriminate.design`: designs that tell two explanations (effects) apart,
@@ -94,6 +95,7 @@ from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.design.exact.solve import solver_options
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import min_new_poses, optimize_design, resolve_start
+from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
 from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
@@ -155,6 +157,7 @@ __all__ = [
     "remove_poses",
     "resolve_start",
     "run_design",
+    "DesignOptions",
     "solver_options",
     "update_active_rows",
 ]

@@ -16,16 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed, require
+from kpioed_drake.arguments import check_paths
 from kpioed_drake.design.approximate import certificate
-from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS, method_label
+from kpioed_drake.design.common import method_label
 from kpioed_drake.design.discriminate.conditions import read_given_conditions
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
 from kpioed_drake.design.target import design_for_target
-from kpioed_drake.errors import InputError, check_sigma
+from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.outputs import Outputs, atomic_write_json
 from kpioed_drake.robot.models import Robot, load_robot
@@ -73,60 +74,26 @@ def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | 
     return (rows[0] if q.ndim == 1 else np.stack(rows)), None
 
 
-def _check_discriminate(discriminate, condition_span, criterion, target_var_mm2, certify) -> None:
-    """InputError where :func:`run_design`'s ``discriminate`` meets an argument it excludes."""
-    if discriminate is not None:
-        require(
-            criterion == "kpi",
-            f"discriminate replaces criterion (got {criterion!r})",
-            fields=("discriminate", "criterion"),
-        )
-        require(
-            target_var_mm2 is None and not certify,
-            "discriminate takes no target_var_mm2 or certify",
-            fields=("discriminate", "target_var_mm2", "certify"),
-        )
-    require(
-        discriminate is not None or condition_span is None,
-        "condition_span goes with discriminate",
-        fields=("condition_span", "discriminate"),
-    )
-
-
 def run_design(
     robot_name: str,
+    options: DesignOptions | None = None,
     *,
-    criterion: str = "kpi",
-    n: int = 60,
-    sigma_mm: float | None = None,
     q_work_deg=None,
-    collision: bool = True,
-    solver: str = "snopt",
-    seed: int = 0,
-    starts: int = 1,
-    out: str | Path | None = None,
-    json_path: str | Path | None = None,
-    allow_infeasible: bool = False,
-    plot: str | Path | None = None,
-    extend=(),
     q_work_file: str | Path | None = None,
     kpi_weights=None,
-    kpi_aggregate: str = "mean",
     given: str | Path | None = None,
-    target_var_mm2: float | None = None,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    plot: str | Path | None = None,
     html: str | Path | None = None,
-    start: str | None = None,
-    certify: bool | None = None,
-    discriminate: str | None = None,
-    condition_span: str | None = None,
 ) -> DesignResult:
-    """Compute a design for a robot in the default cell and write its files (what ``kpioed design`` runs).
+    """Compute a design for a robot in the default cell and write its files (what ``kpioed design``
+    runs): load the robot and the pose files once, build the problem, design, certify, write.
 
     Args:
         robot_name: model name (``kr16``, ``notional-850-800``) or path to a robot YAML file.
-        criterion, n, collision, solver, seed, starts, allow_infeasible, start: see
-            :func:`optimize_design`.
-        sigma_mm: measurement noise per coordinate [mm] (default: the cell's).
+        options: :class:`~kpioed_drake.design.options.DesignOptions` (criterion, size, solver,
+            target variance, discrimination, certificate).
         q_work_deg: working pose [deg], a ``"q1,...,q6"`` string or 6 numbers (default: the model
             file's); several working poses (K KPIs, e.g. a working path sampled at K points): a
             list of K such strings or a (K, 6) array [deg].
@@ -134,99 +101,89 @@ def run_design(
             instead of ``q_work_deg``.
         kpi_weights: (K,) positive weights of the working poses (normalised to sum 1; default:
             the file's ``weight`` column, else equal).
-        kpi_aggregate: ``mean`` (weighted mean of the K variances tr(Cs_k)/3) or ``max`` (the
-            worst working pose, no weights).
         given: design CSV of poses already measured (sequential re-identification): their
             information is held fixed and ``n`` new poses are optimised; ``out`` gets the new
             poses, the values are those of the combined design and the JSON's ``given`` record has
-            the given poses' own tr(Cs)/3.
-        target_var_mm2: find the fewest poses whose design reaches tr(Cs)/3 <= this [mm^2]
-            (:func:`~kpioed_drake.design.target.design_for_target`; ``n`` and ``allow_infeasible``
-            are then not used: only successful, feasible designs count).
+            the given poses' own tr(Cs)/3. With ``discriminate`` the first data set (its
+            ``temperature_C`` / ``time_s`` columns, if any, the first data's conditions).
         out: design CSV (``q1_deg`` .. ``q6_deg`` plus per-pose ``incidence_deg`` and
-            ``min_clearance_mm``), written atomically.
+            ``min_clearance_mm``; a measurement plan's ``block`` and condition offsets), written
+            atomically.
         json_path: JSON record of the run, written atomically (also when the design is rejected).
         plot: picture of the poses (.png, .pdf or .svg).
         html: self-contained 3-D page (Drake Meshcat) of the poses, their feasibility, the beams, the
             smallest clearances and the TCP's 95 % ellipsoid at the (first) working pose.
-        extend: model extensions (e.g. ``["joint_elasticity:2"]``): the design then also estimates
-            their parameters and its KPI variance includes them (:func:`problem.make_problem`).
-        certify: add the optimality certificate of the design (``res.certificate``, in the JSON
-            record ``bound_mm2``, ``efficiency``, ``design_beyond_search`` and ``certificate``):
-            :func:`~kpioed_drake.design.approximate.certificate.certify` with this ``collision`` and ``seed``,
-            a bound on tr(Cs)/3 whatever the criterion (with ``given``: of the combined design).
-            None (default): certify unless ``discriminate``; False: ``bound_mm2`` and
-            ``efficiency`` are null. Costs 4-13 s once per robot, cell and setup (then cached on
-            disk, :mod:`~kpioed_drake.design.approximate.certcache`) and 1-4 s per design.
-        discriminate: ``"A|B"``, two competing explanations (effects, e.g.
-            ``"joint_scale:2=300|gear_cyclic:2:1"``): poses that tell them apart
-            (:func:`~kpioed_drake.design.discriminate.design.discrimination_design`; instead of
-            ``criterion``; ``given`` is the first data set). The JSON record's ``discrimination``
-            has the assumed sizes and each test's non-centrality and power before and after. A
-            pair that needs temperature or time gets a measurement plan
-            (:func:`~kpioed_drake.design.discriminate.plan.plan_design`: each pose in two blocks; the CSV's
-            ``block`` and ``temperature_offset_K`` / ``time_offset_s``; the record's ``plan``).
-        condition_span: with ``discriminate``, the span of block 2 from block 1 (``"3K"``,
-            ``"600s"``, ``"10min"``, ``"3K,600s"``; None: the span for power 0.8, rounded up;
-            ``given``'s ``temperature_C`` / ``time_s`` columns, if any, are the first data's).
 
     Returns:
-        :class:`DesignResult`.
+        :class:`DesignResult` (``certificate``: the bound on tr(Cs)/3 and the efficiency,
+        :func:`~kpioed_drake.design.approximate.certificate.certify`, of the combined design).
 
     Raises:
         InputError: bad input. DesignError: solver failure or infeasible design.
     """
-    _check_discriminate(discriminate, condition_span, criterion, target_var_mm2, certify)
-    require(
-        criterion in DESIGN_METHODS,
-        f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {criterion!r}",
-    )
-    require(solver in SOLVERS, f"solver: expected one of {', '.join(SOLVERS)}, got {solver!r}")
-    check_count("n", n)
-    check_count("starts", starts)
-    check_seed(seed)
-    check_sigma(sigma_mm, allow_none=True)
-    check_positive("target_var_mm2", target_var_mm2, allow_none=True)
+    opts = options or DesignOptions()
     check_paths(robot=robot_name, inputs=[q_work_file, given], outputs=[out, json_path], plot=plot, html=html)
     robot = load_robot(robot_name)
     q_work, file_weights = _working_poses(robot, q_work_deg, q_work_file)
     problem = make_problem(
         robot,
         q_work=q_work,
-        sigma_mm=sigma_mm,
-        extend=extend,
+        sigma_mm=opts.sigma_mm,
+        extend=opts.extend,
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
-        kpi_aggregate=kpi_aggregate,
+        kpi_aggregate=opts.kpi_aggregate,
     )
     q_given = None if given is None else csvio.read_design(given, robot)
-    common = dict(
-        criterion=criterion, collision=collision, solver=solver, seed=seed, starts=starts, start=start
-    )
     try:
-        if discriminate is not None:
-            options = {k: v for k, v in common.items() if k != "criterion"}
-            conds = read_given_conditions(given, len(q_given)) if given is not None else None
-            res, problem = plan_design(
-                problem,
-                discriminate,
-                n=n,
-                given=q_given,
-                given_conditions=conds,
-                condition_span=condition_span,
-                allow_infeasible=allow_infeasible,
-                **options,
-            )
-            criterion = res.criterion
-        elif target_var_mm2 is None:
-            res = optimize_design(problem, n=n, allow_infeasible=allow_infeasible, given=q_given, **common)
-        else:
-            res = design_for_target(problem, target_var_mm2, given=q_given, **common)
+        res, problem = _compute(problem, opts, q_given, given)
     except DesignError as exc:
         if json_path is not None and exc.result is not None:
             atomic_write_json(json_path, json_record(exc.result, problem, error=str(exc)))
         raise
-    if certify or (certify is None and discriminate is None):
-        res.certificate = certificate.certify(problem, res.q, collision=collision, seed=seed, given=q_given)
+    if opts.certified:
+        res.certificate = certificate.certify(
+            problem, res.q, collision=opts.collision, seed=opts.seed, given=q_given
+        )
+    _write(res, problem, out=out, json_path=json_path, plot=plot, html=html)
+    return res
+
+
+def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult, object]:
+    """The design of ``opts`` (a discrimination plan, a target-variance or a fixed-size design) and
+    its problem (a plan's, with the conditions it adds)."""
+    common = dict(
+        collision=opts.collision, solver=opts.solver, seed=opts.seed, starts=opts.starts, start=opts.start
+    )
+    if opts.discriminate is not None:
+        conds = read_given_conditions(given, len(q_given)) if given is not None else None
+        return plan_design(
+            problem,
+            opts.discriminate,
+            n=opts.n,
+            given=q_given,
+            given_conditions=conds,
+            condition_span=opts.condition_span,
+            allow_infeasible=opts.allow_infeasible,
+            **common,
+        )
+    if opts.target_var_mm2 is None:
+        res = optimize_design(
+            problem,
+            n=opts.n,
+            allow_infeasible=opts.allow_infeasible,
+            given=q_given,
+            criterion=opts.criterion,
+            **common,
+        )
+    else:
+        res = design_for_target(
+            problem, opts.target_var_mm2, given=q_given, criterion=opts.criterion, **common
+        )
+    return res, problem
+
+
+def _write(res: DesignResult, problem, *, out, json_path, plot, html) -> None:
+    """Stage the design's files and write them after all succeeded."""
     with Outputs() as staged:
         if out is not None:
             extra = {
@@ -245,14 +202,13 @@ def run_design(
                 staged.folder(Path(plot).parent) / Path(plot).name,
                 q_work=problem.q_works[0],
                 infeasible=np.array([not r["feasible"] for r in res.reports]),
-                title=f"{robot.name}: {criterion} design, {res.n} poses, "
+                title=f"{problem.robot.name}: {res.criterion} design, {res.n} poses, "
                 f"tr(Cs)/3 = {res.kpi_avg_var_mm2:.4g} mm^2",
             )
         if html is not None:
             staged.add_text(html, design_page(problem.robot, problem.cell, res.q, q_work=problem.q_works[0],
                                               Cs=first_kpi_covariance(problem, res.q)))  # fmt: skip
         staged.commit()
-    return res
 
 
 def first_kpi_covariance(problem, q) -> np.ndarray:
