@@ -98,6 +98,11 @@ def data_outputs(args) -> dict:
     }
 
 
+def passed(args, *names: str) -> dict:
+    """``{name: args.name}``: the parsed options whose dest is the API parameter's name."""
+    return {name: getattr(args, name) for name in names}
+
+
 def json_file(target) -> str | None:
     """The ``--json`` file to write (None for none or for stdout)."""
     return None if target in (None, "-") else target

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from kpioed_drake import api
 from kpioed_drake.calibration.programs import ANGLES
-from kpioed_drake.cli.common import add_robot
+from kpioed_drake.cli.common import add_robot, passed
 
 API_NAMES = {"effects": "effect"}
 """API parameter -> this command's option dest where they differ (messages name the option)."""
@@ -48,16 +48,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    report = api.compensate(
-        args.robot,
-        program=args.program,
-        targets=args.targets,
-        out=args.out,
-        nominal=args.nominal,
-        target=args.target,
-        angles=args.angles,
-        effects=args.effect,
-        allow_unreachable=args.allow_unreachable,
-    )
+    names = ("program", "targets", "out", "nominal", "target", "angles", "allow_unreachable")
+    report = api.compensate(args.robot, effects=args.effect, **passed(args, *names))
     print(report.summary())
     return 0

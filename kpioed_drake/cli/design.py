@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_extend, add_html, add_optional_number, add_robot, add_sigma
+from kpioed_drake.cli.common import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
 from kpioed_drake.design import (
     DEFAULT_START,
     DESIGN_METHODS,
@@ -169,28 +169,14 @@ def run(args) -> int:
         res = api.design(
             args.robot,
             criterion=args.criterion or "kpi",
-            discriminate=args.discriminate,
-            condition_span=args.condition_span,
-            n=args.n,
             collision=not args.no_collision,
-            solver=args.solver,
-            seed=args.seed,
-            starts=args.starts,
-            sigma_mm=args.sigma_mm,
             q_work_deg=q_work,
-            q_work_file=args.q_work_file,
             kpi_weights=_weights(args.kpi_weights),
-            kpi_aggregate=args.kpi_aggregate,
-            given=args.given,
             target_var_mm2=args.target_var,
-            extend=args.extend,
-            out=args.out,
             json_path=args.json,
-            plot=args.plot,
-            html=args.html,
-            allow_infeasible=args.allow_infeasible,
-            start=args.start,
-            certify=args.certify,
+            **passed(args, "discriminate", "condition_span", "n", "solver", "seed", "starts", "sigma_mm"),
+            **passed(args, "q_work_file", "kpi_aggregate", "given", "extend", "out", "plot", "html"),
+            **passed(args, "allow_infeasible", "start", "certify"),
         )
     except DesignError as exc:
         if exc.result is not None:
