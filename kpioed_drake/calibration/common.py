@@ -1,5 +1,6 @@
 """What the geometric and the extended calibration share: the options of a calibration
-(:class:`CalibrationOptions`), the working pose and the KPI.
+(:class:`CalibrationOptions`), the inputs of a command on a data file loaded once
+(:func:`read_inputs`), the working pose and the KPI.
 
 The KPI is the TCP (reflector point) at the working pose ``q_work`` in W under KPI conditions (no
 payload, reference temperature) with its covariance ``Cs = Js Cp Js^T`` (paper eq. 24e), ``Js``
@@ -10,14 +11,18 @@ extended model, the effects' (:func:`kpioed_drake.effects.effect_kpi_columns`).
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.arguments import require
+from kpioed_drake.arguments import check_paths, require
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import EstimationResult
-from kpioed_drake.robot.models import Robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
+from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
+from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.formats import read_data
 from kpioed_drake.tracker.measurement import kpi_jacobian
 
 
@@ -99,3 +104,40 @@ def kpi_and_covariance(result: EstimationResult, q_work) -> tuple[np.ndarray, np
     s = s + fx.effect_tcp_shift(model, q_work, effects)
     Je = np.concatenate([Js[:, result.free], fx.effect_kpi_columns(model, q_work, effects)], axis=1)
     return s, Je @ result.Cp @ Je.T
+
+
+def read_inputs(
+    robot: str | Path,
+    data_path: str | Path,
+    data_format: str | Path | None = None,
+    *,
+    cell_path=None,
+    model_out=None,
+    outputs=(),
+    folders=(),
+    html=None,
+) -> tuple[Robot, Cell, Measurements]:
+    """The robot, cell and measurements of a command on a data file, each loaded once, after the
+    paths are checked (:func:`~kpioed_drake.arguments.check_paths`).
+
+    Args:
+        model_out: a model file to write (a ``.urdf`` brings its sidecar; it must suit the robot).
+        outputs, folders, html: the command's other output files, output folders and 3-D page.
+
+    Returns:
+        (robot, cell, data).
+
+    Raises:
+        InputError: a bad path, robot, cell or data file.
+    """
+    side = sidecar_of(model_out) if model_out is not None and Path(str(model_out)).suffix == ".urdf" else None
+    check_paths(
+        robot=robot,
+        inputs=[data_path, data_format],
+        outputs=[model_out, side, *outputs],
+        folders=list(folders),
+        html=html,
+    )
+    rob = load_robot(robot)
+    check_out_path(rob, model_out)
+    return rob, load_cell(cell_path, robot=rob), read_data(data_path, rob, data_format)

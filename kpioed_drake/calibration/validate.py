@@ -30,14 +30,14 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake import effects as fx
-from kpioed_drake.arguments import check_paths, require
+from kpioed_drake.arguments import require
+from kpioed_drake.calibration.common import read_inputs
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs, pyplot
-from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
-from kpioed_drake.tracker.formats import read_data
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
 
 _NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}
@@ -147,7 +147,7 @@ class ValidationResult:
 
 
 def validate(
-    robot: Robot, data: Measurements, *, keep_tracker: bool = False, cell_path=None
+    robot: Robot, data: Measurements, *, keep_tracker: bool = False, cell: Cell | None = None
 ) -> ValidationResult:
     """Prediction errors of ``robot`` (a nominal or calibrated model) on ``data``.
 
@@ -158,7 +158,7 @@ def validate(
         keep_tracker: use the model's tracker pose instead of re-registering it to the data: the
             robot file's (a calibrated model has one), else the identity for base-frame data,
             else the cell file's.
-        cell_path: cell file (default models/cell.yaml).
+        cell: the measuring cell (default ``models/cell.yaml``).
 
     Returns:
         :class:`ValidationResult`.
@@ -168,7 +168,7 @@ def validate(
             implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`: other length units,
             gross errors, another robot or a wrong joint map).
     """
-    model = nominal_model(robot, load_cell(cell_path, robot=robot))
+    model = nominal_model(robot, load_cell(robot=robot) if cell is None else cell)
     check_data(model, data, n_params=6)
     effects = fx.model_effects(robot)
     p_W = predicted_world(model, data, effects)
@@ -255,10 +255,10 @@ def validate_file(
         json_path: JSON report; plots_dir: folder for ``validation_errors.png``.
     """
     require(isinstance(keep_tracker, bool), f"keep_tracker: expected True or False, got {keep_tracker!r}")
-    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[json_path], folders=[plots_dir])
-    rob = load_robot(robot)
-    data = read_data(data_path, rob, data_format)
-    result = validate(rob, data, keep_tracker=keep_tracker, cell_path=cell_path)
+    rob, cell, data = read_inputs(
+        robot, data_path, data_format, cell_path=cell_path, outputs=[json_path], folders=[plots_dir]
+    )
+    result = validate(rob, data, keep_tracker=keep_tracker, cell=cell)
     with Outputs() as staged:
         if json_path:
             staged.add_json(json_path, result.to_dict())

@@ -10,20 +10,16 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from kpioed_drake.arguments import check_paths
-from kpioed_drake.calibration.common import CalibrationOptions
+from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import model_effects
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
-from kpioed_drake.robot.urdfwrite import check_out_path, sidecar_of
+from kpioed_drake.robot.urdfwrite import sidecar_of
 from kpioed_drake.scene3d import calibration_page
 from kpioed_drake.tracker.csvio import parse_q_work
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_data
 
 
 def calibrate_file(
@@ -95,43 +91,6 @@ def calibrate_file(
             staged.add_text(html, page)
         staged.commit()
     return report
-
-
-def read_inputs(
-    robot: str | Path,
-    data_path: str | Path,
-    data_format: str | Path | None = None,
-    *,
-    cell_path=None,
-    model_out=None,
-    outputs=(),
-    folders=(),
-    html=None,
-) -> tuple[Robot, Cell, Measurements]:
-    """The robot, cell and measurements of a command on a data file, each loaded once, after the
-    paths are checked (:func:`~kpioed_drake.arguments.check_paths`).
-
-    Args:
-        model_out: a model file to write (a ``.urdf`` brings its sidecar; it must suit the robot).
-        outputs, folders, html: the command's other output files, output folders and 3-D page.
-
-    Returns:
-        (robot, cell, data).
-
-    Raises:
-        InputError: a bad path, robot, cell or data file.
-    """
-    side = sidecar_of(model_out) if model_out is not None and Path(str(model_out)).suffix == ".urdf" else None
-    check_paths(
-        robot=robot,
-        inputs=[data_path, data_format],
-        outputs=[model_out, side, *outputs],
-        folders=list(folders),
-        html=html,
-    )
-    rob = load_robot(robot)
-    check_out_path(rob, model_out)
-    return rob, load_cell(cell_path, robot=rob), read_data(data_path, rob, data_format)
 
 
 def stage_model(staged: Outputs, report: CalibrationReport, out: str | Path) -> None:

@@ -27,8 +27,8 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import calibrate, hold_undetermined
-from kpioed_drake.calibration.common import CalibrationOptions
-from kpioed_drake.calibration.workflow import read_inputs, stage_model
+from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
+from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import name_causes, settle
 from kpioed_drake.diagnosis.common import DiagnosisOptions
