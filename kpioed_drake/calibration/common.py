@@ -34,7 +34,7 @@ class CalibrationOptions:
     sigma_mm: float = 0.02
     """Noise standard deviation per coordinate [mm]: the weight of the fit, its goodness-of-fit test
     and the a-priori covariance."""
-    effects: tuple = ()
+    effects: tuple[str, ...] = ()
     """Non-geometric effects estimated with the geometry (texts such as ``joint_elasticity:2``,
     joints 1..n_joints, or :class:`~kpioed_drake.effects.Effect` objects; their starting values the
     given ones, 0 when unknown): the extended model."""

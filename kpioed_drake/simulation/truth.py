@@ -117,7 +117,7 @@ class SimulationOptions:
     """Measurement noise per coordinate [mm] (0: noise free)."""
     seed: int = 0
     """Seed of ``numpy.random.default_rng``: geometric errors, tracker frame, effects and noise."""
-    effects: tuple = ()
+    effects: tuple[str, ...] = ()
     """Non-geometric effects of the truth (texts parsed by ``effects.parse_effect``, or effect
     objects); empty: the geometric model (and an extended model file's own effects)."""
     geometric_errors: bool = True
