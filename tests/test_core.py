@@ -51,10 +51,10 @@ def test_plant_forward_kinematics_matches_numpy(name):
 
 
 def test_every_shipped_robot_has_all_its_parameters_identifiable():
-    """27 for every robot of the paper (93); the UR5 holds theta5 and alpha5 too (its target lies on
-    joint 6's axis), and without that extra gauge they are not identifiable."""
+    """27 for every robot of the paper (93); the UR5 and UR10 hold theta5 and alpha5 too (their target
+    lies on joint 6's axis), and without that extra gauge they are not identifiable."""
     names = list_robots()
-    assert len(names) == 95 and "ur5" in names and "lift7" in names  # lift7: a URDF robot, 7 joints
+    assert len(names) == 96 and {"ur5", "ur10", "lift7"} <= set(names)  # lift7: a URDF robot, 7 joints
     for name in names:
         robot = load_robot(name)
         rep = check_identifiability(robot, load_cell(robot=robot), seed=3)
