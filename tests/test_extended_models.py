@@ -180,3 +180,18 @@ def test_validate_names_a_missing_condition_column():
     with pytest.raises(InputError, match="tracker_drift needs the time_s column"):
         predicted_world(model, data, [fx.parse_effect("tracker_drift=0.01,0,0")])
     np.testing.assert_allclose(predicted_world(model, data), reflector_world(model, q), atol=0)
+
+
+def test_diagnose_of_an_extended_model_keeps_its_effects_in_the_model_it_writes(kr16_case, tmp_path):
+    """Data without the effect: ``diagnose --robot EXT --out`` does not name it, says so, and the model
+    it writes still carries the file's effect (nothing of the user's model is lost)."""
+    w = kr16_case
+    api.calibrate("kr16", w / "d_data.csv", extend=["joint_elasticity:2"], out=tmp_path / "ext.yaml")
+    clean = tmp_path / "clean.csv"
+    sim = ["simulate", "--robot", "kr16", "--design", str(w / "d.csv"), "--seed", "5", "--out", str(clean)]
+    assert main(sim) == 0
+    report = api.diagnose(str(tmp_path / "ext.yaml"), clean, sigma_mm=SIGMA, out=tmp_path / "out.yaml")
+    assert "joint_elasticity:2" not in [c.effect.name for c in report.cause_records]
+    assert any("model file's effects (joint_elasticity:2)" in n for n in report.notes)
+    (kept,) = fx.model_effects(load_robot(str(tmp_path / "out.yaml")))
+    assert kept.name == "joint_elasticity:2"

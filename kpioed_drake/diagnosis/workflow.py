@@ -73,6 +73,12 @@ def _prepared(
         cands, notes = candidate_effects(data, prob.tau, robot=robot)
     else:
         cands, notes = [fx.parse_effect(c, model=prob.nominal) for c in opts.candidates], []
+    stored = [e.name for e in fx.model_effects(robot)]
+    if stored:
+        notes.append(
+            f"the model file's effects ({', '.join(stored)}) are tested as candidates like any other: the "
+            "model under test is its geometry; `out` keeps them in the model it writes"
+        )
     return prob, cands, warnings + notes
 
 
@@ -246,6 +252,7 @@ def extended_calibration(
     report flags implausible (a stand-in, :mod:`kpioed_drake.effects.physical`) is left out, with a
     note in ``report``."""
     keep = [c.effect for c in report.cause_records if c.plausible]
+    keep += [e for e in fx.model_effects(robot) if e.key not in {k.key for k in keep}]  # the file's stay
     for c in report.cause_records:
         if not c.plausible:
             report.notes.append(
