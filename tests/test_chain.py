@@ -11,6 +11,7 @@ from numpy.testing import assert_allclose
 from kpioed_drake.design.exact.constraints import incidence_rows
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
+from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.kinematics import forward_kinematics, point_jacobian, point_velocity_jacobian
@@ -211,3 +212,18 @@ def test_gravity_basis_regressor_with_a_prismatic_joint(lift7, joint):
     assert_allclose(Y @ gb.link_moments(lift7, joint), tau, atol=1e-9 * max(1.0, np.abs(tau).max()))
     fd = np.einsum("npnj->njp", central_fd(lambda x: gb.link_regressor(lift7, x, joint), q, 1e-6))
     assert_allclose(dY, fd, atol=1e-6 * max(1.0, np.abs(fd).max()))
+
+
+def test_a_rounded_right_angle_keeps_the_gauge(tmp_path):
+    """A URDF as published writes pi/2 as ``1.571`` (2e-4 rad off): the automatic gauge holds the same
+    parameters as with the exact angle, and all the rest stay identifiable."""
+    src = MODELS_DIR / "robots"
+    text = (src / "lift7.urdf").read_text()
+    assert text.count("1.5707963267948966") >= 4
+    (tmp_path / "lift7r.urdf").write_text(text.replace("1.5707963267948966", "1.571"))
+    side = (src / "lift7.kpioed.yaml").read_text().replace("name: lift7", "name: lift7r")
+    (tmp_path / "lift7r.kpioed.yaml").write_text(side)
+    exact, rounded = load_robot("lift7"), load_robot(str(tmp_path / "lift7r.urdf"))
+    assert rounded.gauge == exact.gauge
+    rep = check_identifiability(rounded, load_cell(robot=rounded), seed=3)
+    assert rep.identifiable and rep.rank == rep.n_candidates == 29

@@ -38,8 +38,12 @@ ELEMENTS = ("off", "px", "py", "pz", "rx", "ry", "rz")
 """Names of a joint's parameters (suffixed with the joint number, e.g. ``off1``, ``rx3``)."""
 GAUGE_POSES = 80
 GAUGE_SEED = 20170710
-GAUGE_RTOL = 1e-8
-"""Relative threshold of :func:`auto_gauge` on the residual norm of a unit column."""
+GAUGE_RTOL = 1e-3
+"""Relative threshold of :func:`auto_gauge` on the residual norm of a unit column: a column that
+keeps less than this of its length outside the span of the kept ones is held. Exact dependencies
+leave round-off (below 1e-8); a published URDF's rounded right angle (``rpy`` 1.571 for pi/2) leaves
+about 2e-4, which no data can tell from the gauge (the shipped robots have no residual between
+1e-10 and 1e-2)."""
 ZERO_COLUMN = 1e-9
 """Columns shorter than this times the longest are zero (e.g. a joint that cannot move the reflector);
 normalising their round-off to unit length would count it as rank."""
@@ -210,5 +214,7 @@ def auto_gauge(
     dq = np.abs(np.diag(Rq))
     rank = int(np.sum(dq > rtol * dq[0]))
     if rank != len(basis):
-        raise ValueError(f"gauge selection found rank {len(basis)}, pivoted QR {rank}")
+        raise ValueError(
+            f"gauge selection found rank {len(basis)}, pivoted QR {rank}; it would hold {', '.join(held)}"
+        )
     return tuple(held)
