@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fd import central_fd
+from numpy.testing import assert_allclose
 from pydrake.geometry import (
     Capsule,
     FramePoseVector,
@@ -27,6 +28,7 @@ from pydrake.math import RigidTransform
 from test_identifiability_warnings import WRIST, named
 
 from kpioed_drake import api, calibration, simulation
+from kpioed_drake.calibration import robust
 from kpioed_drake.calibration.validate import validate as validate_model
 from kpioed_drake.cli import main
 from kpioed_drake.design import DesignConstraints, optimize_design
@@ -481,3 +483,22 @@ def test_calibration_summary_counts_rows_and_poses(three):
     """Several targets: the summary says rows and poses (40 poses x 3 targets = 120 rows)."""
     text = three[3].summary()
     assert "120 rows (40 poses, 3 targets), 120 used" in text.splitlines()[0], text
+
+
+def test_a_pose_whose_targets_agree_is_kept_one_whose_targets_disagree_is_removed(kr16, design):
+    """Outliers per pose with several targets: all three SMRs of pose 5 moved by the same 1.5 mm (a
+    model error at that pose: the targets still agree with each other) are kept, one SMR of pose 12
+    moved by 1.5 mm (a bumped reflector: they disagree) is removed."""
+    robot = with_targets(kr16, THREE)
+    table, _ = simulation.simulate(robot, design, simulation.SimulationOptions(sigma_mm=SIGMA, seed=7))
+    data = Measurements.from_table(table, robot)
+    eta = data.eta.copy()
+    eta[15:18] += [1.5, 0.0, 0.0]  # pose 5 (rows 15-17): a rigid shift of all three targets
+    eta[37] += [0.0, 1.5, 0.0]  # pose 12, target 2 only
+    bad = dataclasses.replace(data, eta=eta)
+    report = calibration.calibrate(robot, bad, calibration.CalibrationOptions(sigma_mm=SIGMA))
+    removed = {int(data.rows[i]) for i in report.outliers}
+    assert int(data.rows[37]) in removed
+    assert not removed & {int(data.rows[i]) for i in range(15, 18)}
+    assert any("targets agree with each other" in w for w in report.warnings)
+    assert_allclose(robust.pose_groups(bad)[::3], np.arange(40), atol=0)

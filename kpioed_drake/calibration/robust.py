@@ -15,6 +15,11 @@ own spread when that exceeds the given noise:
   (Bonferroni). The worst failing pose is removed and the fit repeated (``s`` re-estimated) until
   none fails, ``max_outlier_fraction`` of the poses are removed, or fewer than
   :data:`MIN_POSES_FOR_OUTLIER_TEST` would remain. Rows are removed, never down-weighted.
+- **Several targets per pose**: a failing row whose pose measured two or more targets is a gross
+  error only if the pose's targets disagree with each other: their measured distances are compared
+  with the model's (a rigid motion keeps them, whatever the model's error at that pose). Targets
+  that agree within the noise (chi^2 over the pairs at level ``alpha``) mean the model, not the
+  measurement, is off at that pose: its rows are kept, with a warning.
 - When more than :data:`MAX_OUTLIER_SHARE` of the poses fail even at the effective noise, they are
   no single bad points: refused (``force``: a warning and no pose removed).
 - When ``s`` exceeds sigma and the goodness-of-fit test rejects, the calibration says so: the
@@ -148,16 +153,23 @@ def screen_outliers(
     reasons: list[dict] = []
     max_out = int(np.floor(max_outlier_fraction * n))
     threshold, capped = None, False
+    poses, kept = pose_groups(data), np.zeros(n, dtype=bool)
     while True:
         n_used = int(np.count_nonzero(mask))
         if n_used - 1 < MIN_POSES_FOR_OUTLIER_TEST:
             break
         threshold = float(chi2_dist.isf(alpha / n_used, 3))
         inflation = max(1.0, factor) ** 2
-        used = np.flatnonzero(mask)
+        used = np.flatnonzero(mask & ~kept)
+        if used.size == 0:
+            break
         worst = int(used[np.argmax(t[used])])
         if t[worst] <= threshold * inflation:
             break
+        if _consistent_pose(
+            res, data, np.flatnonzero(poses == poses[worst]), inflation, alpha, kept, warnings
+        ):
+            continue
         if len(outliers) >= max_out:
             capped = True
             warnings.append(
@@ -183,6 +195,55 @@ def screen_outliers(
         t = normalized_residuals(res)
         factor = robust_scale_factor(t[mask])
     return Screening(res, outliers, t, threshold, alpha, factor, reasons, capped)
+
+
+def _consistent_pose(res, data: Measurements, rows, inflation: float, alpha: float, kept, warnings) -> bool:
+    """True (and ``rows`` marked in ``kept``, with a warning) when the failing pose's targets agree
+    with each other: the model is off there, not the measurement."""
+    spread = targets_disagreement(res, data, rows, res.sigma * np.sqrt(inflation), alpha)
+    if spread is None or not spread["consistent"]:
+        return False
+    kept[rows] = True
+    listed = ", ".join(str(int(data.rows[r])) for r in rows)
+    warnings.append(
+        f"rows {listed} fail the outlier test but their {rows.size} targets agree with each other within "
+        f"{spread['max_mm']:.3g} mm: kept (the model, not the measurement, is off at this pose)"
+    )
+    return True
+
+
+def pose_groups(data: Measurements) -> np.ndarray:
+    """(n,) the pose of each row: rows with the same joint angles (the targets of one pose) share
+    it, numbered in order of appearance."""
+    _, first, inverse = np.unique(data.q, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))
+    return order[np.asarray(inverse).ravel()]
+
+
+def targets_disagreement(
+    res: EstimationResult, data: Measurements, rows: np.ndarray, sigma_mm: float, alpha: float
+) -> dict | None:
+    """How the measured targets of one pose (``rows``) agree with each other: their pairwise
+    distances against the model's distances of the same targets (a rigid motion keeps distances, so
+    the model's error at the pose does not enter). None with fewer than two distinct targets.
+
+    Returns:
+        ``{"max_mm": largest distance error, "statistic": sum of squared errors / (2 sigma^2),
+        "consistent": statistic below the chi^2 quantile (pairs) at level alpha}``.
+    """
+    if data.target is None or len(set(data.target[rows].tolist())) < 2:
+        return None
+    offsets = res.model.target_offsets[data.target[rows]]
+    a, b = np.triu_indices(rows.size, 1)
+    measured = np.linalg.norm(data.eta[rows][a] - data.eta[rows][b], axis=1)
+    model = np.linalg.norm(offsets[a] - offsets[b], axis=1)
+    err = measured - model
+    stat = float(np.sum(err**2) / (2.0 * sigma_mm**2))
+    return {
+        "max_mm": float(np.max(np.abs(err))),
+        "statistic": stat,
+        "consistent": stat <= float(chi2_dist.isf(alpha, a.size)),
+    }
 
 
 def _few_fail(t, mask, factor, res, data: Measurements, alpha: float, force: bool, warnings) -> bool:
