@@ -47,7 +47,7 @@ from kpioed_drake.estimation.estimator import (
     registered_model,
 )
 from kpioed_drake.estimation.identifiability import undetermined_parameters
-from kpioed_drake.estimation.plausibility import check_data
+from kpioed_drake.estimation.plausibility import check_data, check_fitted
 from kpioed_drake.estimation.residuals import normalized_residuals
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.robot.parameters import parameter_layout
@@ -256,6 +256,7 @@ def calibrate(
             at_solution += more
             normalized = normalized_residuals(res)
     threshold, alpha = screen.threshold, screen.alpha
+    check_fitted(res, nominal, data, force=force, warnings=warnings)
     if not res.converged:
         warnings.append(f"the least-squares iteration did not converge ({res.message})")
 

@@ -57,6 +57,7 @@ class ValidationResult:
         p_WT: (3,) tracker position used [mm].
         registered: True if the tracker frame was re-registered to these data.
         effects: the names of the model's non-geometric effects it predicted with (empty: geometric).
+        warnings: the plausibility checks' remarks (``force`` turns a refusal into one).
     """
 
     robot: str
@@ -67,6 +68,7 @@ class ValidationResult:
     p_WT: np.ndarray
     registered: bool
     effects: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def errors_mm(self) -> np.ndarray:
@@ -111,6 +113,7 @@ class ValidationResult:
             "row_convention": ROW_CONVENTION,
             "residuals_W_mm": self.residuals_W.tolist(),
             "effects": list(self.effects),
+            "warnings": list(self.warnings),
             "tracker": {
                 "registered": self.registered,
                 "p_WT_mm": self.p_WT.tolist(),
@@ -142,12 +145,18 @@ class ValidationResult:
                 + ", ".join(f"{v:.4f}" for v in d["rms_xyz_mm"])
                 + ")",
                 *per_target,
+                *(f"  warning: {w}" for w in self.warnings),
             ]
         )
 
 
 def validate(
-    robot: Robot, data: Measurements, *, keep_tracker: bool = False, cell: Cell | None = None
+    robot: Robot,
+    data: Measurements,
+    *,
+    keep_tracker: bool = False,
+    cell: Cell | None = None,
+    force: bool = False,
 ) -> ValidationResult:
     """Prediction errors of ``robot`` (a nominal or calibrated model) on ``data``.
 
@@ -159,6 +168,7 @@ def validate(
             robot file's (a calibrated model has one), else the identity for base-frame data,
             else the cell file's.
         cell: the measuring cell (default ``models/cell.yaml``).
+        force: go on with implausible data, with a warning in the result.
 
     Returns:
         :class:`ValidationResult`.
@@ -169,7 +179,7 @@ def validate(
             gross errors, another robot or a wrong joint map).
     """
     model = nominal_model(robot, load_cell(robot=robot) if cell is None else cell)
-    check_data(model, data, n_params=6)
+    warnings = check_data(model, data, n_params=6, force=force)
     effects = fx.model_effects(robot)
     p_W = predicted_world(model, data, effects)
     if keep_tracker and robot.X_WT is None and data.frame == "base":
@@ -188,6 +198,7 @@ def validate(
         p_WT=p_WT,
         registered=not keep_tracker,
         effects=tuple(e.name for e in effects),
+        warnings=tuple(warnings),
     )
 
 
@@ -244,6 +255,7 @@ def validate_file(
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
     cell_path=None,
+    force: bool = False,
 ) -> ValidationResult:
     """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.
 
@@ -253,12 +265,15 @@ def validate_file(
         data_format: format file of another layout (``docs/data-formats.md``).
         keep_tracker: use the model's tracker pose instead of re-registering it.
         json_path: JSON report; plots_dir: folder for ``validation_errors.png``.
+        cell_path: cell file (default ``models/cell.yaml``).
+        force: go on with implausible data (a warning in the report).
     """
-    require(isinstance(keep_tracker, bool), f"keep_tracker: expected True or False, got {keep_tracker!r}")
+    for name, flag in (("keep_tracker", keep_tracker), ("force", force)):
+        require(isinstance(flag, bool), f"{name}: expected True or False, got {flag!r}", fields=(name,))
     rob, cell, data = read_inputs(
         robot, data_path, data_format, cell_path=cell_path, outputs=[json_path], folders=[plots_dir]
     )
-    result = validate(rob, data, keep_tracker=keep_tracker, cell=cell)
+    result = validate(rob, data, keep_tracker=keep_tracker, cell=cell, force=force)
     with Outputs() as staged:
         if json_path:
             staged.add_json(json_path, result.to_dict())

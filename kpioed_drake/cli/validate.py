@@ -22,6 +22,9 @@ def register(sub) -> None:
         action="store_true",
         help="use the model's tracker pose instead of re-registering it to the data",
     )
+    p.add_argument(
+        "--force", action="store_true", help="go on with implausible data (a warning instead of a refusal)"
+    )
     add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
     p.set_defaults(func=run, api_names=API_NAMES)
@@ -33,6 +36,7 @@ def run(args) -> int:
         args.data,
         data_format=args.format,
         keep_tracker=args.keep_tracker,
+        force=args.force,
         json_path=json_file(args.json),
         plots_dir=args.plots,
     )

@@ -1,18 +1,23 @@
 """Plausibility of measured data before a calibration or a diagnosis: refuse what cannot be right.
 
 A fit always returns numbers; these checks make sure they mean something. Run before any fit, on
-the nominal model with only the tracker frame registered (a rigid 6-DoF fit, no robot parameter
-moved: :func:`kpioed_drake.estimation.estimator.register_tracker`):
+the nominal model with what the data alone can tell registered: the tracker frame (a rigid 6-DoF
+fit, :func:`kpioed_drake.estimation.estimator.register_tracker`) and the target offsets on the
+flange (a wrong nominal tool point is no robot error), no robot parameter moved:
 
 - **degrees of freedom**: ``3 n`` coordinates must exceed the parameters, or no goodness of fit
   (and no covariance worth the name) exists;
 - **units**: measured points spanning a hundredth (or a hundred times) of what the robot's poses
   span are lengths in metres (or micrometres), not millimetres;
 - **gross errors**: after registering on the better half of the poses, a pose missing the nominal
-  model by more than :data:`MAX_GEOMETRIC_MM` is no geometric error; more than a third of such
-  rows is refused;
-- **another robot or a wrong joint map**: an RMS miss of the better half above
-  :data:`MAX_GEOMETRIC_MM` (the data of another robot, wrong joint signs, offsets or angle units).
+  model by more than :func:`geometric_gate_mm` (scaled by the robot's reach) is no geometric
+  error; more than a third of such rows is refused;
+- **another robot or a wrong joint map**: an RMS miss of the better half above the same gate (the
+  data of another robot, wrong joint signs, offsets or angle units).
+
+After the fit, :func:`check_fitted` tests the estimate: robot parameters moved by more than
+:data:`MAX_FITTED_SHARE` of the reach or :data:`MAX_FITTED_DEG` are no geometric error of a real
+robot (a wrong joint map or coupling left out of it, another robot); it names the joint.
 
 Each check raises :class:`~kpioed_drake.errors.InputError` (exit status 2) saying what looks
 wrong, unless ``force=True``, which turns it into a warning.
@@ -28,9 +33,19 @@ from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
 
 MAX_GEOMETRIC_MM = 25.0
-"""Largest miss [mm] of the registered nominal model that geometric errors can explain. An
-industrial robot's uncalibrated absolute error is a few millimetres (SPEC's error sizes give about
-1 mm; the UR5 data set of the README 2.6 mm mean); 25 mm leaves a wide margin."""
+"""Smallest gate [mm] on the miss of the registered nominal model that geometric errors can explain.
+An industrial robot's uncalibrated absolute error is a few millimetres (SPEC's error sizes give
+about 1 mm; the UR5 data set of the README 2.6 mm mean); 25 mm leaves a wide margin."""
+GATE_REACH_SHARE = 0.03
+"""... and the gate grows with the robot: 3 % of its reach (a 1.2 m elastic humanoid misses by
+about 20 mm uncalibrated)."""
+MAX_FITTED_SHARE = 0.1
+"""A fitted robot length parameter more than this share of the reach from nominal is no error."""
+MAX_FITTED_DEG = 15.0
+"""Nor is a fitted robot angle more than this many degrees from nominal [deg]."""
+REGISTRATION_ROUNDS = 12
+"""Alternations of the tracker rotation and the tracker position with the target offsets (the last
+half on the better half of the rows)."""
 
 UNIT_RATIO = 100.0
 """Span ratio (measured / nominal points) beyond which the lengths are in other units."""
@@ -43,6 +58,12 @@ def _refuse(message: str, force: bool, warnings: list[str]) -> None:
     if not force:
         raise InputError(f"{message} (use force to go on anyway)", fields=("force",))
     warnings.append(f"forced: {message}")
+
+
+def geometric_gate_mm(model: TrackerModel) -> float:
+    """The largest miss [mm] of the registered nominal model that geometric errors explain:
+    ``max(MAX_GEOMETRIC_MM, GATE_REACH_SHARE * reach)``."""
+    return max(MAX_GEOMETRIC_MM, GATE_REACH_SHARE * float(model.robot.reach))
 
 
 def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force: bool = False) -> list[str]:
@@ -90,13 +111,14 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
             warnings,
         )
         return warnings
-    miss = _registered_miss(p_W, data.eta)
-    good = miss <= MAX_GEOMETRIC_MM
+    gate = geometric_gate_mm(model)
+    miss = _registered_miss(model, data)
+    good = miss <= gate
     rows = data.rows[~good]
     if rows.size > MAX_GROSS_FRACTION * n:
         _refuse(
-            f"{where}: {rows.size} of {n} poses miss the nominal model by more than {MAX_GEOMETRIC_MM:g} mm "
-            f"after registering the tracker (rows {', '.join(map(str, rows[:8]))}"
+            f"{where}: {rows.size} of {n} poses miss the nominal model by more than {gate:.3g} mm "
+            f"after registering the tracker and the target offsets (rows {', '.join(map(str, rows[:8]))}"
             f"{', ...' if rows.size > 8 else ''}): more than a third are gross errors, which is no "
             "calibration data; check the file, the joint map and the units",
             force,
@@ -104,10 +126,11 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
         )
         return warnings
     rms = float(np.sqrt(np.mean(np.sort(miss)[: max(3, n // 2)] ** 2)))
-    if rms > MAX_GEOMETRIC_MM:
+    if rms > gate:
         _refuse(
-            f"{where}: after registering the tracker frame the nominal model misses the better half of "
-            f"the poses by {rms:.4g} mm RMS, more than geometric errors explain ({MAX_GEOMETRIC_MM:g} mm): "
+            f"{where}: after registering the tracker frame and the target offsets the nominal model misses "
+            f"the better half of the poses by {rms:.4g} mm RMS, more than geometric errors explain "
+            f"({gate:.3g} mm): "
             "data of another robot, a wrong joint map (signs, offsets, degrees vs radians) or other units",
             force,
             warnings,
@@ -115,13 +138,71 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
     return warnings
 
 
-def _registered_miss(p_W: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    """(n,) distance [mm] of each pose after registering on all, then on the better half."""
-    use = np.ones(len(p_W), dtype=bool)
-    for _ in range(2):
-        R_WT, p_WT = register_tracker(p_W[use], eta[use])
-        miss = np.linalg.norm(eta @ R_WT.T + p_WT - p_W, axis=1)
-        use = miss <= np.median(miss)
+def _registered_miss(model: TrackerModel, data: Measurements) -> np.ndarray:
+    """(n,) distance [mm] of each row after registering the tracker frame and the target offsets on
+    all rows, then on the better half. Alternating: the tracker rotation by Procrustes given the
+    points, then the tracker position and the offsets jointly by linear least squares
+    (``R_WT eta_i + p_WT = o_WF_i + R_WF_i d_t``) given the rotation."""
+    frames = model.frames(data.q)
+    nj = frames.n_joints
+    R_WF, o_WF = frames.R[:, nj], frames.o[:, nj]
+    n = data.n
+    target = np.zeros(n, dtype=int) if data.target is None else np.asarray(data.target)
+    offsets = np.array(model.target_offsets, dtype=float)
+    T = offsets.shape[0]
+    # design matrix of [p_WT, d_0 .. d_{T-1}]: I for p_WT, -R_WF_i in target i's columns
+    A = np.zeros((n, 3, 3 + 3 * T))
+    A[:, :, :3] = np.eye(3)
+    for t in range(T):
+        A[target == t, :, 3 + 3 * t : 6 + 3 * t] = -R_WF[target == t]
+    use = np.ones(n, dtype=bool)
+    for k in range(REGISTRATION_ROUNDS):
+        p_W = o_WF + np.einsum("nij,nj->ni", R_WF, offsets[target])
+        R_WT, _ = register_tracker(p_W[use], data.eta[use])
+        rhs = o_WF - data.eta @ R_WT.T
+        known = np.isin(np.arange(T), target[use])  # offsets of targets no used row measures stay
+        cols = np.concatenate([[True] * 3, np.repeat(known, 3)])
+        x, *_ = np.linalg.lstsq(A[use][:, :, cols].reshape(-1, cols.sum()), rhs[use].ravel(), rcond=None)
+        p_WT, d = np.split(x, [3])  # the tracker position, the offsets of the measured targets
+        offsets[known] = d.reshape(-1, 3)
+        miss = np.linalg.norm(
+            data.eta @ R_WT.T + p_WT - (o_WF + np.einsum("nij,nj->ni", R_WF, offsets[target])), axis=1
+        )
+        if k >= REGISTRATION_ROUNDS // 2:
+            use = miss <= np.median(miss)
         if np.count_nonzero(use) < 3:
             break
     return miss
+
+
+def check_fitted(
+    result, nominal: TrackerModel, data: Measurements, *, force: bool, warnings: list[str]
+) -> None:
+    """Refuse a fitted model whose robot parameters moved further than any geometric error
+    (:data:`MAX_FITTED_SHARE` of the reach for lengths, :data:`MAX_FITTED_DEG` for angles; the
+    tracker pose and the target offsets may move freely), naming the parameters and their joint.
+
+    Raises:
+        InputError: such a fit, unless ``force`` (then a warning).
+    """
+    lay = nominal.layout
+    delta = result.model.p - nominal.p
+    robot_side = np.zeros(lay.size, dtype=bool)
+    robot_side[lay.joints] = True
+    limit = np.where(lay.is_angle, np.deg2rad(MAX_FITTED_DEG), MAX_FITTED_SHARE * float(nominal.robot.reach))
+    far = np.flatnonzero(robot_side & (np.abs(delta) > limit))
+    if far.size == 0:
+        return
+    moved = ", ".join(
+        f"{lay.names[i]} by {np.rad2deg(delta[i]):+.3g} deg"
+        if lay.is_angle[i]
+        else f"{lay.names[i]} by {delta[i]:+.4g} mm"
+        for i in far[:6]
+    )
+    _refuse(
+        f"{data.source}: the fit moved {moved} from nominal: no geometric error of a real robot is that "
+        f"large (limits {MAX_FITTED_SHARE:.0%} of the reach, {MAX_FITTED_DEG:g} deg); a wrong joint map (a "
+        "coupling left out, a sign or offset), another robot or a wrong robot file",
+        force,
+        warnings,
+    )
