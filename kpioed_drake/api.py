@@ -10,6 +10,7 @@
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.run_study` |
+| ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.next_file` |
 | ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.calibration.programs.compensate_file` |
 
 Example::
@@ -45,6 +46,7 @@ from kpioed_drake.design import DesignOptions, DesignResult, run_design
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
+from kpioed_drake.online import NextOptions, next_file
 from kpioed_drake.options import options_from
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
@@ -60,6 +62,7 @@ __all__ = [
     "diagnose",
     "evaluate",
     "info",
+    "next",
     "simulate",
     "study",
     "validate",
@@ -138,6 +141,46 @@ def design(
         plot=plot,
         html=html,
     )
+
+
+def next(  # noqa: A001 (the command's name)
+    robot: str,
+    data_path,
+    *,
+    target_var_mm2: float,
+    n: int = 5,
+    sigma_mm: float = 0.02,
+    seed: int = 0,
+    certify: bool = True,
+    out=None,
+    json_path=None,
+    data_format=None,
+) -> dict:
+    """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
+
+    Calibrates on the data so far, evaluates tr(Cs)/3 at the estimate (a-posteriori when the fit
+    rejects) and either stops (``done``: nothing written) or designs the ``n`` next poses with the
+    measured ones' information held fixed.
+
+    Args:
+        robot: model name or model file.
+        data_path: the measurements so far.
+        target_var_mm2: the TCP precision to reach, tr(Cs)/3 [mm^2].
+        n: poses to design when not done.
+        sigma_mm: the tracker's noise per coordinate [mm].
+        seed: seed of the design's starts and the certificate's search.
+        certify: add the certificate of the combined design.
+        out: design CSV of the next poses; json_path: the JSON record.
+        data_format: format file of a measurement file of another layout.
+
+    Returns:
+        The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
+        ``predicted_kpi_avg_var_mm2``, ``bound_mm2``, ``efficiency``, ``next_q_deg``, ...) and
+        ``summary``.
+    """
+    options = NextOptions(target_var_mm2=target_var_mm2, n=n, sigma_mm=sigma_mm, seed=seed, certify=certify)
+    result, rob = next_file(robot, data_path, options, out=out, json_path=json_path, data_format=data_format)
+    return {**result.to_dict(rob), "summary": result.summary()}
 
 
 def calibrate(

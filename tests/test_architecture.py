@@ -50,6 +50,7 @@ RANK = {
     "design": 5.6,
     "simulation": 5.8,
     "calibration": 6,
+    "online": 6.5,
     "diagnosis": 7,
     "study": 8,
     "api": 9,

@@ -1,0 +1,230 @@
+"""One step of online calibration: calibrate on the data so far, evaluate the TCP variance at the
+estimate with the noise the data show, then stop or design the next poses.
+
+The variance is the KPI's tr(Cs)/3 (paper eq. 19, 24e) of the calibration, a-posteriori (times
+chi2/dof) when the goodness-of-fit test rejects: the guarantee must hold for the real spread. The
+next ``n`` poses minimise tr(Cs)/3 of the combined design (paper eq. 24 with the measured poses'
+information held fixed, section 3.1) at that noise, with collision avoidance
+(:func:`design_problem`: the constraints on the model file's kinematics); the certificate (a lower
+bound on tr(Cs)/3 of any such combined design) says how far from the best they are.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed
+from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
+from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.calibration.robust import pose_groups
+from kpioed_drake.design.approximate import certificate
+from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.effects import model_effects
+from kpioed_drake.errors import InputError, check_sigma
+from kpioed_drake.estimation.problem import Problem, make_problem
+from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.models import Cell, Robot
+from kpioed_drake.tracker import csvio
+from kpioed_drake.tracker.data import Measurements
+
+
+@dataclasses.dataclass(frozen=True)
+class NextOptions:
+    """The settings of one online step (:func:`next_poses`)."""
+
+    target_var_mm2: float = 0.1
+    """The TCP precision to reach: tr(Cs)/3 at the working pose [mm^2]."""
+    n: int = 5
+    """Poses to design when the precision is not reached yet."""
+    sigma_mm: float = 0.02
+    """The tracker's noise per coordinate [mm]; the a-posteriori noise replaces it when the fit
+    rejects."""
+    collision: bool = True
+    """Avoid collisions of the robot, the cell and the laser beam."""
+    seed: int = 0
+    """Seed of the design's starts and of the certificate's search."""
+    certify: bool = True
+    """Add the certificate of the combined design (``bound_mm2``, ``efficiency``)."""
+
+    def __post_init__(self):
+        check_positive("target_var_mm2", self.target_var_mm2)
+        check_count("n", self.n)
+        check_sigma(self.sigma_mm)
+        check_seed(self.seed)
+
+
+@dataclasses.dataclass
+class NextResult:
+    """Outcome of one step.
+
+    Attributes:
+        done: the precision is reached (``kpi_avg_var_mm2 <= target_var_mm2``): stop measuring.
+        n_measured: poses measured so far (distinct joint values).
+        kpi_avg_var_mm2: tr(Cs)/3 now [mm^2] (a-posteriori when the fit rejects).
+        aposteriori: whether the a-posteriori noise was used.
+        sigma_used_mm: the noise the variance and the design use [mm].
+        target_var_mm2: the precision asked for [mm^2].
+        q_next: (n, n_joints) the next poses [rad] (empty when done).
+        predicted_kpi_avg_var_mm2: tr(Cs)/3 of the measured and the next poses together [mm^2].
+        certificate: the certificate of the combined design (None when done or not asked).
+        report: the calibration on the data so far.
+    """
+
+    done: bool
+    n_measured: int
+    kpi_avg_var_mm2: float
+    aposteriori: bool
+    sigma_used_mm: float
+    target_var_mm2: float
+    q_next: np.ndarray
+    predicted_kpi_avg_var_mm2: float | None
+    certificate: dict | None
+    report: CalibrationReport
+
+    def to_dict(self, robot: Robot) -> dict:
+        """The JSON record (mm, deg)."""
+        cert = self.certificate or {}
+        return {
+            "done": self.done,
+            "n_measured": self.n_measured,
+            "kpi_avg_var_mm2": self.kpi_avg_var_mm2,
+            "target_var_mm2": self.target_var_mm2,
+            "aposteriori": self.aposteriori,
+            "sigma_used_mm": self.sigma_used_mm,
+            "chi2_per_dof": self.report.chi2_per_dof,
+            "kpi_mm": np.asarray(self.report.kpi).tolist(),
+            "kpi_cov_mm2": (
+                self.report.kpi_cov * (self.sigma_used_mm / self.report.result.sigma) ** 2
+            ).tolist(),
+            "predicted_kpi_avg_var_mm2": self.predicted_kpi_avg_var_mm2,
+            "bound_mm2": cert.get("bound_mm2"),
+            "efficiency": cert.get("efficiency"),
+            "n_next": int(len(self.q_next)),
+            "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
+        }
+
+    def summary(self) -> str:
+        """A short human-readable summary."""
+        post = " (a-posteriori: the fit rejects)" if self.aposteriori else ""
+        head = (
+            f"{self.n_measured} poses measured: tr(Cs)/3 = {self.kpi_avg_var_mm2:.4g} mm^2{post}, "
+            f"target {self.target_var_mm2:g} mm^2"
+        )
+        if self.done:
+            return head + "\n  done: the precision is reached; nothing to measure"
+        lines = [
+            head,
+            f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2",
+        ]
+        if self.certificate is not None:
+            c = self.certificate
+            lines.append(f"  bound {c['bound_mm2']:.4g} mm^2, efficiency {c['efficiency']:.3f}")
+        return "\n".join(lines)
+
+
+def design_problem(robot: Robot, sigma_mm: float, cell: Cell | None) -> Problem:
+    """The problem the next poses are designed in: the robot's model file (its kinematics place the
+    collision and beam constraints, as the feasibility check does) with the noise the data show.
+
+    The estimate enters through the measured poses' information and the noise; the design's own
+    kinematics stay nominal because the constraints are planned on them: a design optimised on a
+    first estimate's kinematics (from ten poses, some parameters tens of millimetres off) sits on
+    constraint boundaries the nominal check then finds violated.
+    """
+    problem = make_problem(robot, sigma_mm=sigma_mm)
+    return problem if cell is None else dataclasses.replace(problem, cell=cell)
+
+
+def measured_poses(data: Measurements) -> np.ndarray:
+    """(m, n_joints) the distinct poses of the data (a pose's targets share one) [rad]."""
+    groups = pose_groups(data)
+    first = np.array([np.flatnonzero(groups == g)[0] for g in range(groups.max() + 1)])
+    return data.q[first]
+
+
+def next_poses(
+    robot: Robot, data: Measurements, options: NextOptions | None = None, *, cell: Cell | None = None
+) -> NextResult:
+    """One online step on the data so far (module docstring).
+
+    Args:
+        robot: the nominal model (or an extended model file: its effects are estimated too).
+        data: the measurements so far.
+        options: :class:`NextOptions`.
+        cell: the measuring cell (default ``models/cell.yaml``).
+
+    Raises:
+        InputError: no poses yet, too few to calibrate, bad data.
+    """
+    opts = options or NextOptions()
+    if data.n == 0:
+        raise InputError(f"{data.source}: no poses measured yet: start with a design (kpioed design)")
+    cal_opts = CalibrationOptions(sigma_mm=opts.sigma_mm, effects=tuple(model_effects(robot)))
+    report = calibrate(robot, data, cal_opts, cell=cell)
+    scale = report.chi2_per_dof if report.rejects else 1.0
+    var_now = float(np.trace(report.kpi_cov) / 3.0 * scale)
+    sigma_used = opts.sigma_mm * float(np.sqrt(scale))
+    q_given = measured_poses(data)
+    base = dict(
+        done=var_now <= opts.target_var_mm2,
+        n_measured=len(q_given),
+        kpi_avg_var_mm2=var_now,
+        aposteriori=bool(report.rejects),
+        sigma_used_mm=sigma_used,
+        target_var_mm2=opts.target_var_mm2,
+        report=report,
+    )
+    if base["done"]:
+        return NextResult(
+            q_next=np.zeros((0, robot.n_joints)),
+            predicted_kpi_avg_var_mm2=None,
+            certificate=None,
+            **base,
+        )
+    problem = design_problem(robot, sigma_used, cell)
+    res = optimize_design(
+        problem, criterion="kpi", n=opts.n, collision=opts.collision, seed=opts.seed, given=q_given
+    )
+    cert = None
+    if opts.certify:
+        cert = certificate.certify(problem, res.q, collision=opts.collision, seed=opts.seed, given=q_given)
+    return NextResult(
+        q_next=res.q,
+        predicted_kpi_avg_var_mm2=float(res.kpi_avg_var_mm2),
+        certificate=cert,
+        **base,
+    )
+
+
+def next_file(
+    robot: str,
+    data_path: str | Path,
+    options: NextOptions | None = None,
+    *,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    data_format: str | Path | None = None,
+    cell_path=None,
+) -> tuple[NextResult, Robot]:
+    """``kpioed next``: one step on a measurement file; ``out`` gets the next poses (a design CSV,
+    nothing written when done), ``json_path`` the record; written after all succeeded.
+
+    Returns:
+        (result, robot).
+    """
+    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[out, json_path])
+    rob, cell, data = read_inputs(
+        robot, data_path, data_format, cell_path=cell_path, outputs=[out, json_path]
+    )
+    result = next_poses(rob, data, options, cell=cell)
+    with Outputs() as staged:
+        if out is not None and not result.done:
+            staged.add_text(out, csvio.design_csv_text(result.q_next, robot=rob))
+        if json_path is not None:
+            staged.add_json(json_path, result.to_dict(rob))
+        staged.commit()
+    return result, rob
