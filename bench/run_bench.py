@@ -24,6 +24,8 @@ Wall times depend on the machine and on its load; CPU time of this process is re
 4. Calibration and diagnosis of 1000 poses (measured UR5 data and simulated kr16 data, sigma 0.02
    and 0.065 mm): wall time and peak memory of each ``kpioed`` command (``bench/fits_bench.py``).
 5. Compensation of 1000 program rows with a calibrated kr16 model (``bench/compensate_bench.py``).
+6. Diagnosis of 400 and 1000 poses of the 11-joint elastic humanoid stand-in whose model file has
+   no masses (``bench/humanoid.py``): wall and CPU time, the causes named, their ratio.
 
 Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``;
 ``--only fits`` (``--only compensate``) runs section 4 (5) alone and replaces only that section of
@@ -46,6 +48,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import compensate_bench  # noqa: E402
+import humanoid  # noqa: E402
 import numpy as np  # noqa: E402
 from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
 
@@ -414,7 +417,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="15,30,60,120,240", help="numbers of poses for the growth study")
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results.md"))
-    skips = "derivatives,solvers,breakdown,sizes,fits,compensate"
+    skips = "derivatives,solvers,breakdown,sizes,fits,compensate,humanoid"
     ap.add_argument("--skip", default="", help=f"sections to skip: {skips}")
     ap.add_argument(
         "--only", choices=["fits", "compensate"], help="run only this section and replace it in --out"
@@ -473,6 +476,10 @@ def main(argv=None) -> int:
         print("compensate ...", file=sys.stderr, flush=True)
         rows, summary["compensate"] = compensate_bench.bench_compensate()
         sections += compensate_bench.section_lines(rows, summary["compensate"])
+    if "humanoid" not in skip:
+        print("humanoid ...", file=sys.stderr, flush=True)
+        rows, summary["humanoid"] = humanoid.bench_section()
+        sections += humanoid.section_lines(rows, summary["humanoid"])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:
@@ -497,6 +504,8 @@ def main(argv=None) -> int:
         targets += targets_lines(summary["fits"])
     if "compensate" in summary:
         targets += compensate_bench.targets_lines(summary["compensate"])
+    if "humanoid" in summary:
+        targets += humanoid.targets_lines(summary["humanoid"])
     foot = [
         "",
         f"Total benchmark time {time.perf_counter() - t0:.0f} s; load average at end: {load1[0]:.2f} "

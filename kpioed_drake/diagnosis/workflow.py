@@ -32,12 +32,13 @@ from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import name_causes, settle
 from kpioed_drake.diagnosis.common import DiagnosisOptions
-from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, upgrade_elasticity
+from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, reduce_absorbed, upgrade_elasticity
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.records import Selection
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns, with_expected_sides
+from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
@@ -62,24 +63,32 @@ def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
 
 def _prepared(
     robot: Robot, data: Measurements, opts: DiagnosisOptions, cell
-) -> tuple[FitProblem, list, list]:
+) -> tuple[FitProblem, list, list, tuple]:
     """The fit problem as calibrate's (parameters these poses do not determine held at nominal,
     with a note), every backlash on its expected side (where the file's masses leave it uncertain),
-    and the candidates with the notes so far."""
+    the candidates with the notes so far and the joints whose gravity basis is sized on the data's
+    poses (:func:`~kpioed_drake.effects.gravity_basis.size_on_poses`)."""
     prob = _problem(robot, data, opts.sigma_mm, opts.k_folds, cell)
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
     prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
+    resized = gb.size_on_poses(prob.robot, data.q)
+    notes = [
+        f"joint_elasticity_basis:{j} is sized on these poses: {r} of the {r0} moment combinations of the "
+        "joint box vary here (the joint angles are dependent, e.g. a coupled joint)"
+        for j, (r0, r) in resized.items()
+    ]
     if opts.candidates is None:
-        cands, notes = candidate_effects(data, prob.tau, robot=robot)
+        cands, more = candidate_effects(data, prob.tau, robot=robot)
+        notes += more
     else:
-        cands, notes = [fx.parse_effect(c, model=prob.nominal) for c in opts.candidates], []
+        cands = [fx.parse_effect(c, model=prob.nominal) for c in opts.candidates]
     stored = [e.name for e in fx.model_effects(robot)]
     if stored:
         notes.append(
             f"the model file's effects ({', '.join(stored)}) are tested as candidates like any other: the "
             "model under test is its geometry; `out` keeps them in the model it writes"
         )
-    return prob, cands, warnings + notes
+    return prob, cands, warnings + notes, tuple(resized)
 
 
 def _baseline(prob: FitProblem, k_folds: int) -> tuple[Fit, np.ndarray]:
@@ -148,9 +157,11 @@ def diagnose(
     alpha, k_folds = opts.alpha, opts.k_folds
     data = as_measurements(data, robot)
     data.check()
-    prob, cands, notes = _prepared(robot, data, opts, cell)
+    prob, cands, notes, resized = _prepared(robot, data, opts, cell)
     sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
     base, base_hold = _baseline(prob, k_folds)
+    cands, more = reduce_absorbed(prob, base, cands, resized)
+    notes += more
     test = _gof_test(base, alpha)
     structure = score_tests(prob, base, cands)
     sel = select_effects(

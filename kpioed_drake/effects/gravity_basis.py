@@ -52,6 +52,10 @@ FAMILY = "joint_elasticity_basis"
 _N_REF = 500
 _RANK_TOL = 1e-7
 """Relative singular value below which a direction of the moments is not seen by tau_j."""
+_POSE_RANK_TOL = 1e-5
+"""The same on the data's poses (:func:`size_on_poses`): their angles are rounded (a file's decimals,
+an encoder's steps, about 1e-6 rad), so a coupling such as ``q_4 = -(q_2 + q_3)`` holds only to that
+and leaves singular values of about 1e-10 to 1e-7 relative that no deflection can be fitted to."""
 _CACHE: dict = {}
 MASS_PRIOR_SPREAD = 0.3
 """Assumed uncertainty of the model file's link masses and centres of mass (each +-30 %, uniform):
@@ -163,25 +167,118 @@ class JointBasis:
         return out[0] @ T, out[1] @ T
 
 
+def _reduced(Y: np.ndarray, tol: float = _RANK_TOL) -> tuple[np.ndarray, np.ndarray]:
+    """``(D, V)`` of a full regressor ``Y`` (n, p) over n poses: the RMS of each column (1 for a
+    column that is zero at every pose) and the (p, r) right singular vectors of the scaled columns
+    whose singular value is at least ``tol`` times the largest (none if the torque is zero at
+    every pose)."""
+    n = Y.shape[0]
+    D = np.sqrt(np.mean(Y**2, axis=0))
+    scale = max(float(D.max()), 1e-300)
+    keep = D > 1e-12 * scale
+    D = np.where(keep, D, 1.0)
+    _, s, Vt = np.linalg.svd(Y / D * keep, full_matrices=False)
+    big = s > tol * s[0] if s[0] > 1e-9 * np.sqrt(n) else np.zeros_like(s, dtype=bool)
+    return D, Vt[big].T
+
+
+def _rank(A: np.ndarray) -> int:
+    """The numerical column rank of ``A`` at :data:`_POSE_RANK_TOL` (columns scaled to unit norm)."""
+    n = np.linalg.norm(A, axis=0)
+    s = np.linalg.svd(A / np.where(n > 0, n, 1.0), compute_uv=False)
+    return int(np.sum(s > _POSE_RANK_TOL * s[0])) if s.size and s[0] > 0 else 0
+
+
 def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
     """The (cached) :class:`JointBasis` of ``joint``: SVD of the scaled full regressor over
     :data:`_N_REF` seeded reference poses in the joint box; directions with a singular value
-    below ``_RANK_TOL`` times the largest (or all, if the torque is zero everywhere) are dropped."""
+    below ``_RANK_TOL`` times the largest (or all, if the torque is zero everywhere) are dropped.
+    :func:`size_on_poses` and :func:`store_basis` replace it (the data's poses, a model file)."""
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
     key = _key(robot, joint, g)
     if key not in _CACHE:
-        Y = link_regressor(robot, reference_poses(robot, _N_REF), joint, g=g)
-        D = np.sqrt(np.mean(Y**2, axis=0))
-        scale = max(float(D.max()), 1e-300)
-        keep = D > 1e-12 * scale
-        D = np.where(keep, D, 1.0)
-        Ys = Y / D * keep
-        _, s, Vt = np.linalg.svd(Ys, full_matrices=False)
-        big = s > _RANK_TOL * s[0] if s[0] > 1e-9 * np.sqrt(_N_REF) else np.zeros_like(s, dtype=bool)
-        V = Vt[big].T
+        D, V = _reduced(link_regressor(robot, reference_poses(robot, _N_REF), joint, g=g))
         beta = V.T @ (D * link_moments(robot, joint))
         _CACHE[key] = JointBasis(joint, D, V, beta, g)
     return _CACHE[key]
+
+
+def pose_rank(robot: Robot, q, joint: int, *, centered: bool = True) -> int:
+    """The rank of joint ``joint``'s gravity basis on the poses ``q`` (n, nj) [rad]: how many
+    combinations of the link moments its torque distinguishes there, with ``centered`` beyond a
+    torque that is the same at every pose (whose deflection is the joint's offset). 0: gravity
+    exerts no torque on the joint at these poses for any link masses (``centered=False``; e.g. a
+    joint about the vertical axis), or none that varies (``centered``)."""
+    Y = link_regressor(robot, np.atleast_2d(np.asarray(q, dtype=float)), joint)
+    return _reduced(Y - Y.mean(axis=0) if centered else Y, _POSE_RANK_TOL)[1].shape[1]
+
+
+def size_on_poses(robot: Robot, q) -> dict[int, tuple[int, int]]:
+    """Size every joint's basis on the data's own poses ``q`` (n, nj) [rad] where the reference
+    basis is singular on them (a coupled joint, e.g. ``q_4 = -(q_2 + q_3)``, a
+    fixed or barely moving joint make some columns of ``Y_j`` dependent on these poses: the
+    reference basis is then singular on the data, and no number of such poses helps; a link whose
+    orientation the coupling keeps, e.g. an upright chest, adds a torque that is the same at every
+    pose, a deflection the joint's offset absorbs). Where the reference basis's columns on ``q``
+    together with a constant column are rank deficient (at :data:`_POSE_RANK_TOL`), the basis
+    reduced on ``q`` with the columns' means removed (a constant torque is the joint's offset)
+    becomes :func:`joint_basis`'s answer for ``robot`` (and is what a model file written afterwards
+    stores); elsewhere the reference basis stays.
+
+    Returns:
+        ``{joint: (rank on the reference poses, rank on q)}`` of the joints re-sized.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    out = {}
+    for j in range(1, robot.n_joints + 1):
+        ref = joint_basis(robot, j)
+        Y = link_regressor(robot, q, j, g=ref.g)
+        ones = np.ones((Y.shape[0], 1))
+        if ref.rank == 0 or _rank(np.hstack([ones, Y @ (ref.V / ref.D[:, None])])) == ref.rank + 1:
+            continue
+        D, V = _reduced(Y - Y.mean(axis=0), _POSE_RANK_TOL)
+        _CACHE[_key(robot, j, ref.g)] = JointBasis(j, D, V, V.T @ (D * link_moments(robot, j)), ref.g)
+        out[j] = (ref.rank, V.shape[1])
+    return out
+
+
+def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tuple[list, list[str]]:
+    """The elasticity candidates of the joints whose gravity torque with the model file's masses is
+    zero at every pose ``q`` (n, nj) [rad] (``joints``, 1-based), with the true reason for each one
+    left out: a joint whose torque is zero for any link masses at these poses (rank 0 of its basis
+    there: its axis is vertical) has no elasticity to see, nor one whose torque is the same at every
+    pose (its offset); a joint whose torque is zero only because the file gives its links no mass
+    gets the mass-free ``joint_elasticity_basis:j`` (sized by :func:`size_on_poses`) and no
+    backlash (the side of its torque is unknown). Without ``robot`` a zero torque is taken for a
+    vertical axis (a false ``robot`` too).
+
+    Returns:
+        (candidates, notes): ``[(joint, n_basis)]`` of the basis candidates (n_basis = the basis
+        rank, plus 1 when the payload varies) and the notes on those left out.
+    """
+    robot = robot or None
+    cands, notes, massless = [], [], []
+    for j in (int(x) for x in joints):
+        rank = pose_rank(robot, q, j) if robot is not None else 0
+        if rank == 0:
+            why = (
+                f"gravity's torque on joint {j} is the same at every one of these poses (its deflection is "
+                "the joint's offset)"
+                if robot is not None and pose_rank(robot, q, j, centered=False)
+                else f"joint {j} turns about the vertical axis at these poses, gravity exerts no torque on it"
+            )
+            notes.append(f"joint_elasticity:{j} and backlash:{j} are not candidates: {why}")
+            continue
+        cands.append((j, joint_basis(robot, j).rank + int(payload_varies(payload_kg))))
+        massless.append(str(j))
+    if massless:
+        js = ", ".join(massless)
+        notes.append(
+            f"joint_elasticity and backlash of joint(s) {js} are not candidates: the model file gives the "
+            "links these joints carry no masses (their gravity torque is unknown, not zero); "
+            f"{FAMILY} of joint(s) {js} (the torque of any link masses, sized on these poses) is"
+        )
+    return cands, notes
 
 
 def _key(robot: Robot, joint: int, g: np.ndarray) -> tuple:

@@ -23,6 +23,7 @@ from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.result import DesignError
 from kpioed_drake.effects import model_effects
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.problem import Problem, make_problem
@@ -186,9 +187,7 @@ def next_poses(
             **base,
         )
     problem = design_problem(robot, sigma_used, cell)
-    res = optimize_design(
-        problem, criterion="kpi", n=opts.n, collision=opts.collision, seed=opts.seed, given=q_given
-    )
+    res = _design(problem, opts, q_given)
     cert = None
     if opts.certify:
         cert = certificate.certify(problem, res.q, collision=opts.collision, seed=opts.seed, given=q_given)
@@ -198,6 +197,29 @@ def next_poses(
         certificate=cert,
         **base,
     )
+
+
+RETRY_SEEDS = 3
+"""Seeds tried for the next poses before a solver failure is reported (the design is one local
+optimisation from one start per seed)."""
+
+
+def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray):
+    """The next poses: the KPI design of ``opts.n`` poses with ``q_given`` held fixed; a solver
+    failure is retried with the next seeds."""
+    for k in range(RETRY_SEEDS):
+        try:
+            return optimize_design(
+                problem,
+                criterion="kpi",
+                n=opts.n,
+                collision=opts.collision,
+                seed=opts.seed + k,
+                given=q_given,
+            )
+        except DesignError:
+            if k == RETRY_SEEDS - 1:
+                raise
 
 
 def next_file(
