@@ -14,6 +14,7 @@ from kpioed_drake.cli.common import (
     add_robot,
     data_outputs,
     json_file,
+    passed,
     print_json,
 )
 
@@ -75,17 +76,14 @@ def register_next(sub) -> None:
 
 
 def run_next(args) -> int:
+    same = passed(args, "n", "sigma_mm", "seed", "certify", "out")
     result = api.next(
         args.robot,
         args.data,
         target_var_mm2=args.target_var,
-        n=args.n,
-        sigma_mm=args.sigma_mm,
-        seed=args.seed,
-        certify=args.certify,
-        out=args.out,
         json_path=json_file(args.json),
         data_format=args.format,
+        **same,
     )
     if args.json == "-":
         print_json(result)
