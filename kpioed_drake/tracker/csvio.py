@@ -122,32 +122,76 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def read_csv_table(
-    path: str | Path, required: tuple[str, ...], *, delimiter: str = ","
-) -> tuple[list[str], list[list[str]]]:
-    """Read a CSV file with a header; check that ``required`` columns are present exactly once.
+WHITESPACE = "whitespace"
+"""The separator of a file whose fields are separated by any run of spaces or tabs."""
 
-    Args:
-        path: the file (UTF-8). required: column names that must be there.
-        delimiter: the field separator (``","``; a format file may name another).
 
-    Returns:
-        header and the data rows (strings; ``.lines`` holds their file line numbers).
-    """
-    text = _read_text(Path(path))
+def _split(text: str, delimiter: str) -> tuple[list[list[str]], list[int]]:
+    """The non-blank rows of ``text`` split into fields, and their line numbers."""
     rows, lines = [], []
+    if delimiter == WHITESPACE:
+        for k, line in enumerate(text.splitlines(), 1):
+            if line.split():
+                rows.append(line.split())
+                lines.append(k)
+        return rows, lines
     reader = csv.reader(io.StringIO(text), delimiter=delimiter)
     for r in reader:
         if any(c.strip() for c in r):  # blank lines are skipped but keep their line numbers
             rows.append(r)
             lines.append(reader.line_num)
+    return rows, lines
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text.replace(",", "."))
+    except ValueError:
+        return False
+    return True
+
+
+def read_csv_table(
+    path: str | Path,
+    required: tuple[str, ...],
+    *,
+    delimiter: str = ",",
+    columns: list[str] | None = None,
+) -> tuple[list[str], list[list[str]]]:
+    """Read a CSV file with a header; check that ``required`` columns are present exactly once.
+
+    Args:
+        path: the file (UTF-8). required: column names that must be there.
+        delimiter: the field separator (``","``; a format file may name another, or
+            :data:`WHITESPACE`).
+        columns: the column names of a file without a header row (then every row is data).
+
+    Returns:
+        header and the data rows (strings; ``.lines`` holds their file line numbers).
+
+    Raises:
+        InputError: an empty file, a first row of numbers where a header is expected (the file has
+            no header), duplicate or missing columns, rows of another length.
+    """
+    text = _read_text(Path(path))
+    rows, lines = _split(text, delimiter)
+    if columns is not None:
+        rows, lines = [list(columns), *rows], [0, *lines]
     if not rows:
         expected = f" with {', '.join(required)}" if required else ""
         raise InputError(f"{path}: the file is empty (expected a header{expected})")
     header = [h.strip() for h in rows[0]]
+    tokens = [t for t in re.split(r"[\s;,]+", " ".join(header)) if t]
+    if columns is None and tokens and all(_is_number(t) for t in tokens):
+        raise InputError(
+            f"{path}: row 1 is numbers ({', '.join(tokens[:3])}, ...), not a header: the file has no "
+            "header row; describe it in a format file with header: false and columns: [...] "
+            "(docs/data-formats.md)"
+        )
     dup = sorted({h for h in header if header.count(h) > 1 and h})
     if dup:
-        raise InputError(f"{path}: row 1 (header): column {dup[0]!r} appears more than once")
+        where = "format field 'columns'" if columns is not None else "row 1 (header)"
+        raise InputError(f"{path}: {where}: column {dup[0]!r} appears more than once")
     missing = [c for c in required if c not in header]
     if missing and delimiter == "," and len(header) == 1 and ";" in header[0]:
         comma = " with decimal commas" if re.search(r"\d,\d", text) else ""
@@ -170,7 +214,8 @@ def read_csv_table(
                 if delimiter == ","
                 else f" (separator {delimiter!r}; check the format file's 'separator' and 'decimal')"
             )
-            raise InputError(f"{path}: row {k}: {len(r)} fields, the header has {len(header)}{hint}")
+            names = "the format's columns name" if columns is not None else "the header has"
+            raise InputError(f"{path}: row {k}: {len(r)} fields, {names} {len(header)}{hint}")
     return header, data
 
 

@@ -16,7 +16,13 @@ A format file (documented in ``docs/data-formats.md``) maps such a file onto the
 - ``separator`` and ``decimal`` (``,`` or ``.``; a decimal comma needs another separator);
 - optional ``time`` (with ``time_unit`` ``s``, ``min``, ``h`` or ``order``: an order number, one
   unit per pose, taken as seconds), ``temperature`` [C] and ``payload`` [kg] columns;
-- optional ``target``: the column of the target (SMR) number, 1..T (several targets per pose).
+- optional ``target``: the column of the target (SMR) number, 1..T (several targets per pose), or
+  labels of the file's own (``0``, ``1``, ... or names) mapped by ``target_labels`` (label -> the
+  robot file's target number);
+- ``header: false`` with ``columns: [...]``: a file without a header row, its columns named in the
+  format; ``separator: whitespace``: fields separated by any run of spaces or tabs;
+- ``targets: {1: {x: x1, y: y1, z: z1}, 2: {...}}``: several targets measured in one row (the keys
+  the robot file's target numbers); each row then gives one pose and one point per target.
 
 :func:`read_data` reads either layout: the SPEC file without a format, a foreign one with it.
 """
@@ -29,7 +35,7 @@ import numpy as np
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import N_JOINTS, Robot, load_yaml_typed
-from kpioed_drake.tracker.csvio import check_joint_angles, q_to_file, read_csv_table
+from kpioed_drake.tracker.csvio import WHITESPACE, check_joint_angles, q_to_file, read_csv_table
 from kpioed_drake.tracker.data import FRAMES, Measurements, check_pose_count, parse_targets, read_measurements
 
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0, "um": 1e-3}
@@ -70,6 +76,10 @@ class DataFormat:
     temperature: str = ""
     payload: str = ""
     target: str = ""
+    target_labels: dict[str, int] = dataclasses.field(default_factory=dict)
+    header: bool = True
+    columns: list[str] = dataclasses.field(default_factory=list)
+    targets: dict[str, PositionSpec] = dataclasses.field(default_factory=dict)
 
 
 def _one_of(where: str, field: str, value: str, allowed) -> None:
@@ -91,17 +101,55 @@ def check_format(fmt: DataFormat, where: str = "format") -> DataFormat:
     _one_of(where, "frame", fmt.frame, FRAMES)
     _one_of(where, "angles", fmt.angles, ANGLE_SOURCES)
     _one_of(where, "decimal", fmt.decimal, (".", ","))
-    if len(fmt.separator) != 1 or fmt.separator in "\"'\r\n" or fmt.separator == fmt.decimal:
+    sep_ok = fmt.separator == WHITESPACE or (len(fmt.separator) == 1 and fmt.separator not in "\"'\r\n")
+    if not sep_ok or fmt.separator == fmt.decimal:
         raise InputError(
             f"{where}: field 'separator': {fmt.separator!r} must be one character other than a quote "
-            f"and other than the decimal mark {fmt.decimal!r}"
+            f"and other than the decimal mark {fmt.decimal!r}, or {WHITESPACE!r}"
         )
+    if fmt.header == bool(fmt.columns):
+        raise InputError(
+            f"{where}: field 'columns': "
+            + (
+                "a file with a header names its own columns (set header: false)"
+                if fmt.header
+                else "a file without a header (header: false) needs its column names"
+            )  # fmt: skip
+        )
+    _check_targets(fmt, where)
     if not fmt.joints or not all(c.strip() for c in fmt.joints):
         raise InputError(f"{where}: field 'joints': expected {N_JOINTS} column names, got {fmt.joints!r}")
-    for axis in "xyz":
-        if not getattr(fmt.position, axis).strip():
-            raise InputError(f"{where}: field 'position.{axis}': missing (a column or e.g. 'x_t - x_dif')")
+    if not fmt.targets:
+        for axis in "xyz":
+            if not getattr(fmt.position, axis).strip():
+                raise InputError(
+                    f"{where}: field 'position.{axis}': missing (a column or e.g. 'x_t - x_dif')"
+                )
     return fmt
+
+
+def _check_targets(fmt: DataFormat, where: str) -> None:
+    """The several-targets fields: ``targets`` keys are target numbers >= 1 with x, y and z, not
+    together with ``position`` or ``target``; ``target_labels`` map to numbers >= 1."""
+    for label, number in fmt.target_labels.items():
+        if not isinstance(number, int) or number < 1:
+            raise InputError(
+                f"{where}: field 'target_labels.{label}': expected a target number >= 1, got {number!r}"
+            )
+    if fmt.target_labels and not fmt.target:
+        raise InputError(f"{where}: field 'target_labels': goes with a 'target' column")
+    if not fmt.targets:
+        return
+    if fmt.target or any(getattr(fmt.position, a).strip() for a in "xyz"):
+        raise InputError(f"{where}: field 'targets': several targets per row replace 'position' and 'target'")
+    for key, spec in fmt.targets.items():
+        if not str(key).isdigit() or int(key) < 1:
+            raise InputError(
+                f"{where}: field 'targets.{key}': keys are the robot file's target numbers 1, 2, ..."
+            )
+        for axis in "xyz":
+            if not getattr(spec, axis).strip():
+                raise InputError(f"{where}: field 'targets.{key}.{axis}': missing")
 
 
 def load_format(path: str | Path) -> DataFormat:
@@ -169,7 +217,9 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
     """
     path = Path(path)
     fmt = check_format(fmt) if isinstance(fmt, DataFormat) else load_format(fmt)
-    header, data = read_csv_table(path, (), delimiter=fmt.separator)
+    header, data = read_csv_table(
+        path, (), delimiter=fmt.separator, columns=None if fmt.header else fmt.columns
+    )
     if not data:
         raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
     if len(fmt.joints) != robot.n_joints:
@@ -185,8 +235,17 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
         q = robot.joint_map.to_model(q)
     rows = np.asarray(cols.lines)
     check_joint_angles(path, q_to_file(robot, q), robot, rows=rows)
+    extra = _conditions(path, fmt, cols, rows, robot)
+    if fmt.targets:
+        return _several_per_row(path, fmt, cols, q, rows, extra, robot)
     eta = np.stack([cols.expression(getattr(fmt.position, a), f"position.{a}") for a in "xyz"], axis=1)
     eta = eta * LENGTH_UNITS[fmt.length_unit]
+    check_pose_count(path, len(rows), robot)
+    return Measurements.from_arrays(q, eta, source=str(path), rows=rows, frame=fmt.frame, **extra)
+
+
+def _conditions(path: Path, fmt: DataFormat, cols: _Columns, rows, robot: Robot) -> dict:
+    """The rows' time, temperature, payload and target columns (internal units)."""
     extra = {}
     if fmt.time:
         extra["time_s"] = cols.column(fmt.time, "time") * TIME_UNITS[fmt.time_unit]
@@ -198,11 +257,60 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
             row = rows[int(np.flatnonzero(extra["payload_kg"] < 0)[0])]
             raise InputError(f"{path}: row {row}, column {fmt.payload!r}: a payload cannot be negative")
     if fmt.target:
-        extra["target"] = parse_targets(
-            path, cols.column(fmt.target, "target"), rows, column=fmt.target, robot=robot
+        numbers = (
+            _target_numbers(path, fmt, cols, rows) if fmt.target_labels else cols.column(fmt.target, "target")
         )
+        extra["target"] = parse_targets(path, numbers, rows, column=fmt.target, robot=robot)
+    return extra
+
+
+def _target_numbers(path: Path, fmt: DataFormat, cols: _Columns, rows) -> np.ndarray:
+    """The robot file's target numbers of a ``target`` column of labels (``target_labels``)."""
+    labels = {str(k): v for k, v in fmt.target_labels.items()}
+    if fmt.target not in cols.header:
+        cols.column(fmt.target, "target")  # the error naming the missing column
+    j = cols.header.index(fmt.target)
+    out = np.empty(len(rows))
+    for i, (line, r) in enumerate(zip(rows, cols.data, strict=True)):
+        label = r[j].strip()
+        if label not in labels:
+            raise InputError(
+                f"{path}: row {line}, column {fmt.target!r}: label {label!r} is not in the format's "
+                f"target_labels ({', '.join(labels)})"
+            )
+        out[i] = labels[label]
+    return out
+
+
+def _several_per_row(
+    path: Path, fmt: DataFormat, cols: _Columns, q, rows, extra: dict, robot: Robot
+) -> Measurements:
+    """Measurements of rows that hold one point per target (``targets``): T rows per pose,
+    pose-major, each with its target."""
+    keys = sorted(fmt.targets, key=lambda k: int(k))
+    numbers = np.array([int(k) for k in keys])
+    if numbers.max() > robot.n_targets:
+        raise InputError(
+            f"{path}: format field 'targets' names target {numbers.max()}, but the robot model defines "
+            f"{robot.n_targets} (add them to its targets_mm)"
+        )
+    points = [
+        np.stack([cols.expression(getattr(fmt.targets[k], a), f"targets.{k}.{a}") for a in "xyz"], axis=1)
+        for k in keys
+    ]
+    T = len(keys)
+    eta = np.stack(points, axis=1).reshape(-1, 3) * LENGTH_UNITS[fmt.length_unit]
+    extra = {k: np.repeat(v, T, axis=0) for k, v in extra.items()}
     check_pose_count(path, len(rows), robot)
-    return Measurements.from_arrays(q, eta, source=str(path), rows=rows, frame=fmt.frame, **extra)
+    return Measurements.from_arrays(
+        np.repeat(q, T, axis=0),
+        eta,
+        source=str(path),
+        rows=np.repeat(rows, T),
+        frame=fmt.frame,
+        target=np.tile(numbers - 1, len(rows)),
+        **extra,
+    )
 
 
 def read_data(
