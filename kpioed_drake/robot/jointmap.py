@@ -8,7 +8,11 @@ affine,
     q = A J + b,   A = diag(sign) + C,
 
 with ``sign_i`` = +1 or -1, ``b_i`` the offset of joint i and ``C`` the couplings (``C[i, j]`` =
-``factor``: joint i's model angle gets ``factor * J_j``). It is part of the robot model file
+``factor``: joint i's model angle gets ``factor * J_j``). The general form names the controller's
+axes (``controller_axes``, any number, possibly fewer than the model's joints, e.g. a passive joint
+coupled to two others: ``q_t4 = -(J_t2 + J_t3)``) and gives each model joint as a sum of factors
+times axes (``joints: {torso_3: {t2: -1, t3: -1}}``) plus an offset (``offsets_deg``); ``A`` is then
+(n_joints, n_axes). It is part of the robot model file
 (``models/README.md``, section ``joint_map``) so that measured data go in with the controller's
 angles unchanged; :func:`kpioed_drake.tracker.formats.read_foreign` applies it.
 
@@ -38,12 +42,20 @@ class CouplingSpec:
 class JointMapSpec:
     """The ``joint_map`` section of a robot file (degrees).
 
-    Empty ``sign`` means all +1, empty ``offset_deg`` all 0.
+    Six-joint form: empty ``sign`` means all +1, empty ``offset_deg`` all 0. General form (any
+    joint count): ``controller_axes`` with ``joints`` and ``offsets_deg``.
     """
 
     sign: list[float] = dataclasses.field(default_factory=list)
     offset_deg: list[float] = dataclasses.field(default_factory=list)
     couplings: list[CouplingSpec] = dataclasses.field(default_factory=list)
+    controller_axes: list[str] = dataclasses.field(default_factory=list)
+    """The controller's axes, in the order its files list them."""
+    joints: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    """Model joint (its name, or its number 1..n) -> {axis: factor}; a joint not listed follows the
+    axis of its own name."""
+    offsets_deg: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Model joint -> offset [deg] (prismatic joints: [mm]) added to the sum."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,27 +63,55 @@ class JointMap:
     """The affine map ``q = A J + b`` from controller angles ``J`` to model angles ``q``.
 
     Attributes:
-        A: (6, 6) the signs on the diagonal plus the couplings [-].
-        b: (6,) offsets [rad].
+        A: (n_joints, n_axes) the signs on the diagonal plus the couplings, or the general form's
+            factors [-].
+        b: (n_joints,) offsets [rad].
+        axes: the controller's axis names (None: the six-joint form, axes = joints).
+        joints: the model joints' names of the general form (None: the six-joint form).
+        prismatic: (n_joints,) of the general form: offsets in mm, not rad.
     """
 
     A: np.ndarray
     b: np.ndarray
+    axes: tuple[str, ...] | None = None
+    joints: tuple[str, ...] | None = None
+    prismatic: tuple[bool, ...] | None = None
+
+    @property
+    def n_axes(self) -> int:
+        """Controller axes (columns of a controller's file)."""
+        return int(self.A.shape[1])
 
     def to_model(self, J) -> np.ndarray:
         """Model angles of controller angles.
 
         Args:
-            J: (n, 6) controller angles [rad].
+            J: (n, n_axes) controller angles [rad].
 
         Returns:
-            q: (n, 6) model angles [rad].
+            q: (n, n_joints) model angles [rad].
         """
         return np.asarray(J, dtype=float) @ self.A.T + self.b
 
     def to_controller(self, q) -> np.ndarray:
-        """Controller angles of model angles (the inverse map), (n, 6) [rad]."""
-        return np.linalg.solve(self.A, (np.asarray(q, dtype=float) - self.b).T).T
+        """Controller angles of model angles (the inverse map), (n, n_axes) [rad].
+
+        Raises:
+            InputError: a model pose the controller cannot command (with fewer axes than joints: one
+                that breaks a coupling), naming its 1-based row.
+        """
+        d = (np.asarray(q, dtype=float) - self.b).T
+        if self.A.shape[0] == self.A.shape[1]:
+            return np.linalg.solve(self.A, d).T
+        J, *_ = np.linalg.lstsq(self.A, d, rcond=None)
+        miss = np.max(np.abs(self.A @ J - d), axis=0)
+        bad = np.flatnonzero(miss > 1e-9)
+        if bad.size:
+            raise InputError(
+                f"pose {bad[0] + 1}: its joint values break the joint map's coupling by "
+                f"{miss[bad[0]]:.3g} rad; the controller cannot command it"
+            )
+        return J.T
 
 
 def _six(values, default: float, name: str, where: str) -> np.ndarray:
@@ -83,7 +123,50 @@ def _six(values, default: float, name: str, where: str) -> np.ndarray:
     return arr
 
 
-def joint_map_from_spec(spec: JointMapSpec | None, where: str = "robot") -> JointMap | None:
+def _general(spec: JointMapSpec, where: str, joint_names, prismatic) -> JointMap:
+    """The general form: ``controller_axes`` and per-joint sums."""
+    axes = list(spec.controller_axes)
+    n = len(joint_names)
+    if len(set(axes)) != len(axes) or not all(str(a).strip() for a in axes):
+        raise InputError(f"{where}: joint_map.controller_axes: expected distinct names, got {axes!r}")
+    index = {name: i for i, name in enumerate(joint_names)} | {str(i + 1): i for i in range(n)}
+    for key in [*spec.joints, *spec.offsets_deg]:
+        if str(key) not in index:
+            raise InputError(
+                f"{where}: joint_map: {key!r} is not a joint of the robot "
+                f"(its joints: {', '.join(joint_names)})"
+            )
+    A, b = np.zeros((n, len(axes))), np.zeros(n)
+    given = {index[str(k)]: v for k, v in spec.joints.items()}
+    for i, name in enumerate(joint_names):
+        terms = given.get(i, {name: 1.0} if name in axes else None)
+        if terms is None:
+            raise InputError(
+                f"{where}: joint_map.joints: joint {name!r} is not given and no controller axis has its name"
+            )
+        for axis, factor in terms.items():
+            if axis not in axes:
+                raise InputError(f"{where}: joint_map.joints.{name}: {axis!r} is not in controller_axes")
+            if not np.isfinite(factor):
+                raise InputError(
+                    f"{where}: joint_map.joints.{name}.{axis}: factor must be finite, got {factor!r}"
+                )
+            A[i, axes.index(axis)] += float(factor)
+    for key, value in spec.offsets_deg.items():
+        i = index[str(key)]
+        b[i] = float(value) if prismatic[i] else np.deg2rad(float(value))
+    if np.linalg.matrix_rank(A) < len(axes):
+        raise InputError(
+            f"{where}: joint_map: two controller axes move the model alike (the map has rank < axes)"
+        )
+    return JointMap(
+        A=A, b=b, axes=tuple(axes), joints=tuple(joint_names), prismatic=tuple(bool(x) for x in prismatic)
+    )
+
+
+def joint_map_from_spec(
+    spec: JointMapSpec | None, where: str = "robot", *, joint_names=None, prismatic=None
+) -> JointMap | None:
     """Validate a :class:`JointMapSpec` and convert it (None stays None).
 
     Raises:
@@ -93,6 +176,19 @@ def joint_map_from_spec(spec: JointMapSpec | None, where: str = "robot") -> Join
     """
     if spec is None:
         return None
+    if spec.controller_axes or spec.joints or spec.offsets_deg:
+        if spec.sign or spec.offset_deg or spec.couplings:
+            raise InputError(
+                f"{where}: joint_map: give either sign/offset_deg/couplings or controller_axes/joints"
+            )
+        names = list(joint_names) if joint_names is not None else [f"A{i + 1}" for i in range(N_JOINTS)]
+        pris = np.zeros(len(names), dtype=bool) if prismatic is None else np.asarray(prismatic, dtype=bool)
+        return _general(spec, where, names, pris)
+    if joint_names is not None and len(joint_names) != N_JOINTS:
+        raise InputError(
+            f"{where}: joint_map with sign/offset_deg/couplings is for six joints; this robot has "
+            f"{len(joint_names)}: use controller_axes and joints"
+        )
     sign = _six(spec.sign, 1.0, "sign", where)
     if not np.all(np.isin(sign, (-1.0, 1.0))):
         raise InputError(f"{where}: joint_map.sign entries must be 1 or -1, got {spec.sign!r}")
@@ -120,6 +216,16 @@ def joint_map_spec(joint_map: JointMap | None) -> JointMapSpec | None:
     if joint_map is None:
         return None
     A = joint_map.A
+    if joint_map.axes is not None:
+        axes, names = joint_map.axes, joint_map.joints
+        b = [v if p else float(np.rad2deg(v)) for v, p in zip(joint_map.b, joint_map.prismatic, strict=True)]
+        return JointMapSpec(
+            controller_axes=list(axes),
+            joints={
+                names[i]: {axes[j]: float(A[i, j]) for j in np.flatnonzero(A[i])} for i in range(len(names))
+            },
+            offsets_deg={names[i]: b[i] for i in range(len(names)) if b[i] != 0.0},
+        )
     couplings = [
         CouplingSpec(joint=i + 1, from_joint=j + 1, factor=float(A[i, j]))
         for i in range(N_JOINTS)

@@ -37,6 +37,7 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     list_robots,
     rated_payload,
     robot_path,
+    spec_joint_names,
 )
 from kpioed_drake.robot.urdf import read_urdf_robot
 
@@ -44,9 +45,7 @@ N_JOINTS = 6
 """Joints of the DH/Hayati YAML robots (a URDF robot has its own count: ``robot.n_joints``)."""
 
 
-# ----------------------------------------------------------------------------------------------
 # Loaded, typed objects (millimetres and radians)
-# ----------------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class Capsule:
     """A capsule attached to ``frame`` (-1 = world, 0 = base, i = link i) [mm]."""
@@ -374,11 +373,11 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         beam_links=tuple(int(x) for x in spec.beam_links),
         q_work=q_work,
         car_shift_x=float(spec.car_shift_x_mm),
-        joint_names=tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints)),
+        joint_names=spec_joint_names(spec),
         source=where,
         p_FQ=p_FQ,
         X_WT=X_WT,
-        joint_map=joint_map_from_spec(spec.joint_map, where),
+        joint_map=joint_map_from_spec(spec.joint_map, where, joint_names=spec_joint_names(spec)),
         extra_gauge=tuple(spec.extra_gauge),
         targets=targets,
         compliant_base=bool(spec.compliant_base),

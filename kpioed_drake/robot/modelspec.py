@@ -276,3 +276,8 @@ def rated_payload(value, where: str) -> float | None:
     if not (np.isfinite(kg) and kg >= 0):
         raise InputError(f"{where}: expected the rated payload in kg, a number >= 0, got {value!r}")
     return kg if kg > 0 else None
+
+
+def spec_joint_names(spec: RobotSpec) -> tuple[str, ...]:
+    """The joint names of a robot file (``A1`` .. for a joint without one)."""
+    return tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints))

@@ -232,8 +232,6 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     X_WT = _tracker_pose(side, sw)
     pairs = _link_pairs(side, n, sw)
     gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
-    if side.joint_map is not None and n != 6:
-        raise InputError(f"{sw}: joint_map is available for six-joint robots only ({path} has {n} joints)")
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -252,7 +250,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         p_FQ=p_FQ,
         X_WT=X_WT,
         extra_gauge=tuple(side.extra_gauge),
-        joint_map=joint_map_from_spec(side.joint_map, sw),
+        joint_map=joint_map_from_spec(side.joint_map, sw, joint_names=names, prismatic=pris),
         targets=targets,
         chain=chain,
         gauge=gauge,

@@ -222,17 +222,20 @@ def read_foreign(path: str | Path, robot: Robot, fmt: DataFormat | str | Path) -
     )
     if not data:
         raise InputError(f"{path}: no data rows (expected a header and one row per pose)")
-    if len(fmt.joints) != robot.n_joints:
+    jmap = robot.joint_map if fmt.angles == "controller" else None
+    n_cols, what = (jmap.n_axes, "controller axes") if jmap is not None else (robot.n_joints, "joints")
+    if len(fmt.joints) != n_cols:
         raise InputError(
             f"{path}: the format's field 'joints' names {len(fmt.joints)} columns, {robot.name} has "
-            f"{robot.n_joints} joints"
+            f"{n_cols} {what}"
         )
     cols = _Columns(path, header, data, data.lines, fmt.decimal)
     J = np.stack([cols.column(c, f"joints[{i}]") for i, c in enumerate(fmt.joints)], axis=1)
-    # a prismatic joint's column is a length (the format's length unit)
-    q = J * np.where(robot.prismatic, LENGTH_UNITS[fmt.length_unit], ANGLE_UNITS[fmt.angle_unit])
-    if fmt.angles == "controller" and robot.joint_map is not None:
-        q = robot.joint_map.to_model(q)
+    # a prismatic joint's column is a length (the format's length unit); an axis is one if it drives one
+    linear = robot.prismatic if jmap is None else np.any(jmap.A[np.asarray(robot.prismatic)] != 0, axis=0)
+    q = J * np.where(linear, LENGTH_UNITS[fmt.length_unit], ANGLE_UNITS[fmt.angle_unit])
+    if jmap is not None:
+        q = jmap.to_model(q)
     rows = np.asarray(cols.lines)
     check_joint_angles(path, q_to_file(robot, q), robot, rows=rows)
     extra = _conditions(path, fmt, cols, rows, robot)
