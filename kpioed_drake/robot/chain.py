@@ -164,6 +164,7 @@ def auto_gauge(
     n_poses: int = GAUGE_POSES,
     seed: int = GAUGE_SEED,
     rtol: float = GAUGE_RTOL,
+    joint_map=None,
 ) -> tuple[str, ...]:
     """Names of the joint parameters held at nominal: those that do not add to the rank.
 
@@ -172,11 +173,22 @@ def auto_gauge(
     targets' three each, at ``n_poses`` seeded poses uniform in the limits is column-normalised;
     columns are visited in the preference order of the module docstring and kept when their
     residual after projection on the kept ones exceeds ``rtol``. The number kept equals the rank
-    of a column-pivoted QR (checked).
+    of a column-pivoted QR (checked). With a ``joint_map`` (:class:`~kpioed_drake.robot.jointmap.JointMap`,
+    e.g. of ``<mimic>`` joints) the poses are those the controller can command: its axes drawn in
+    the limits of the first joint each drives, mapped to joint values, clipped to the limits.
     """
     nj = chain.n_joints
     rng = np.random.default_rng(seed)
-    q = rng.uniform(lower, upper, size=(n_poses, nj))
+    if joint_map is None:
+        q = rng.uniform(lower, upper, size=(n_poses, nj))
+    else:
+        A, b = joint_map.A, joint_map.b
+        first = np.argmax(A != 0, axis=0)  # the first joint each axis drives
+        f = A[first, np.arange(A.shape[1])]
+        lo_ax, up_ax = np.sort(
+            np.stack([(lower[first] - b[first]) / f, (upper[first] - b[first]) / f]), axis=0
+        )
+        q = np.clip(rng.uniform(lo_ax, up_ax, size=(n_poses, A.shape[1])) @ A.T + b, lower, upper)
     fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
     targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
     T = targets.shape[0]

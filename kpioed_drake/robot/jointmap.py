@@ -235,3 +235,29 @@ def joint_map_spec(joint_map: JointMap | None) -> JointMapSpec | None:
     return JointMapSpec(
         sign=np.diag(A).tolist(), offset_deg=np.rad2deg(joint_map.b).tolist(), couplings=couplings
     )
+
+
+def mimic_joint_map(names: list[str], mimics: dict, units: list[float], where: str) -> JointMapSpec | None:
+    """The joint map of a URDF chain's ``<mimic>`` joints: each follows its leader (multiplier times
+    its value plus offset), the controller commands the others; None without mimic joints.
+
+    Args:
+        names: the chain's joint names; mimics: name -> (leader, multiplier, offset);
+        units: per joint, the URDF unit of an offset in the file's (1 for rad; ``MM`` for m, so
+            ``offset / unit`` is mm).
+    """
+    if not mimics:
+        return None
+    joints, offsets = {}, {}
+    for name, (leader, multiplier, offset) in mimics.items():
+        if leader not in names or leader in mimics:
+            raise InputError(
+                f"{where}: joint {name!r}: <mimic joint={leader!r}> must name a commanded joint of the chain"
+            )
+        joints[name] = {leader: float(multiplier)}
+        if offset:
+            unit = units[names.index(name)]
+            offsets[name] = offset / unit if unit != 1.0 else float(np.rad2deg(offset))
+    return JointMapSpec(
+        controller_axes=[n for n in names if n not in mimics], joints=joints, offsets_deg=offsets
+    )

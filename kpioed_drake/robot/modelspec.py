@@ -235,6 +235,9 @@ class SidecarSpec:
 
     name: str = ""
     description: str = ""
+    tip_link: str = ""
+    """The measured link: the robot is the chain from the URDF's root to it (other branches
+    ignored); empty: the URDF must be a serial chain."""
     reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
     targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
     tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
@@ -250,7 +253,7 @@ class SidecarSpec:
     car_shift_x_mm: float = 0.0
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
     joint_map: JointMapSpec | None = None
-    """Controller angles to model angles, as in the YAML files (six-joint robots only)."""
+    """Controller angles to model angles, as in the YAML files (default: the ``<mimic>`` joints')."""
     gauge: list[str] = dataclasses.field(default_factory=list)
     """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
     nominal robot's: its small errors make the exact dependencies only nearly exact)."""

@@ -1,19 +1,18 @@
 """Robots from URDF: Drake's ``Parser`` reads the file into a MultibodyPlant; this module reads the
 serial chain, limits, inertias and collision geometry back out of it (plus a sidecar YAML file).
 
-The URDF's kinematic tree must be one serial chain of revolute, continuous (a revolute joint
-without limits) and prismatic joints; fixed joints are folded into the neighbouring links (a
-fixed side branch without movable joints, e.g. a ``tool0`` frame, is allowed). Link i of the robot
+The robot is the chain of revolute, continuous (without limits) and prismatic joints from the root
+to the sidecar's ``tip_link`` (other branches ignored), or the whole tree when it is serial; fixed
+joints are folded into the neighbouring links; ``<mimic>`` joints follow their leader (a joint map,
+:func:`~kpioed_drake.robot.jointmap.mimic_joint_map`). Link i of the robot
 is the child link of the i-th movable joint (its URDF frame is the joint frame, so the chain of
 :mod:`kpioed_drake.robot.chain` is Drake's own); link 0 is W, the base pose ``X_WB`` folded into joint 1's
 placement: the URDF's own weld to a link named ``world``, or the sidecar's ``base_xyz_mm`` /
-``base_rpy_deg`` (default identity). Gravity is Drake's, -z of W, so a base rotated about x loads
-joint 1.
+``base_rpy_deg`` (default identity). Gravity is Drake's, -z of W.
 
-Collision geometry becomes capsules: a cylinder (or ``drake:capsule``) of radius r and length L
-the capsule of radius r along its axis from -L/2 to L/2 (it covers the cylinder); a sphere a
-capsule of zero length; a box the capsule along its longest side with the radius of the half
-diagonal of the other two; meshes are skipped (give capsules in the sidecar instead).
+Collision geometry becomes capsules: a cylinder (or ``drake:capsule``) the capsule of its radius
+along its axis; a sphere one of zero length; a box one along its longest side with the radius of
+the half diagonal of the other two; meshes are skipped (give capsules in the sidecar instead).
 
 The sidecar ``<name>.kpioed.yaml`` next to ``<name>.urdf`` (optional) holds what a URDF lacks
 (:class:`SidecarSpec`); ``models/README.md`` documents it. Units: the URDF metres and radians; the
@@ -32,7 +31,7 @@ from pydrake.multibody.tree import PrismaticJoint
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
-from kpioed_drake.robot.jointmap import joint_map_from_spec
+from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
 
 MM = 1e-3
@@ -89,11 +88,12 @@ def _parse_xml(path: Path) -> ET.Element:
     return root
 
 
-def _chain_joints(root: ET.Element, path: Path) -> tuple[list[ET.Element], str, bool]:
-    """The movable joints base to flange, the root link, and whether the URDF welds to "world"."""
+def _chain_joints(root: ET.Element, path: Path, tip_link: str = "") -> tuple[list[ET.Element], str, bool]:
+    """The movable joints base to flange (to ``tip_link``: other branches ignored; else the tree must
+    be serial), the root link, and whether the URDF welds to "world"."""
     joints = root.findall("joint")
     children: dict[str, list[ET.Element]] = {}
-    child_links = set()
+    parent_joint: dict[str, ET.Element] = {}
     for j in joints:
         name, kind = j.get("name", "?"), j.get("type", "")
         if kind not in MOVABLE + ("fixed",):
@@ -105,17 +105,36 @@ def _chain_joints(root: ET.Element, path: Path) -> tuple[list[ET.Element], str, 
         if p is None or c is None or not p.get("link") or not c.get("link"):
             raise InputError(f"{path}: joint {name!r}: needs <parent link=...> and <child link=...>")
         children.setdefault(p.get("link"), []).append(j)
-        child_links.add(c.get("link"))
+        parent_joint[c.get("link")] = j
     links = [lk.get("name") for lk in root.findall("link")]
-    roots = [lk for lk in links if lk not in child_links]
+    roots = [lk for lk in links if lk not in parent_joint]
     if len(roots) != 1:
         raise InputError(f"{path}: expected one root link, found {roots or 'none'} (not a tree)")
+    chain = _path_to(tip_link, parent_joint, links, path) if tip_link else _serial(roots[0], children, path)
+    if not chain:
+        raise InputError(f"{path}: no revolute or prismatic joint")
+    return chain, roots[0], roots[0] == "world"
+
+
+def _path_to(tip: str, parent_joint: dict, links: list[str], path: Path) -> list[ET.Element]:
+    """The movable joints on the path from the root to link ``tip``."""
+    if tip not in links:
+        raise InputError(f"{path}: tip_link {tip!r} is not a link of the URDF (links: {', '.join(links)})")
+    chain, link = [], tip
+    while link in parent_joint:
+        chain.append(parent_joint[link])
+        link = chain[-1].find("parent").get("link")
+    return [j for j in chain[::-1] if j.get("type") != "fixed"]
+
+
+def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
+    """The movable joints of a serial chain from ``root`` (a branch of movable joints is an error)."""
 
     def movable_below(link: str) -> int:
         below = children.get(link, [])
         return sum((j.get("type") != "fixed") + movable_below(j.find("child").get("link")) for j in below)
 
-    chain, link = [], roots[0]
+    chain, link = [], root
     while True:
         branches = [
             j
@@ -125,16 +144,22 @@ def _chain_joints(root: ET.Element, path: Path) -> tuple[list[ET.Element], str, 
         if len(branches) > 1:
             raise InputError(
                 f"{path}: link {link!r}: the tree branches ({', '.join(j.get('name') for j in branches)}); "
-                "only serial chains are supported"
+                "name the measured link in the sidecar (tip_link: LINK) to use the chain to it"
             )
         if not branches:
-            break
+            return chain
         if branches[0].get("type") != "fixed":
             chain.append(branches[0])
         link = branches[0].find("child").get("link")
-    if not chain:
-        raise InputError(f"{path}: no revolute or prismatic joint")
-    return chain, roots[0], roots[0] == "world"
+
+
+def _mimics(chain: list[ET.Element]) -> dict[str, tuple[str, float, float]]:
+    """The chain's ``<mimic>`` joints: name -> (leader, multiplier, offset [rad or m])."""
+    mimic = {j.get("name"): j.find("mimic") for j in chain if j.find("mimic") is not None}
+    return {
+        n: (m.get("joint", ""), float(m.get("multiplier", 1)), float(m.get("offset", 0)))
+        for n, m in mimic.items()
+    }
 
 
 def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
@@ -209,7 +234,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     side_path = sidecar_path(path)
     side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
     sw = str(side_path)
-    chain_xml, root, welded = _chain_joints(xml, path)
+    chain_xml, root, welded = _chain_joints(xml, path, side.tip_link)
     X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
     source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
@@ -231,7 +256,11 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     q_work = _q_work(side, pris, lo, up, sw)
     X_WT = _tracker_pose(side, sw)
     pairs = _link_pairs(side, n, sw)
-    gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path)
+    jmap = side.joint_map or mimic_joint_map(
+        list(names), _mimics(chain_xml), [MM if p else 1.0 for p in pris], sw
+    )
+    joint_map = joint_map_from_spec(jmap, sw, joint_names=names, prismatic=pris)
+    gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path, joint_map)
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -250,7 +279,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         p_FQ=p_FQ,
         X_WT=X_WT,
         extra_gauge=tuple(side.extra_gauge),
-        joint_map=joint_map_from_spec(side.joint_map, sw, joint_names=names, prismatic=pris),
+        joint_map=joint_map,
         targets=targets,
         chain=chain,
         gauge=gauge,
@@ -343,14 +372,14 @@ def _link_pairs(side, n: int, sw: str) -> list[tuple[int, int]]:
     return pairs
 
 
-def _gauge(side, chain, lo, up, p_FQ, sw, path) -> tuple[str, ...]:
+def _gauge(side, chain, lo, up, p_FQ, sw, path, joint_map=None) -> tuple[str, ...]:
     if side.gauge:
         unknown = sorted(set(side.gauge) - set(param_names(chain.n_joints)))
         if unknown:
             raise InputError(f"{sw}: gauge names {unknown}, not joint parameters of {path}")
         return tuple(side.gauge)
     try:
-        return auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ)
+        return auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ, joint_map=joint_map)
     except ValueError as exc:
         msg = f"{path}: automatic gauge: {exc}; name the parameters to hold in {sw} (gauge:)"
         raise InputError(msg) from None
@@ -420,6 +449,8 @@ def _capsules(xml, plant, ctx, inst, bodies, owner, path):
         if name == "world":
             continue
         body = plant.GetBodyByName(name, inst)
+        if int(body.index()) not in owner:  # a link of a branch off the measured chain
+            continue
         i = owner[int(body.index())]
         X_WO = plant.EvalBodyPoseInWorld(ctx, bodies[i])
         X_OL = X_WO.inverse().multiply(plant.EvalBodyPoseInWorld(ctx, body))
