@@ -37,7 +37,7 @@ from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs, pyplot
 from kpioed_drake.robot.models import Cell, Robot, load_cell
-from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
+from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
 
 _NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}
@@ -101,7 +101,8 @@ class ValidationResult:
             "model": self.model_source,
             "data": self.data.path,
             "frame": self.data.frame,
-            "n_poses": self.data.n,
+            "n_poses": n_poses(self.data),
+            "n_rows": self.data.n,
             "rms_mm": float(np.sqrt(np.mean(self.residuals_W**2))),
             "rms_xyz_mm": np.sqrt(np.mean(self.residuals_W**2, axis=0)).tolist(),
             "mean_error_mm": float(np.mean(e)),
@@ -138,7 +139,7 @@ class ValidationResult:
             [
                 f"{self.robot}"
                 + (f" (with {', '.join(self.effects)})" if self.effects else "")
-                + f": validated on {self.data.path}: {self.data.n} poses, tracker frame {how}",
+                + f": validated on {self.data.path}: {counted(self.data)}, tracker frame {how}",
                 f"  3-D error: mean {d['mean_error_mm']:.4f} mm, 95 % {d['p95_error_mm']:.4f} mm, "
                 f"max {d['max_error_mm']:.4f} mm",
                 f"  RMS per coordinate {d['rms_mm']:.4f} mm (x, y, z: "

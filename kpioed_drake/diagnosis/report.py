@@ -53,7 +53,8 @@ class DiagnosisReport:
 
     Attributes:
         robot: robot name.
-        n_poses: poses in the data.
+        n_poses: poses in the data (distinct joint values).
+        n_rows: measured points (several per pose with several targets).
         sigma_mm: the known noise per coordinate [mm].
         discrepancy: the geometric model does not explain the data, or a cause was named.
         test: the goodness-of-fit test of the geometric model (chi2, dof, p_value, alpha, rejects).
@@ -73,6 +74,7 @@ class DiagnosisReport:
 
     robot: str
     n_poses: int
+    n_rows: int
     sigma_mm: float
     discrepancy: bool
     test: dict
@@ -113,6 +115,7 @@ class DiagnosisReport:
             {
                 "robot": self.robot,
                 "n_poses": self.n_poses,
+                "n_rows": self.n_rows,
                 "sigma_mm": self.sigma_mm,
                 "discrepancy": self.discrepancy,
                 "test": self.test,
@@ -132,7 +135,9 @@ class DiagnosisReport:
         """A few lines for people."""
         t = self.test
         lines = [
-            f"{self.robot}: {self.n_poses} poses, sigma {self.sigma_mm:g} mm",
+            f"{self.robot}: {self.n_poses} poses"
+            + (f" ({self.n_rows} rows)" if self.n_rows != self.n_poses else "")
+            + f", sigma {self.sigma_mm:g} mm",
             f"geometric model: chi2/dof {t['chi2_per_dof']:.3f} (dof {t['dof']}, p = {t['p_value']:.3g})"
             f" -> {'DISCREPANCY' if self.discrepancy else 'explains the data to the noise level'}",
         ]

@@ -45,7 +45,7 @@ from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.scene3d import diagnosis_page
-from kpioed_drake.tracker.data import Measurements, as_measurements
+from kpioed_drake.tracker.data import Measurements, as_measurements, n_poses
 
 
 def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
@@ -176,7 +176,8 @@ def diagnose(
     kpi = rp.kpi_summary(final, base, sel.fit)
     return rp.DiagnosisReport(
         robot=robot.name,
-        n_poses=data.n,
+        n_poses=n_poses(data),
+        n_rows=data.n,
         sigma_mm=final.sigma,
         discrepancy=bool(test["rejects"] or causes),
         test=test,

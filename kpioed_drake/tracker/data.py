@@ -359,3 +359,14 @@ def as_measurements(data, robot: Robot) -> Measurements:
         f"data: expected Measurements or a measurement CSV path, got {type(data).__name__} "
         "(use Measurements.from_table or Measurements.from_arrays)"
     )
+
+
+def n_poses(data: Measurements) -> int:
+    """The distinct poses of the data (the rows of one pose's targets share its joint values)."""
+    return int(len(np.unique(data.q, axis=0))) if data.n else 0
+
+
+def counted(data: Measurements) -> str:
+    """``"30 poses"``, or ``"30 poses (90 rows, 3 targets)"`` with several targets per pose."""
+    poses = n_poses(data)
+    return f"{poses} poses" if poses == data.n else f"{poses} poses ({data.n} rows, {data.n_targets} targets)"
