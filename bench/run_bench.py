@@ -50,6 +50,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import compensate_bench  # noqa: E402
 import humanoid  # noqa: E402
 import numpy as np  # noqa: E402
+import online_bench  # noqa: E402
 from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
@@ -417,7 +418,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="15,30,60,120,240", help="numbers of poses for the growth study")
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results.md"))
-    skips = "derivatives,solvers,breakdown,sizes,fits,compensate,humanoid"
+    skips = "derivatives,solvers,breakdown,sizes,fits,compensate,humanoid,online"
     ap.add_argument("--skip", default="", help=f"sections to skip: {skips}")
     ap.add_argument(
         "--only", choices=["fits", "compensate"], help="run only this section and replace it in --out"
@@ -480,6 +481,10 @@ def main(argv=None) -> int:
         print("humanoid ...", file=sys.stderr, flush=True)
         rows, summary["humanoid"] = humanoid.bench_section()
         sections += humanoid.section_lines(rows, summary["humanoid"])
+    if "online" not in skip:
+        print("online ...", file=sys.stderr, flush=True)
+        rows, summary["online"] = online_bench.bench_section()
+        sections += online_bench.section_lines(rows, summary["online"])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:
