@@ -21,16 +21,6 @@ from kpioed_drake.tracker.measurement import nominal_model
 ROBOTS = Path(__file__).resolve().parents[1] / "models" / "robots"
 
 
-@pytest.fixture(autouse=True)
-def _restore_bases():
-    """Each test starts from the reference bases (the data's poses replace them in the cache)."""
-    saved = dict(gb._CACHE)
-    gb._CACHE.clear()
-    yield
-    gb._CACHE.clear()
-    gb._CACHE.update(saved)
-
-
 @pytest.fixture(scope="module")
 def massless():
     return load_robot(str(ROBOTS / "humanoid11.urdf"))
@@ -65,31 +55,44 @@ def test_pose_sized_basis_has_full_rank_where_the_reference_basis_is_singular(ma
     ref = {j: gb.joint_basis(massless, j) for j in (2, 3, 4)}
     for j, jb in ref.items():  # the reference poses move joint 4 freely: singular on these poses
         assert _rank(jb.regressor(massless, q)) < jb.rank
-    resized = gb.size_on_poses(massless, q)
+    sized, resized = gb.size_on_poses(massless, q)
     assert set(resized) == {2, 3, 4}
     for j in (2, 3, 4):
-        jb = gb.joint_basis(massless, j)
+        jb = gb.joint_basis(sized, j)
         assert resized[j] == (ref[j].rank, jb.rank)
-        assert _rank(jb.regressor(massless, q)) == jb.rank == gb.pose_rank(massless, q, j)
+        assert _rank(jb.regressor(sized, q)) == jb.rank == gb.pose_rank(massless, q, j)
+        # the robot passed in is not changed: its basis is still the reference one
+        np.testing.assert_array_equal(gb.joint_basis(massless, j).V, ref[j].V)
     assert (resized[2][1], resized[3][1]) == (18, 16)  # one coupling, one constant (upright chest)
     # the torque of any link moments at these poses lies in the reduced span and a constant (the
     # joint's offset): nothing but what the offset absorbs is lost
     pi = np.random.default_rng(2).standard_normal(gb.link_moments(massless, 2).size)
     tau = gb.link_regressor(massless, q, 2) @ pi
-    Y = np.hstack([np.ones((q.shape[0], 1)), gb.joint_basis(massless, 2).regressor(massless, q)])
+    Y = np.hstack([np.ones((q.shape[0], 1)), gb.joint_basis(sized, 2).regressor(sized, q)])
     rest = tau - Y @ np.linalg.lstsq(Y, tau, rcond=None)[0]
     np.testing.assert_allclose(rest, 0.0, atol=1e-9 * np.abs(tau).max())
-    assert gb.size_on_poses(massless, q) == {}  # sized once: full rank now
+    assert gb.size_on_poses(sized, q) == (sized, {})  # sized once: full rank now
     # uncoupled poses keep the reference basis
-    gb._CACHE.clear()
     free = np.random.default_rng(3).uniform(massless.lower, massless.upper, size=(120, 11))
-    assert gb.size_on_poses(massless, free) == {}
+    assert gb.size_on_poses(massless, free) == (massless, {})
+
+
+def test_a_diagnosis_leaves_the_callers_robot_unchanged(massless, truth):
+    """The bases a diagnosis sizes on its data belong to that diagnosis: the same robot object keeps
+    its reference bases for the next caller (another data set, another test in the same process)."""
+    before = {j: gb.joint_basis(massless, j).V.copy() for j in range(2, 12)}
+    data = _data(massless, truth, 60, seed=8)
+    report = diagnose(massless, data, DiagnosisOptions(sigma_mm=0.5, max_effects=1))
+    assert report.details["prob"].robot.gravity_bases  # the diagnosis sized some bases on its poses
+    assert massless.gravity_bases == ()
+    for j, V in before.items():
+        np.testing.assert_array_equal(gb.joint_basis(massless, j).V, V)
 
 
 def test_pose_sized_basis_columns_and_dq_match_fd(massless):
     q = coupled_poses(massless, 60, seed=4)
-    gb.size_on_poses(massless, q)
-    model = nominal_model(massless, load_cell(robot=massless))
+    sized, _ = gb.size_on_poses(massless, q)
+    model = nominal_model(sized, load_cell(robot=massless))
     e = gb.resolve_basis(fx.Effect(gb.FAMILY, 3), model)
     e = e.with_values(1e-4 * np.random.default_rng(5).standard_normal(e.n_params))
     x = q[:3]
@@ -120,8 +123,8 @@ def _data(robot, truth, n: int, seed: int, effects=()) -> Measurements:
 def test_left_out_reason_is_no_masses_not_a_vertical_axis(massless, truth):
     data = _data(massless, truth, 80, seed=6)
     prob = FitProblem(massless, data, 0.5)
-    gb.size_on_poses(massless, data.q)
-    cands, notes = candidate_effects(data, prob.tau, robot=massless)
+    sized, _ = gb.size_on_poses(massless, data.q)
+    cands, notes = candidate_effects(data, prob.tau, robot=sized)
     names = {c.name for c in cands}
     assert {f"joint_elasticity_basis:{j}" for j in range(2, 12)} <= names
     assert not any(c.family in ("joint_elasticity", "backlash") for c in cands)
@@ -132,7 +135,7 @@ def test_left_out_reason_is_no_masses_not_a_vertical_axis(massless, truth):
     assert "2, 3, 4, 5, 6, 7, 8, 9, 10, 11" in massnote
     for c in cands:
         if c.family == gb.FAMILY:
-            assert c.n_params == gb.joint_basis(massless, c.joint).rank
+            assert c.n_params == gb.joint_basis(sized, c.joint).rank
     # the file with masses: the physical form, and joint 1 still the only vertical one
     cands, notes = candidate_effects(data, FitProblem(truth, data, 0.5).tau, robot=truth)
     assert {f"joint_elasticity:{j}" for j in range(2, 12)} <= {c.name for c in cands}

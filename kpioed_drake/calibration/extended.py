@@ -9,10 +9,13 @@ per-pose conditions the effects need (temperature, time, gravity torques with th
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.effects.gravity_basis import resolve_all
+from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
+from kpioed_drake.effects.gravity_basis import resolve_all, size_on_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import Conditions, data_conditions
 from kpioed_drake.tracker.data import Measurements
@@ -22,7 +25,9 @@ _MIN_SIDE = 3
 """Poses needed on each side of a backlash (gravity torque positive and negative)."""
 
 
-def resolve_extension(effects, nominal: TrackerModel, data: Measurements) -> tuple[list, Conditions]:
+def resolve_extension(
+    effects, nominal: TrackerModel, data: Measurements
+) -> tuple[list, Conditions, TrackerModel]:
     """The effects to estimate with the geometry, and the conditions of the data they need.
 
     Args:
@@ -31,14 +36,16 @@ def resolve_extension(effects, nominal: TrackerModel, data: Measurements) -> tup
         data: the measurements.
 
     Returns:
-        (effects resolved for this robot and data, conditions); without effects the conditions
-        hold only the rows' targets.
+        (effects resolved for this robot and data, conditions, nominal): without effects the
+        conditions hold only the rows' targets; ``nominal`` is the model given, its robot with the
+        gravity bases sized on the data's poses where a ``joint_elasticity_basis`` is to be
+        estimated (:func:`~kpioed_drake.effects.gravity_basis.size_on_poses`).
 
     Raises:
         InputError: a bad effect text, or data that do not vary what an effect needs.
     """
     if not effects:
-        return [], Conditions(target=data.target)
+        return [], Conditions(target=data.target), nominal
     robot = nominal.robot
     texts = [e for e in effects if not isinstance(e, fx.Effect)]
     parsed = iter(fx.parse_effects(texts, n_joints=robot.n_joints))
@@ -47,10 +54,13 @@ def resolve_extension(effects, nominal: TrackerModel, data: Measurements) -> tup
     for e in given:
         if keys.count(e.key) > 1:
             raise InputError(f"effect {e.name!r} given more than once", fields=("effects",))
+    if any(e.family == BASIS_FAMILY and e.values is None for e in given):
+        robot = size_on_poses(robot, data.q)[0]
+        nominal = dataclasses.replace(nominal, robot=robot)
     resolved = resolve_all([fx.resolve(e, nominal) for e in given], nominal, data.payload_kg)
     conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)
     _check_conditions(resolved, data, conditions.tau)
-    return resolved, conditions
+    return resolved, conditions, nominal
 
 
 def _check_conditions(effects, data: Measurements, tau: np.ndarray) -> None:

@@ -209,7 +209,8 @@ def calibrate(
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
     n = data.n
     nominal = hold_unused_targets(nominal, data.target)
-    effects, cond = resolve_extension(list(options.effects), nominal, data)
+    effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
+    rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
     n_effect = sum(e.n_params for e in effects)
     warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force)
     before = nominal.layout.free_names

@@ -45,20 +45,22 @@ ABSORBED_MARGIN = 2.0
 the model's span at the geometric fit (the columns move a little as effects are added)."""
 
 
-def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[list, list[str]]:
+def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[FitProblem, list, list[str]]:
     """Drop from each gravity basis the deflections the geometric model absorbs on these poses.
 
     For every ``joint_elasticity_basis`` in ``cands`` (and the ``joints`` whose basis was sized on
     the data's poses), the basis's weighted columns at the geometric fit ``base`` (3 n, r), scaled
     to unit norm, are projected off the span of the model's columns; the right singular vectors
     whose singular value is below :data:`~kpioed_drake.diagnosis.common.MIN_REMAINING` (the
-    selection's "absorbed") are dropped, the rest orthonormalised in moment space and stored as the
-    joint's basis (:func:`~kpioed_drake.effects.gravity_basis.store_basis`). A direction the joint
-    offsets and frame rotations reproduce (e.g. a torque that depends only on a joint moving with
-    the deflected one) would otherwise make the whole basis "absorbed" or the fit singular.
+    selection's "absorbed") are dropped, the rest orthonormalised in moment space and made the
+    joint's basis of the problem's robot (:func:`~kpioed_drake.effects.gravity_basis.store_basis`).
+    A direction the joint offsets and frame rotations reproduce (e.g. a torque that depends only on
+    a joint moving with the deflected one) would otherwise make the whole basis "absorbed"
+    or the fit singular.
 
     Returns:
-        (cands, notes): the candidates with their bases resized, one note per reduced joint.
+        (prob, cands, notes): the problem with the reduced bases, the candidates with their bases
+        resized, one note per reduced joint.
     """
     todo = sorted({e.joint for e in cands if e.family == gb.FAMILY} | set(joints))
     notes, sizes = [], {}
@@ -78,7 +80,7 @@ def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[list, lis
             continue
         theta = np.linalg.solve(Rc, Wt[keep].T) / nc[:, None]  # (r, kept): Qc W = C theta
         V = np.linalg.qr(jb.V @ theta)[0] if keep.any() else jb.V[:, :0]
-        gb.store_basis(prob.robot, j, jb.D, V)
+        prob = prob.with_robot(gb.store_basis(prob.robot, j, jb.D, V))
         sizes[j] = V.shape[1]
         notes.append(
             f"joint_elasticity_basis:{j}: {jb.rank - V.shape[1]} of its {jb.rank} moment combinations "
@@ -93,7 +95,7 @@ def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[list, lis
                 continue
             e = dataclasses.replace(e, n_basis=sizes[e.joint] + varies)
         out.append(e)
-    return out, notes
+    return prob, out, notes
 
 
 def _bic(fit) -> float:

@@ -27,8 +27,9 @@ Fit = EstimationResult
 class FitProblem:
     """Data + sigma + the per-pose conditions: fits of any set of effects on any subset of poses.
 
-    Immutable: :meth:`with_nominal`, :meth:`with_sides`, :meth:`with_side` and :meth:`with_tau` return
-    a new problem, so a fit with another backlash side or torque never changes the problem others hold.
+    Immutable: :meth:`with_nominal`, :meth:`with_robot`, :meth:`with_sides`, :meth:`with_side` and
+    :meth:`with_tau` return a new problem, so a fit with another backlash side or torque never
+    changes the problem others hold.
 
     Attributes:
         robot: the robot.
@@ -64,6 +65,11 @@ class FitProblem:
         """The same problem started from another nominal model (e.g. with parameters held)."""
         return dataclasses.replace(self, nominal=nominal)
 
+    def with_robot(self, robot: Robot) -> FitProblem:
+        """The same problem with another description of the same robot (e.g. its gravity bases
+        sized on these poses): the nominal model's robot replaced too."""
+        return dataclasses.replace(self, robot=robot, nominal=dataclasses.replace(self.nominal, robot=robot))
+
     def with_sides(self, side: np.ndarray) -> FitProblem:
         """The same problem with the backlash sides ``side`` (n, 6) (per pose and joint)."""
         return dataclasses.replace(self, conditions=dataclasses.replace(self.conditions, side=side))
@@ -87,15 +93,21 @@ class FitProblem:
         """(n, 6) gravity torques at the commanded angles [N m]."""
         return self.conditions.tau
 
+    def own(self, model: TrackerModel) -> TrackerModel:
+        """``model``'s parameters with this problem's robot (a fit made before the robot's gravity
+        bases were sized on these poses carries the robot of then)."""
+        return model if model.robot is self.robot else dataclasses.replace(model, robot=self.robot)
+
     def response(self, model, effects, idx):
-        """h (m, 3), H (m, 3, n_full), E (m, 3, k) at poses ``idx``."""
-        return estimator.response(model, list(effects), self.data.q[idx], self.conditions.subset(idx))
+        """h (m, 3), H (m, 3, n_full), E (m, 3, k) at poses ``idx`` (``model`` with this robot)."""
+        cond = self.conditions.subset(idx)
+        return estimator.response(self.own(model), list(effects), self.data.q[idx], cond)
 
     def fit(self, effects, *, start: Fit | None = None, idx=None) -> Fit:
         """Fit the geometric parameters and the effects' values on poses ``idx`` (default all).
 
-        Starts from ``start`` (its model and the values of effects it shares) or from the
-        registered nominal model with zero effect values.
+        Starts from ``start`` (its model's parameters, this problem's robot, and the values of
+        effects it shares) or from the registered nominal model with zero effect values.
         """
         n = self.data.n
         mask = np.zeros(n, dtype=bool)
@@ -106,7 +118,7 @@ class FitProblem:
             for e in effects
         ]
         return estimator.estimate(
-            self.nominal if start is None else start.model,
+            self.nominal if start is None else self.own(start.model),
             self.data.q,
             self.data.eta,
             sigma=self.sigma,
@@ -150,7 +162,7 @@ class FitProblem:
             train[test] = False
             A = J[train].reshape(-1, J.shape[2]) / D
             dxs = np.linalg.lstsq(A, r[train].reshape(-1), rcond=None)[0]
-            model, effects = estimator.apply_step(full.model, full.effects, dxs / D)
+            model, effects = estimator.apply_step(self.own(full.model), full.effects, dxs / D)
             cond = self.conditions.subset(test)
             h_test = estimator.response(model, effects, self.data.q[test], cond, jac=False)
             out[test] = self.data.eta[test] - h_test

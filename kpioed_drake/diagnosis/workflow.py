@@ -71,14 +71,15 @@ def _prepared(
     prob = _problem(robot, data, opts.sigma_mm, opts.k_folds, cell)
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
     prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
-    resized = gb.size_on_poses(prob.robot, data.q)
+    sized, resized = gb.size_on_poses(prob.robot, data.q)
+    prob = prob.with_robot(sized)
     notes = [
         f"joint_elasticity_basis:{j} is sized on these poses: {r} of the {r0} moment combinations of the "
         "joint box vary here (the joint angles are dependent, e.g. a coupled joint)"
         for j, (r0, r) in resized.items()
     ]
     if opts.candidates is None:
-        cands, more = candidate_effects(data, prob.tau, robot=robot)
+        cands, more = candidate_effects(data, prob.tau, robot=prob.robot)
         notes += more
     else:
         cands = [fx.parse_effect(c, model=prob.nominal) for c in opts.candidates]
@@ -160,7 +161,7 @@ def diagnose(
     prob, cands, notes, resized = _prepared(robot, data, opts, cell)
     sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
     base, base_hold = _baseline(prob, k_folds)
-    cands, more = reduce_absorbed(prob, base, cands, resized)
+    prob, cands, more = reduce_absorbed(prob, base, cands, resized)
     notes += more
     test = _gof_test(base, alpha)
     structure = score_tests(prob, base, cands)
@@ -271,6 +272,7 @@ def extended_calibration(
                 f"out: {c.effect.name} is not written into the model: its value is implausible "
                 f"({c.plausible_reason}); it stands in for something else"
             )
+    robot = report.details["prob"].robot  # with the gravity bases sized on these poses
     cal = calibrate(
         robot, data, CalibrationOptions(sigma_mm=opts.sigma_mm, effects=tuple(keep), force=opts.force)
     )

@@ -190,10 +190,20 @@ def _rank(A: np.ndarray) -> int:
 
 
 def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
-    """The (cached) :class:`JointBasis` of ``joint``: SVD of the scaled full regressor over
-    :data:`_N_REF` seeded reference poses in the joint box; directions with a singular value
-    below ``_RANK_TOL`` times the largest (or all, if the torque is zero everywhere) are dropped.
-    :func:`size_on_poses` and :func:`store_basis` replace it (the data's poses, a model file)."""
+    """The :class:`JointBasis` of ``joint``: the robot's own where it has one (sized on a data set's
+    poses, :func:`size_on_poses`, or stored in its model file's ``effects:``), else the (cached)
+    reference basis, the SVD of the scaled full regressor over :data:`_N_REF` seeded poses in the
+    joint box with directions below ``_RANK_TOL`` times the largest singular value (or all, if the
+    torque is zero everywhere) dropped. ``g``: another gravity (always the reference basis)."""
+    if g is None:
+        own = _own_basis(robot, joint)
+        if own is not None:
+            return own
+    return reference_basis(robot, joint, g=g)
+
+
+def reference_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
+    """The (cached) reference basis of ``joint`` over the joint box (see :func:`joint_basis`)."""
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
     key = _key(robot, joint, g)
     if key not in _CACHE:
@@ -201,6 +211,23 @@ def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
         beta = V.T @ (D * link_moments(robot, joint))
         _CACHE[key] = JointBasis(joint, D, V, beta, g)
     return _CACHE[key]
+
+
+def _own_basis(robot: Robot, joint: int) -> JointBasis | None:
+    """The basis ``robot`` carries for ``joint`` (its ``gravity_bases``, then its model file's)."""
+    for j, D, V in robot.gravity_bases:
+        if j == joint:
+            return _basis(robot, joint, D, V)
+    for spec in robot.effects:
+        if spec.name == f"{FAMILY}:{joint}" and spec.basis_rms:
+            return _basis(robot, joint, spec.basis_rms, spec.basis_directions)
+    return None
+
+
+def _basis(robot: Robot, joint: int, D, V) -> JointBasis:
+    D = np.asarray(D, dtype=float)
+    V = np.asarray(V, dtype=float).reshape(len(D), -1)
+    return JointBasis(joint, D, V, V.T @ (D * link_moments(robot, joint)), gravity_model(robot).g)
 
 
 def pose_rank(robot: Robot, q, joint: int, *, centered: bool = True) -> int:
@@ -213,23 +240,22 @@ def pose_rank(robot: Robot, q, joint: int, *, centered: bool = True) -> int:
     return _reduced(Y - Y.mean(axis=0) if centered else Y, _POSE_RANK_TOL)[1].shape[1]
 
 
-def size_on_poses(robot: Robot, q) -> dict[int, tuple[int, int]]:
-    """Size every joint's basis on the data's own poses ``q`` (n, nj) [rad] where the reference
-    basis is singular on them (a coupled joint, e.g. ``q_4 = -(q_2 + q_3)``, a
-    fixed or barely moving joint make some columns of ``Y_j`` dependent on these poses: the
-    reference basis is then singular on the data, and no number of such poses helps; a link whose
-    orientation the coupling keeps, e.g. an upright chest, adds a torque that is the same at every
-    pose, a deflection the joint's offset absorbs). Where the reference basis's columns on ``q``
-    together with a constant column are rank deficient (at :data:`_POSE_RANK_TOL`), the basis
-    reduced on ``q`` with the columns' means removed (a constant torque is the joint's offset)
-    becomes :func:`joint_basis`'s answer for ``robot`` (and is what a model file written afterwards
-    stores); elsewhere the reference basis stays.
+def size_on_poses(robot: Robot, q) -> tuple[Robot, dict[int, tuple[int, int]]]:
+    """``robot`` with every joint's basis sized on the data's own poses ``q`` (n, nj) [rad] where the
+    reference basis is singular on them (a coupled joint, e.g. ``q_4 = -(q_2 + q_3)``, a fixed or
+    barely moving joint make some columns of ``Y_j`` dependent on these poses, and no number of such
+    poses helps; a link whose orientation the coupling keeps, e.g. an upright chest, adds a torque
+    that is the same at every pose, a deflection the joint's offset absorbs). Where the reference
+    basis's columns on ``q`` together with a constant column are rank deficient (at
+    :data:`_POSE_RANK_TOL`), the basis reduced on ``q`` with the columns' means removed (a constant
+    torque is the joint's offset) becomes the returned robot's (and what a model file written from
+    it stores); elsewhere the reference basis stays. ``robot`` itself is not changed.
 
     Returns:
-        ``{joint: (rank on the reference poses, rank on q)}`` of the joints re-sized.
+        (robot, ``{joint: (rank on the reference poses, rank on q)}`` of the joints re-sized).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    out = {}
+    out, bases = {}, {j: (j, D, V) for j, D, V in robot.gravity_bases}
     for j in range(1, robot.n_joints + 1):
         ref = joint_basis(robot, j)
         Y = link_regressor(robot, q, j, g=ref.g)
@@ -237,9 +263,11 @@ def size_on_poses(robot: Robot, q) -> dict[int, tuple[int, int]]:
         if ref.rank == 0 or _rank(np.hstack([ones, Y @ (ref.V / ref.D[:, None])])) == ref.rank + 1:
             continue
         D, V = _reduced(Y - Y.mean(axis=0), _POSE_RANK_TOL)
-        _CACHE[_key(robot, j, ref.g)] = JointBasis(j, D, V, V.T @ (D * link_moments(robot, j)), ref.g)
+        bases[j] = (j, D, V)
         out[j] = (ref.rank, V.shape[1])
-    return out
+    if not out:
+        return robot, out
+    return dataclasses.replace(robot, gravity_bases=tuple(bases[j] for j in sorted(bases))), out
 
 
 def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tuple[list, list[str]]:
@@ -292,22 +320,37 @@ def _key(robot: Robot, joint: int, g: np.ndarray) -> tuple:
     )
 
 
-def store_basis(robot: Robot, joint: int, D, V) -> JointBasis:
-    """Make ``D`` (p,) and ``V`` (p, r) (a model file's stored basis) :func:`joint_basis`'s answer for
-    ``robot`` and ``joint``, so that stored values multiply the columns they were estimated with.
+def store_basis(robot: Robot, joint: int, D, V) -> Robot:
+    """``robot`` with ``D`` (p,) and ``V`` (p, r) as joint ``joint``'s basis (``robot`` unchanged), so
+    that values estimated with these columns multiply them again.
 
     Raises:
         InputError: ``D``/``V`` do not fit joint ``joint``'s full regressor of ``robot``.
     """
-    D, V = np.asarray(D, dtype=float), np.asarray(V, dtype=float).reshape(len(D), -1)
+    jb = check_basis(robot, joint, D, V)
+    bases = {j: (j, d, v) for j, d, v in robot.gravity_bases}
+    bases[joint] = (joint, jb.D, jb.V)
+    return dataclasses.replace(robot, gravity_bases=tuple(bases[j] for j in sorted(bases)))
+
+
+def check_basis(robot: Robot, joint: int, D, V) -> JointBasis:
+    """The basis ``D`` (p,), ``V`` (p, r) (e.g. a model file's) of joint ``joint``, checked.
+
+    Raises:
+        InputError: ``D``/``V`` do not fit joint ``joint``'s full regressor of ``robot``.
+    """
+    D = np.asarray(D, dtype=float).reshape(-1)
     p = link_moments(robot, joint).size
     if D.shape != (p,) or np.any(D <= 0):
         raise InputError(
             f"joint {joint} of {robot.name}: expected {p} positive basis RMS values, got {D.size}"
         )
-    g = gravity_model(robot).g
-    _CACHE[_key(robot, joint, g)] = JointBasis(joint, D, V, V.T @ (D * link_moments(robot, joint)), g)
-    return _CACHE[_key(robot, joint, g)]
+    V = np.asarray(V, dtype=float)
+    if V.size % p:
+        raise InputError(
+            f"joint {joint} of {robot.name}: the basis directions must have {p} rows, got {V.size} numbers"
+        )
+    return _basis(robot, joint, D, V)
 
 
 def payload_varies(payload_kg) -> bool:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
-from kpioed_drake.effects.gravity_basis import joint_basis, store_basis
+from kpioed_drake.effects.gravity_basis import check_basis, joint_basis
 from kpioed_drake.effects.model import UNITS, Effect, parse_effect
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import Robot
@@ -20,7 +20,8 @@ from kpioed_drake.robot.modelspec import EffectSpec
 
 def model_effects(robot: Robot) -> list[Effect]:
     """The effects of ``robot``'s model file with their values (internal units); [] for a
-    geometric model. A ``joint_elasticity_basis`` entry's basis becomes the robot's for that joint.
+    geometric model. A ``joint_elasticity_basis`` entry's basis is the robot's for that joint
+    (:func:`~kpioed_drake.effects.gravity_basis.joint_basis` reads it from the file's entries).
 
     Raises:
         InputError: the file and field (``effects[k].name`` ...) of a bad entry.
@@ -47,7 +48,7 @@ def _stored_basis(robot: Robot, eff: Effect, spec: EffectSpec, at: str) -> Effec
     if not spec.basis_rms:
         raise InputError(f"{at}.basis_rms: {eff.name} needs its basis (basis_rms, basis_directions)")
     try:
-        jb = store_basis(robot, eff.joint, spec.basis_rms, spec.basis_directions)
+        jb = check_basis(robot, eff.joint, spec.basis_rms, spec.basis_directions)
     except InputError as exc:
         raise InputError(f"{at}.basis_rms: {exc}") from None
     if eff.n_basis not in (jb.rank, jb.rank + 1):

@@ -1,12 +1,10 @@
 """Robot and cell descriptions: typed dataclasses loaded from the YAML files under ``models/``.
 
-This module is the single source of truth for geometry. The numpy kinematics
-(:mod:`kpioed_drake.robot.kinematics`) and the Drake MultibodyPlant (:mod:`kpioed_drake.robot.plant`) are both
-built from a :class:`Robot` and a :class:`Cell`; nothing else holds link lengths or obstacle
-positions.
+The single source of truth for geometry: the numpy kinematics (:mod:`kpioed_drake.robot.kinematics`)
+and the Drake MultibodyPlant (:mod:`kpioed_drake.robot.plant`) are both built from a :class:`Robot`
+and a :class:`Cell`; nothing else holds link lengths or obstacle positions.
 
-Files use millimetres and degrees (see ``models/README.md``). The loaded objects hold millimetres and
-radians (numpy arrays), the units used everywhere inside the code.
+Files use millimetres and degrees (``models/README.md``); loaded objects hold millimetres and radians.
 
 Conventions (SPEC): classic Denavit-Hartenberg
 ``T_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``; Hayati for nearly parallel joints
@@ -102,6 +100,8 @@ class Robot:
         rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
         effects: an extended model file's effects (``effects:``; :func:`kpioed_drake.effects.model_effects`).
         effects_where: the file holding ``effects`` (for messages).
+        gravity_bases: ``((joint, D, V), ...)`` mass-free gravity bases sized on a data set's poses
+            (:func:`kpioed_drake.effects.gravity_basis.size_on_poses`), else the reference basis.
     """
 
     name: str
@@ -130,6 +130,7 @@ class Robot:
     rated_payload_kg: float | None = None
     effects: tuple[EffectSpec, ...] = ()
     effects_where: str = ""
+    gravity_bases: tuple = ()
 
     @property
     def n_targets(self) -> int:
