@@ -152,6 +152,7 @@ def next(  # noqa: A001 (the command's name)
     sigma_mm: float = 0.02,
     seed: int = 0,
     certify: bool = True,
+    max_plan: int = 60,
     out=None,
     json_path=None,
     data_format=None,
@@ -159,8 +160,9 @@ def next(  # noqa: A001 (the command's name)
     """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
 
     Calibrates on the data so far, evaluates tr(Cs)/3 at the estimate (a-posteriori when the fit
-    rejects) and either stops (``done``: nothing written) or designs the ``n`` next poses with the
-    measured ones' information held fixed.
+    rejects) and either stops (``done``: nothing written) or plans the poses still needed to reach
+    the target (with the measured ones' information held fixed) and returns the ``n`` of them that
+    help most now.
 
     Args:
         robot: model name or model file.
@@ -170,15 +172,19 @@ def next(  # noqa: A001 (the command's name)
         sigma_mm: the tracker's noise per coordinate [mm].
         seed: seed of the design's starts and the certificate's search.
         certify: add the certificate of the combined design.
+        max_plan: most poses planned ahead.
         out: design CSV of the next poses; json_path: the JSON record.
         data_format: format file of a measurement file of another layout.
 
     Returns:
         The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
-        ``predicted_kpi_avg_var_mm2``, ``bound_mm2``, ``efficiency``, ``next_q_deg``, ...) and
+        ``predicted_kpi_avg_var_mm2``, ``n_planned``, ``bound_mm2``, ``efficiency``,
+        ``next_q_deg``, ...) and
         ``summary``.
     """
-    options = NextOptions(target_var_mm2=target_var_mm2, n=n, sigma_mm=sigma_mm, seed=seed, certify=certify)
+    options = NextOptions(
+        target_var_mm2=target_var_mm2, n=n, sigma_mm=sigma_mm, seed=seed, certify=certify, max_plan=max_plan
+    )
     result, rob = next_file(robot, data_path, options, out=out, json_path=json_path, data_format=data_format)
     return {**result.to_dict(rob), "summary": result.summary()}
 

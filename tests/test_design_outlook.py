@@ -149,7 +149,7 @@ def test_bad_working_poses_and_weights_are_input_errors(kr16, path):
 # ----------------------------------------------------------------------------------------------
 def test_given_poses_equal_the_design_with_their_information_fixed(kr16):
     given = heuristic_design(kr16, n=30, seed=0)
-    res = optimize_design(kr16, n=10, seed=1, given=given)
+    res = optimize_design(kr16, n=10, seed=1, given=given, start="heuristic")
     assert res.success and res.feasible and res.q.shape == (10, 6)
     F = kr16.F1(given)
     M0 = F.T @ F

@@ -7,10 +7,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from kpioed_drake import api
 from kpioed_drake.cli import main
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.online import NextOptions, closed_loop, next_poses
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
@@ -38,16 +40,48 @@ def measured(kr16, tmp_path_factory):
     return work
 
 
+def _now(kr16, measured) -> float:
+    data = Measurements.from_table(pd.read_csv(measured / "data.csv"), kr16)
+    return next_poses(kr16, data, NextOptions(target_var_mm2=1e9, sigma_mm=SIGMA)).kpi_avg_var_mm2
+
+
 def test_next_at_nominal_is_design_given(kr16, measured):
-    rec = api.next("kr16", measured / "data.csv", target_var_mm2=1e-9, n=5, sigma_mm=SIGMA, certify=False,
+    """A target the next batch reaches: the plan is the batch, ``design --given`` of n poses."""
+    target = 0.9 * _now(kr16, measured)
+    rec = api.next("kr16", measured / "data.csv", target_var_mm2=target, n=5, sigma_mm=SIGMA, certify=False,
                    out=measured / "next.csv")  # fmt: skip
     assert not rec["done"] and rec["n_measured"] == 30 and not rec["aposteriori"]
+    assert rec["n_planned"] == 5
     res = api.design("kr16", criterion="kpi", n=5, sigma_mm=SIGMA, given=measured / "given.csv",
                      certify=False, out=measured / "design.csv")  # fmt: skip
     assert np.array_equal(
         read_design(measured / "next.csv", kr16), read_design(measured / "design.csv", kr16)
     )
     assert rec["predicted_kpi_avg_var_mm2"] == pytest.approx(res.kpi_avg_var_mm2, rel=1e-12)
+    assert rec["predicted_kpi_avg_var_mm2"] <= target
+
+
+def test_a_farther_target_is_planned_and_the_most_useful_poses_come_first(kr16, measured):
+    """The plan is ``design --given`` of the poses still needed; the batch its n most useful."""
+    target = 0.4 * _now(kr16, measured)
+    rec = api.next("kr16", measured / "data.csv", target_var_mm2=target, n=3, sigma_mm=SIGMA, certify=False,
+                   out=measured / "next3.csv")  # fmt: skip
+    h = rec["n_planned"]
+    assert 3 < h <= NextOptions().max_plan
+    plan = api.design("kr16", criterion="kpi", n=h, sigma_mm=SIGMA, given=measured / "given.csv",
+                      certify=False, out=measured / "plan.csv")  # fmt: skip
+    q_plan, q_next = read_design(measured / "plan.csv", kr16), read_design(measured / "next3.csv", kr16)
+    rows = [int(np.flatnonzero(np.all(np.isclose(q_plan, x, atol=1e-9), axis=1))[0]) for x in q_next]
+    assert len(set(rows)) == 3
+    # every other choice of 3 plan poses lowers tr(Cs)/3 less than the first one chosen does
+    given = read_design(measured / "given.csv", kr16)
+    problem = make_problem(kr16, sigma_mm=SIGMA)
+    one = [problem.criteria(np.vstack([given, q_plan[[i]]]))["kpi_avg_var_mm2"] for i in range(h)]
+    assert one[rows[0]] == pytest.approx(min(one), rel=1e-9)
+    assert rec["predicted_kpi_avg_var_mm2"] == pytest.approx(
+        problem.criteria(np.vstack([given, q_next]))["kpi_avg_var_mm2"], rel=1e-12
+    )
+    assert plan.kpi_avg_var_mm2 <= rec["predicted_kpi_avg_var_mm2"]
 
 
 def test_done_exactly_when_the_variance_is_at_most_the_target(kr16, measured):

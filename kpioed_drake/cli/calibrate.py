@@ -69,6 +69,9 @@ def register_next(sub) -> None:
     p.add_argument("--sigma-mm", type=float, default=0.02, help="tracker noise per coordinate [mm] (0.02)")
     p.add_argument("--seed", type=int, default=0, help="seed of the design's starts and the certificate (0)")
     p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
+    p.add_argument(
+        "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
+    )
     p.add_argument("--out", default=None, metavar="NEXT.csv", help="the next poses (not written when done)")
     add_json_out(p)
     add_format(p)
@@ -76,7 +79,7 @@ def register_next(sub) -> None:
 
 
 def run_next(args) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "out")
+    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out")
     result = api.next(
         args.robot,
         args.data,

@@ -9,9 +9,11 @@ unless ``allow_infeasible``.
 
 Starts (``start``, :data:`~kpioed_drake.design.common.START_METHODS`): the paper's heuristic, or for
 the ``kpi`` criterion the approximate design (column generation over the feasible poses, Clarabel)
-rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`). The approximate
-design is the optimum of the KPI criterion over weights on poses; it is not defined for the other
-criteria's objectives nor with poses held fixed, so ``start="approximate"`` is an input error there.
+rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`); with poses
+held fixed, the certified approximate design's candidates chosen with their information
+(:func:`~kpioed_drake.design.approximate.sequential.given_start`). The approximate design is the
+optimum of the KPI criterion over weights on poses; it is not defined for the other criteria's
+objectives, so ``start="approximate"`` is an input error there.
 
 Sequential re-identification (paper, section 3.1 and Outlook): with ``given`` poses already
 measured, their information ``F1^T F1`` is held fixed and only the new poses are optimised, the
@@ -24,7 +26,9 @@ import time
 
 import numpy as np
 
+from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.design import approximate_start
+from kpioed_drake.design.approximate.sequential import given_start
 from kpioed_drake.design.common import (
     ACTIVE_ROWS_PER_POSE,
     DEFAULT_START,
@@ -80,16 +84,15 @@ def _validate(
 
 def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: bool = False) -> str:
     """The start method of :func:`optimize_design`: ``start``, or for None
-    :data:`~kpioed_drake.design.common.DEFAULT_START` where it applies (``kpi`` criterion, no
-    ``given`` poses, not the worst case of several working poses, whose approximate design would
-    be that of their mean) and else ``heuristic``.
+    :data:`~kpioed_drake.design.common.DEFAULT_START` where it applies (``kpi`` criterion, not the
+    worst case of several working poses, whose approximate design would be that of their mean)
+    and else ``heuristic``.
 
     Raises:
-        InputError: an unknown start, or ``approximate`` for another criterion than ``kpi``,
-            or with given poses.
+        InputError: an unknown start, or ``approximate`` for another criterion than ``kpi``.
     """
     if start is None:
-        applies = criterion == "kpi" and given is None and not worst_case
+        applies = criterion == "kpi" and not worst_case
         return DEFAULT_START if applies else "heuristic"
     if start not in START_METHODS:
         raise InputError(f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}")
@@ -97,15 +100,18 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
         raise InputError(
             f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}"
         )
-    if start == "approximate" and given is not None:
-        raise InputError(
-            "start 'approximate' is not available with given poses (it ignores their information)"
-        )
     return start
 
 
-def _start_poses(problem: Problem, start: str, *, n: int, seed: int, collision: bool) -> np.ndarray:
-    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``."""
+def _start_poses(
+    problem: Problem, start: str, *, n: int, seed: int, collision: bool, given=None
+) -> np.ndarray:
+    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``; with ``given`` poses
+    the approximate start is the certified approximate design's candidates chosen with their
+    information (:func:`~kpioed_drake.design.approximate.sequential.given_start`)."""
+    if start == "approximate" and given is not None:
+        approx = certificate.certified_design(problem, collision=collision, seed=seed)
+        return given_start(problem, approx, n=n, given=given)
     if start == "approximate":
         return approximate_start(problem, n=n, collision=collision, seed=seed)
     return heuristic_design(problem, n=n, seed=seed, collision=collision)
@@ -207,7 +213,8 @@ def optimize_design(
         collision: impose collision and laser-beam clearance (paper "CA").
         solver: ``snopt`` or ``ipopt``.
         seed: seed of the start; start k uses ``seed + k``.
-        starts: number of starts; the best feasible result is kept.
+        starts: number of starts; the best feasible result is kept (with ``given`` poses, starts
+            after the first are heuristic: the approximate one is that of the certified design).
         q0: (n, 6) [rad] start of the first solve instead of ``start``'s.
         allow_infeasible: return a failed or infeasible result instead of raising.
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
@@ -281,7 +288,8 @@ def optimize_design(
             q_start = q0
         else:
             t_start = time.perf_counter()
-            q_start = _start_poses(problem, start, n=n, seed=seed + k, collision=collision)
+            method = start if k == 0 or given is None else "heuristic"  # one certified design
+            q_start = _start_poses(problem, method, n=n, seed=seed + k, collision=collision, given=given)
             start_s += time.perf_counter() - t_start
         try:
             initial.append(float(obj.value(q_start)))

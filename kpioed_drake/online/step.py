@@ -3,10 +3,12 @@ estimate with the noise the data show, then stop or design the next poses.
 
 The variance is the KPI's tr(Cs)/3 (paper eq. 19, 24e) of the calibration, a-posteriori (times
 chi2/dof) when the goodness-of-fit test rejects: the guarantee must hold for the real spread. The
-next ``n`` poses minimise tr(Cs)/3 of the combined design (paper eq. 24 with the measured poses'
-information held fixed, section 3.1) at that noise, with collision avoidance
-(:func:`design_problem`: the constraints on the model file's kinematics); the certificate (a lower
-bound on tr(Cs)/3 of any such combined design) says how far from the best they are.
+next poses are planned to the target: the KPI design (paper eq. 24 with the measured poses'
+information held fixed, section 3.1) of the poses still needed at that noise, with collision
+avoidance (:func:`design_problem`: the constraints on the model file's kinematics), of which the
+``n`` that lower tr(Cs)/3 most are measured next (a batch designed alone would be greedy: the
+last rounds could not make up for it). The certificate (a lower bound on tr(Cs)/3 of any combined
+design of as many poses) says how far from the best they are.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
+from kpioed_drake.design.approximate.sequential import fewest_new_poses, most_useful
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.result import DesignError
 from kpioed_drake.effects import model_effects
@@ -50,10 +53,14 @@ class NextOptions:
     """Seed of the design's starts and of the certificate's search."""
     certify: bool = True
     """Add the certificate of the combined design (``bound_mm2``, ``efficiency``)."""
+    max_plan: int = 60
+    """Most poses planned ahead: the step designs the poses still needed to reach the target (at
+    least ``n``, at most this many) and returns the ``n`` of them that help most now."""
 
     def __post_init__(self):
         check_positive("target_var_mm2", self.target_var_mm2)
         check_count("n", self.n)
+        check_count("max_plan", self.max_plan)
         check_sigma(self.sigma_mm)
         check_seed(self.seed)
 
@@ -71,6 +78,7 @@ class NextResult:
         target_var_mm2: the precision asked for [mm^2].
         q_next: (n, n_joints) the next poses [rad] (empty when done).
         predicted_kpi_avg_var_mm2: tr(Cs)/3 of the measured and the next poses together [mm^2].
+        n_planned: poses the step planned ahead (the next ones are the most useful of them).
         certificate: the certificate of the combined design (None when done or not asked).
         report: the calibration on the data so far.
     """
@@ -83,6 +91,7 @@ class NextResult:
     target_var_mm2: float
     q_next: np.ndarray
     predicted_kpi_avg_var_mm2: float | None
+    n_planned: int
     certificate: dict | None
     report: CalibrationReport
 
@@ -105,6 +114,7 @@ class NextResult:
             "bound_mm2": cert.get("bound_mm2"),
             "efficiency": cert.get("efficiency"),
             "n_next": int(len(self.q_next)),
+            "n_planned": self.n_planned,
             "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
         }
 
@@ -183,17 +193,19 @@ def next_poses(
         return NextResult(
             q_next=np.zeros((0, robot.n_joints)),
             predicted_kpi_avg_var_mm2=None,
+            n_planned=0,
             certificate=None,
             **base,
         )
     problem = design_problem(robot, sigma_used, cell)
-    res = _design(problem, opts, q_given)
+    q_next, predicted, planned = _design(problem, opts, q_given)
     cert = None
     if opts.certify:
-        cert = certificate.certify(problem, res.q, collision=opts.collision, seed=opts.seed, given=q_given)
+        cert = certificate.certify(problem, q_next, collision=opts.collision, seed=opts.seed, given=q_given)
     return NextResult(
-        q_next=res.q,
-        predicted_kpi_avg_var_mm2=float(res.kpi_avg_var_mm2),
+        q_next=q_next,
+        predicted_kpi_avg_var_mm2=predicted,
+        n_planned=planned,
         certificate=cert,
         **base,
     )
@@ -204,22 +216,38 @@ RETRY_SEEDS = 3
 optimisation from one start per seed)."""
 
 
-def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray):
-    """The next poses: the KPI design of ``opts.n`` poses with ``q_given`` held fixed; a solver
-    failure is retried with the next seeds."""
+def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> int:
+    """Poses the step plans ahead: the fewest that reach the target when added greedily to the
+    measured ones from the certified approximate design's candidates
+    (:func:`~kpioed_drake.design.approximate.sequential.fewest_new_poses`), at least ``opts.n`` and
+    at most ``opts.max_plan``."""
+    approx = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
+    fewest = fewest_new_poses(problem, approx, given=q_given, target=opts.target_var_mm2, n_max=opts.max_plan)
+    return int(np.clip(fewest, opts.n, max(opts.n, opts.max_plan)))
+
+
+def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """The next poses: the KPI design of the planned number of poses with ``q_given`` held fixed
+    (a solver failure retried with the next seeds), and of it the ``opts.n`` that lower tr(Cs)/3
+    most first (all of it when the plan is ``opts.n`` poses: then it is ``design --given``).
+
+    Returns:
+        (q_next (n, n_joints) [rad], tr(Cs)/3 of the measured and next poses [mm^2], poses planned).
+    """
+    h = plan_size(problem, opts, q_given)
     for k in range(RETRY_SEEDS):
         try:
-            return optimize_design(
-                problem,
-                criterion="kpi",
-                n=opts.n,
-                collision=opts.collision,
-                seed=opts.seed + k,
-                given=q_given,
+            plan = optimize_design(
+                problem, criterion="kpi", n=h, collision=opts.collision, seed=opts.seed + k, given=q_given
             )
+            break
         except DesignError:
             if k == RETRY_SEEDS - 1:
                 raise
+    if h == opts.n:
+        return plan.q, float(plan.kpi_avg_var_mm2), h
+    q_next = plan.q[most_useful(problem, plan.q, given=q_given, n=opts.n)]
+    return q_next, float(problem.criteria(np.concatenate([q_given, q_next]))["kpi_avg_var_mm2"]), h
 
 
 def next_file(
