@@ -42,7 +42,8 @@ def add_extend(p) -> None:
         default=[],
         metavar="EFFECT",
         help="extend the model, e.g. joint_elasticity:2, gear_cyclic:4:2, joint_scale:2, joint_coupling:5:4, "
-        "backlash:3, tracker_scale, column_compliance:1 (a lift), base_compliance (repeatable)",
+        "backlash:3, tracker_scale, column_compliance:1 (a lift), base_compliance, lateral_compliance:2 "
+        "(repeatable)",
     )
 
 

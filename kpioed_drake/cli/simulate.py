@@ -23,7 +23,7 @@ def register(sub) -> None:
         metavar="SPEC",
         help="non-geometric effect, e.g. joint_elasticity:2, gear_cyclic:4:2=0.01,-0.005, thermal_expansion, "
         "tracker_drift, joint_scale:2=500, joint_coupling:5:4, tracker_scale, backlash:3, "
-        "column_compliance:1 (a lift), base_compliance (repeatable)",
+        "column_compliance:1 (a lift), base_compliance, lateral_compliance:2 (repeatable)",
     )
     p.add_argument("--payload-kg", type=float, default=0.0, help="payload at the reflector [kg] (0)")
     p.add_argument("--no-geometric-errors", action="store_true", help="the true robot is the nominal one")

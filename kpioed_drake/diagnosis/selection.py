@@ -57,6 +57,7 @@ _VARIABLE = {
     "backlash": "sign of tau_{joint}",
     "column_compliance": "carriage height x gravity moment above joint {joint}",
     "base_compliance": "gravity moment about the base",
+    "lateral_compliance": "gravity moment across the axis of joint {joint}",
     gb.FAMILY: "gravity torque of joint {joint} with any link masses",
 }
 

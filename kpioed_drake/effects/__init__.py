@@ -22,6 +22,8 @@ family (``parse_effect``)     model                                         para
                               turns by ``c h M_perp`` about ``C - a h/2``   [1/(N m^2)]
 ``base_compliance[=c]``       soft floor/mount: the robot turns by          c [rad/(N m)]
                               ``c M_B`` about the base origin
+``lateral_compliance:j[=c]``  joint j's bearing yields: all it carries      c [rad/(N m)]
+                              turns by ``c (I - a a^T) M_j`` about ``a_j``
 ============================  ============================================  ====================
 
 The first four (:data:`FAMILIES`) are SPEC's; the next four (:data:`EXTRA_FAMILIES`) are further

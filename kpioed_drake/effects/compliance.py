@@ -1,6 +1,7 @@
 """Compliance of a lifting column or of the robot's base: the robot above turns under its own weight.
 
-Two effect families for robots on a lift or a soft floor, each one parameter ``c`` and each a
+Effect families for robots on a lift or a soft floor and for joint bearings, each one parameter
+``c`` and each a
 small rigid rotation ``omega(q) = c m(q)`` [rad] of
 everything the compliant part carries about a pivot ``o(q)``: a point ``p`` it carries moves by
 ``omega x (p - o)`` (first order in omega: ``omega`` is 1e-4 rad at realistic sizes, the second
@@ -28,6 +29,12 @@ column that yields; a negative c is not physical.
 ``omega = c M_B``, ``M_B = sum_l m_l (p_l - O) x g`` over all moving links 1..n and the payload
 (perpendicular to g by construction), ``c`` [rad/(N m)] as a joint compliance.
 
+``lateral_compliance:j`` (j a revolute joint): the bearing of joint j yields about the axes across
+its axis ``a = w_j``: everything joint j carries (links j..n and the payload) turns about the point
+``C = a_j`` on the axis by ``omega = c (I - a a^T) M_j``, ``M_j = sum_l m_l (p_l - C) x g`` [N m],
+``c`` [rad/(N m)] (the joint's own torque ``a . M_j`` is ``joint_elasticity``'s). A positive c
+yields towards the load, as the column does.
+
 Masses and centres of mass are the model file's (``robot.masses``, ``robot.coms`` in the link
 frames), the kinematics the nominal geometry at the commanded joint values (as the gravity torques
 of joint elasticity); the payload is a point mass at the reflector point ``p_FP``. The joint-value
@@ -51,9 +58,10 @@ from kpioed_drake.robot.models import Robot
 
 COLUMN = "column_compliance"
 BASE = "base_compliance"
-FAMILIES = (COLUMN, BASE)
+LATERAL = "lateral_compliance"
+FAMILIES = (COLUMN, BASE, LATERAL)
 """The compliance families: a rigid rotation of the carried robot, not a joint-angle error."""
-UNITS = {COLUMN: "1/(N m^2)", BASE: "rad/(N m)"}
+UNITS = {COLUMN: "1/(N m^2)", BASE: "rad/(N m)", LATERAL: "rad/(N m)"}
 VERTICAL_DEG = 30.0
 """A prismatic joint whose axis is within this angle of gravity is a lifting column (diagnosis)."""
 MIN_RANGE_MM = 20.0
@@ -101,6 +109,18 @@ def check_column(robot: Robot, joint: int, spec: str = "") -> None:
         raise InputError(
             f"{what}: joint(s) {before} below the column are revolute; the column must stand on the base or "
             "on prismatic joints (rails) only"
+        )
+
+
+def check_lateral(robot: Robot, joint: int, spec: str = "") -> None:
+    """Raise InputError unless ``joint`` (1-based) is a revolute joint of ``robot``."""
+    what = f"effect {spec!r}" if spec else f"{LATERAL}:{joint}"
+    if not 1 <= joint <= robot.n_joints:
+        raise InputError(f"{what}: joint must be 1..{robot.n_joints} (1-based), got {joint}")
+    if robot.prismatic[joint - 1]:
+        raise InputError(
+            f"{what}: joint {joint} of {robot.name} is prismatic; a lateral compliance is that of a "
+            "revolute joint's bearing (a lift's bending is column_compliance)"
         )
 
 
@@ -169,6 +189,13 @@ def rotation(
         C = np.broadcast_to(base_origin(robot), (n, 3))
         pivot = np.array(C)
         first = 1
+    elif family == LATERAL:
+        check_lateral(robot, joint)
+        k = int(joint)
+        C = fr.joint_points[:, k - 1]
+        a = fr.joint_axes[:, k - 1]
+        pivot = np.array(C)
+        first = k
     else:
         raise ValueError(f"not a compliance family: {family}")
     links = np.arange(first, nj + 1)
@@ -180,9 +207,9 @@ def rotation(
         pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (n,))
         p_pay = flange_point(fr, np.asarray(p_FP, dtype=float))
         M = M + 1e-3 * pay[:, None] * cross(p_pay - C, g[None, :])
-    if family == COLUMN:
+    if family in (COLUMN, LATERAL):
         P = np.eye(3)[None] - a[:, :, None] * a[:, None, :]  # (n, 3, 3)
-        scale = 1e-3 * h  # [m]
+        scale = 1e-3 * h if family == COLUMN else np.ones(n)  # [m] or 1
         m = scale[:, None] * np.einsum("nab,nb->na", P, M)
     else:
         P, scale = np.broadcast_to(np.eye(3), (n, 3, 3)), np.ones(n)
@@ -206,7 +233,23 @@ def rotation(
         dm[:, k - 1] += 1e-3 * np.einsum("nab,nb->na", P, M)  # dh/dq_k = 1 mm/mm
         dpivot[:, :k] = fr.joint_motion(C)[:, :k]
         dpivot[:, k - 1] -= 0.5 * a
+    elif family == LATERAL:
+        dm += _projector_dq(fr, a, M, k)
+        dpivot[:, :k] = fr.joint_motion(C)[:, :k]  # joint k turns about C: 0 there
     return Rotation(m, pivot, dm, dpivot, dm_dp)
+
+
+def _projector_dq(fr, a: np.ndarray, M: np.ndarray, k: int) -> np.ndarray:
+    """(n, nj, 3) ``d(I - a a^T)/dq_i M`` of joint k's axis ``a`` (n, 3): the revolute joints before
+    k turn it, ``da = w_i x a``; the others leave it."""
+    n, nj = a.shape[0], fr.n_joints
+    out = np.zeros((n, nj, 3))
+    for i in range(k - 1):
+        if fr.prismatic[i]:
+            continue
+        da = cross(fr.joint_axes[:, i], a)
+        out[:, i] = -(da * np.einsum("na,na->n", a, M)[:, None] + a * np.einsum("na,na->n", da, M)[:, None])
+    return out
 
 
 def _moment_dq(fr, p_l, w_l, links, C, k: int, g) -> np.ndarray:

@@ -23,8 +23,9 @@ EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", 
 """Further families for simulation and ``--extend``; the first four are diagnosis candidates too, the
 gravity basis enters the diagnosis through :mod:`kpioed_drake.diagnosis.elastic_basis`."""
 COMPLIANCE_FAMILIES = cp.FAMILIES
-"""A column or the base that bends under the robot's weight (:mod:`.compliance`): simulation, ``--extend``,
-and diagnosis candidates for robots on a lift (or with ``compliant_base: true``)."""
+"""A column, the base or a joint's bearing that yields under the robot's weight (:mod:`.compliance`):
+simulation, ``--extend``, and diagnosis candidates for robots on a lift (or with ``compliant_base:
+true``); ``lateral_compliance`` only where a diagnosis is given it as a candidate."""
 ALL_FAMILIES = FAMILIES + EXTRA_FAMILIES + COMPLIANCE_FAMILIES
 JOINT_FAMILIES = (
     "joint_elasticity",
@@ -47,6 +48,7 @@ N_PARAMS = {
     "backlash": 1,
     cp.COLUMN: 1,
     cp.BASE: 1,
+    cp.LATERAL: 1,
     BASIS_FAMILY: None,  # robot-dependent: Effect.n_basis (gravity_basis.resolve_basis)
 }
 UNITS = {
@@ -80,7 +82,7 @@ _DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expa
 _DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
 _DISPLAY.update(joint_scale=1e-6, joint_coupling=1e-6, tracker_scale=1e-6, backlash=np.pi / 180.0)
 _DISPLAY[BASIS_FAMILY] = 1.0
-_DISPLAY.update({cp.COLUMN: 1.0, cp.BASE: 1.0})
+_DISPLAY.update({cp.COLUMN: 1.0, cp.BASE: 1.0, cp.LATERAL: 1.0})
 COMPLIANCE_TOOL_MM = (0.1, 1.0)
 """Largest reflector displacement [mm] over the joint box of a drawn column or base compliance."""
 _DRAW = {
@@ -159,6 +161,7 @@ class Effect:
             "backlash": ["b"],
             cp.COLUMN: ["c"],
             cp.BASE: ["c"],
+            cp.LATERAL: ["c"],
         }[self.family]
         return [f"{self.name}.{s}" for s in sub]
 
@@ -207,7 +210,7 @@ _SYNTAX = (
     "joint_elasticity:JOINT[=c rad/(N m)], gear_cyclic:JOINT:N[=a,b deg], thermal_expansion[=k 1/K], "
     "tracker_drift[=vx,vy,vz mm/min], joint_scale:JOINT[=eps ppm], joint_coupling:JOINT:JOINT[=c ppm], "
     "tracker_scale[=k ppm/K], backlash:JOINT[=b deg], column_compliance:JOINT[=c 1/(N m^2)], "
-    "base_compliance[=c rad/(N m)]"
+    "base_compliance[=c rad/(N m)], lateral_compliance:JOINT[=c rad/(N m)]"
 )
 
 
@@ -356,15 +359,17 @@ def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int =
 
 
 def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, model, n_joints=None) -> Effect:
-    """``column_compliance:JOINT[=c]`` (c = 1/EI [1/(N m^2)]) or ``base_compliance[=c]`` (c [rad/(N m)]);
-    with a model the column joint is checked (prismatic, only prismatic joints below it)."""
+    """``column_compliance:JOINT[=c]`` (c = 1/EI [1/(N m^2)]), ``base_compliance[=c]`` or
+    ``lateral_compliance:JOINT[=c]`` (c [rad/(N m)]); with a model the joint is checked (a column:
+    prismatic, only prismatic joints below it; a lateral compliance: revolute)."""
     nj = model.robot.n_joints if model is not None else n_joints or 7  # a lift: one joint more than six
-    if family == cp.COLUMN:
+    if family in (cp.COLUMN, cp.LATERAL):
         if len(parts) != 2:
-            raise InputError(f"effect {spec!r}: expected {cp.COLUMN}:JOINT[=c 1/(N m^2)], e.g. {cp.COLUMN}:1")
+            unit, ex = ("1/(N m^2)", 1) if family == cp.COLUMN else ("rad/(N m)", 2)
+            raise InputError(f"effect {spec!r}: expected {family}:JOINT[=c {unit}], e.g. {family}:{ex}")
         joint = _joint(parts[1], spec, nj)
         if model is not None:
-            cp.check_column(model.robot, joint, spec)
+            (cp.check_column if family == cp.COLUMN else cp.check_lateral)(model.robot, joint, spec)
     elif len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint (expected {family}[=c rad/(N m)])")
     else:
@@ -397,6 +402,8 @@ def resolve(effect: Effect, model: TrackerModel) -> Effect:
         return resolve_basis(effect, model, n_given=effect.n_basis)
     if effect.family == cp.COLUMN:
         cp.check_column(model.robot, effect.joint)
+    if effect.family == cp.LATERAL:
+        cp.check_lateral(model.robot, effect.joint)
     if effect.values is not None or effect.tool_mm is None:
         return effect
     if effect.family in COMPLIANCE_FAMILIES:

@@ -21,7 +21,8 @@ estimate (a value the data do not pin down is not called implausible). Bounds (d
 - ``tracker_scale``: |k| <= ``TRACKER_SCALE_MAX_PPM_PER_K`` (uncompensated air refraction is
   -0.93 ppm/K);
 - ``backlash``: |b| <= ``BACKLASH_MAX_DEG``;
-- ``column_compliance``, ``base_compliance``: c >= 0 (a negative c bends against gravity).
+- ``column_compliance``, ``base_compliance``, ``lateral_compliance``: c >= 0 (a negative c bends
+  against gravity).
 """
 
 from __future__ import annotations

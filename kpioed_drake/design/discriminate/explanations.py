@@ -16,6 +16,7 @@ import scipy.optimize
 import scipy.stats
 
 from kpioed_drake.effects import (
+    COMPLIANCE_FAMILIES,
     EXTRA_FAMILIES,
     T_REF_C,
     Effect,
@@ -50,6 +51,7 @@ DEFAULT_SIZES = {
     "tracker_drift": 0.005,
     "column_compliance": 0.1,
     "base_compliance": 0.1,
+    "lateral_compliance": 0.1,
 }
 """Assumed size of an explanation given without a value: the smallest of SPEC's realistic sizes
 (the lower bounds of the sizes the synthetic harness draws), in display units: elasticity and the
@@ -98,7 +100,7 @@ class Explanation:
 def _default(effect: Effect, model) -> Effect:
     """``effect`` with the assumed size of :data:`DEFAULT_SIZES`."""
     size = DEFAULT_SIZES[effect.family]
-    if effect.family in ("joint_elasticity", "column_compliance", "base_compliance"):
+    if effect.family == "joint_elasticity" or effect.family in COMPLIANCE_FAMILIES:
         return resolve(dataclasses.replace(effect, tool_mm=size), model)
     if effect.family == "gear_cyclic":
         return effect.with_values(np.deg2rad([size, size]) / np.sqrt(2.0))
