@@ -9,8 +9,8 @@ import pytest
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import CalibrationOptions, calibrate
-from kpioed_drake.calibration.validate import validate
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
+from kpioed_drake.calibration.validate import validate
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics

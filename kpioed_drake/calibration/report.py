@@ -16,7 +16,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.robot.parameters import parameter_joint, parameter_layout
 from kpioed_drake.tracker.csvio import q_to_file
 from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
 from kpioed_drake.tracker.measurement import TrackerModel
@@ -156,6 +156,7 @@ class CalibrationReport:
                 "std_aposteriori": (float(conv(std_post[free.index(i)])) if est and self.dof > 0 else None),
                 "unit": "deg" if ang else "mm",
                 "estimated": est,
+                "joint_name": _joint_name(self.robot, name),
             }
             out.append(row)
         return out
@@ -191,6 +192,7 @@ class CalibrationReport:
             c += e.n_params
             row = e.to_dict()
             row.update(
+                joint_name=_joint_name(self.robot, f"theta{e.joint}") if e.joint else None,
                 name=e.name,
                 values=e.display_values(),
                 std=e.display_values(std[sl]),
@@ -370,12 +372,22 @@ class CalibrationReport:
         )
         for p in table[:6]:
             extra = f" (a-posteriori {p['std_aposteriori']:.5f})" if post else ""
-            lines.append(f"    {p['name']:<12} {p['deviation']:+.5f} +- {p['std']:.5f}{extra} {p['unit']}")
+            at = f" ({p['joint_name']})" if p["joint_name"] else ""
+            lines.append(
+                f"    {p['name'] + at:<18} {p['deviation']:+.5f} +- {p['std']:.5f}{extra} {p['unit']}"
+            )
         if self.effects:
             lines.append("  effects (estimated with the geometry):")
         for row in self.effect_table():
             vals = ", ".join(f"{v:.4g} +- {s:.2g}" for v, s in zip(row["values"], row["std"], strict=True))
-            lines.append(f"    {row['name']:<24} {vals} {row['unit']}")
+            at = f" [{row['joint_name']}]" if row["joint_name"] else ""
+            lines.append(f"    {row['name'] + at:<24} {vals} {row['unit']}")
         for w in d.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
+
+
+def _joint_name(robot, name: str) -> str | None:
+    """The robot's name of a joint parameter's joint (``theta2`` of kr16: ``A2``), else None."""
+    j = parameter_joint(name)
+    return robot.joint_names[j - 1] if j is not None and j <= len(robot.joint_names) else None

@@ -70,6 +70,7 @@ class DiagnosisReport:
         details: the fits and the problem, for plots (not part of the JSON).
         unexplained: None when the extended model fits to the noise level, else the rest's size and
             the variables it follows (:func:`unexplained_rest`).
+        joint_names: the robot's joint names (reports name a cause's joint by them, index second).
     """
 
     robot: str
@@ -88,11 +89,17 @@ class DiagnosisReport:
     notes: list
     details: dict = dataclasses.field(default_factory=dict, repr=False)
     unexplained: dict | None = None
+    joint_names: tuple[str, ...] = ()
 
     @functools.cached_property
     def causes(self) -> list[dict]:
         """The named causes as in the JSON (:func:`cause_dict`)."""
-        return [cause_dict(c) for c in self.cause_records]
+        out = [cause_dict(c) for c in self.cause_records]
+        for c in out:
+            j = c.get("joint")
+            if j is not None and j <= len(self.joint_names):
+                c["joint_name"] = self.joint_names[j - 1]
+        return out
 
     @functools.cached_property
     def steps(self) -> list[dict]:
@@ -148,6 +155,8 @@ class DiagnosisReport:
             else:
                 vs = f"{v:.4g} +- {s:.2g}"
             where = "".join(f":{c[k]}" for k in ("joint", "harmonic", "coupled_joint") if k in c)
+            if "joint_name" in c:
+                where += f" [{c['joint_name']}, joint {c['joint']}]"
             ev = c["evidence"]
             lines.append(
                 f"  cause {c['effect']}{where}: {vs} {c['unit']} (LR {ev['lr_stat']:.1f}, "

@@ -199,6 +199,7 @@ def diagnose(
             "candidates": cands,
         },
         unexplained=rp.unexplained_rest(final, sel.fit, alpha=alpha),
+        joint_names=tuple(robot.joint_names),
     )
 
 

@@ -25,6 +25,7 @@ SPEC's scaling of the criteria to millimetres at the tool: lengths 1, angles tim
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 
@@ -239,3 +240,21 @@ def parameter_layout(
         n_targets=n_targets,
         n_effects=n_effects,
     )
+
+
+_JOINT_PARAMETER = re.compile(r"(?:theta|d|a|alpha|beta|off|px|py|pz|rx|ry|rz)(\d+)")
+
+
+def parameter_joint(name: str) -> int | None:
+    """The 1-based joint of a joint parameter's name (``theta2``, ``px5``), else None (tracker,
+    reflector and target parameters)."""
+    m = _JOINT_PARAMETER.fullmatch(name)
+    return int(m.group(1)) if m else None
+
+
+def joint_label(robot: Robot, joint: int | None) -> str:
+    """The robot's name of joint ``joint`` (1-based) with its index second, e.g. ``A2 (joint 2)`` or
+    ``dsr_joint1 (joint 2)``; "" for None."""
+    if joint is None or not 1 <= joint <= len(robot.joint_names):
+        return ""
+    return f"{robot.joint_names[joint - 1]} (joint {joint})"
