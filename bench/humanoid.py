@@ -108,12 +108,20 @@ if __name__ == "__main__":
     print(*write_models())
 
 
+LATERAL = {1: 1e-4, 5: 3e-4}
+"""The truth's lateral compliance [rad/(N m)]: the torso yaw bearing (the upper body tilts) and the
+shoulder (hand deflection a few millimetres at most)."""
+
+
 def truth_effects(lateral: bool = False) -> tuple[str, ...]:
-    """The truth's effect texts (:data:`ELASTICITY`)."""
-    return tuple(f"joint_elasticity:{j}={c}" for j, c in ELASTICITY.items())
+    """The truth's effect texts (:data:`ELASTICITY`, with ``lateral`` also :data:`LATERAL`)."""
+    out = [f"joint_elasticity:{j}={c}" for j, c in ELASTICITY.items()]
+    return tuple(out + ([f"lateral_compliance:{j}={c}" for j, c in LATERAL.items()] if lateral else []))
 
 
-def stand_in_data(n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, sigma_mm: float = 0.5):
+def stand_in_data(
+    n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, sigma_mm: float = 0.5, lateral: bool = False
+):
     """Simulated data of the stand-in: (model robot, fitted Measurements, held-out Measurements, truth).
 
     The truth is :func:`write_models`'s truth file with SPEC-sized geometric errors and
@@ -126,7 +134,7 @@ def stand_in_data(n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, sigma_m
     model = load_robot(str(ROBOTS / f"{NAME}.urdf"))
     truth = load_robot(str(ROBOTS / f"{NAME}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
-    opts = SimulationOptions(sigma_mm=sigma_mm, seed=seed, effects=truth_effects())
+    opts = SimulationOptions(sigma_mm=sigma_mm, seed=seed, effects=truth_effects(lateral))
     table, info = simulate(truth, q, opts)
     fit = Measurements.from_table(table.iloc[:n_fit].reset_index(drop=True), model, source="stand-in fit")
     hold = Measurements.from_table(
@@ -135,7 +143,9 @@ def stand_in_data(n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, sigma_m
     return model, fit, hold, info
 
 
-def measure(folder: Path, n_fit: int = 400, n_hold: int = 100, *, seed: int = 0) -> dict:
+def measure(
+    folder: Path, n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, lateral: bool = False
+) -> dict:
     """The stand-in's experiment: geometric calibration against ``diagnose --out``, both validated
     on the held-out poses (``kpioed validate``, tracker re-registered); files in ``folder``.
 
@@ -153,7 +163,7 @@ def measure(folder: Path, n_fit: int = 400, n_hold: int = 100, *, seed: int = 0)
 
     truth = load_robot(str(ROBOTS / f"{NAME}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
-    table, _ = simulate(truth, q, SimulationOptions(sigma_mm=0.5, seed=seed, effects=truth_effects()))
+    table, _ = simulate(truth, q, SimulationOptions(sigma_mm=0.5, seed=seed, effects=truth_effects(lateral)))
     fit_csv, hold_csv = folder / "fit.csv", folder / "holdout.csv"
     table.iloc[:n_fit].to_csv(fit_csv, index=False)
     table.iloc[n_fit:].to_csv(hold_csv, index=False)

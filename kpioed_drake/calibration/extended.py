@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake import effects as fx
+from kpioed_drake.effects import lateral_basis
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_all, size_on_poses
 from kpioed_drake.errors import InputError
@@ -56,8 +57,14 @@ def resolve_extension(
             raise InputError(f"effect {e.name!r} given more than once", fields=("effects",))
     if any(e.family == BASIS_FAMILY and e.values is None for e in given):
         robot = size_on_poses(robot, data.q)[0]
-        nominal = dataclasses.replace(nominal, robot=robot)
+    lateral = [e.joint for e in given if e.family == lateral_basis.FAMILY and e.values is None]
+    if lateral:
+        robot = lateral_basis.size_on_poses(robot, data.q, lateral)[0]
+    nominal = dataclasses.replace(nominal, robot=robot)
     resolved = resolve_all([fx.resolve(e, nominal) for e in given], nominal, data.payload_kg)
+    for e in resolved:
+        if e.family == lateral_basis.FAMILY:  # a payload that varies is refused
+            lateral_basis.resolve(e, robot, data.payload_kg, n_given=e.n_basis)
     conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)
     _check_conditions(resolved, data, conditions.tau)
     return resolved, conditions, nominal

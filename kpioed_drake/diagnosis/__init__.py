@@ -28,8 +28,9 @@ from kpioed_drake.diagnosis.common import (
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.report import DiagnosisReport
-from kpioed_drake.diagnosis.selection import candidate_effects, identifiability, score_tests
+from kpioed_drake.diagnosis.selection import candidate_effects, score_tests
 from kpioed_drake.diagnosis.workflow import diagnose, diagnose_file
+from kpioed_drake.estimation.identifiability import identifiability
 
 __all__ = [
     "ALPHA",

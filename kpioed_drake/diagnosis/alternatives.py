@@ -44,9 +44,10 @@ import scipy.stats
 from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_EFFECTS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
-from kpioed_drake.diagnosis.selection import columns, identifiability, projected_basis
+from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.estimation.identifiability import identifiability, projected_basis
 
 
 def _outside(Q: np.ndarray, C: np.ndarray) -> float:

@@ -30,9 +30,10 @@ from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.diagnosis.records import Alternative, Selection
-from kpioed_drake.diagnosis.selection import backward_step, columns, model_factors
+from kpioed_drake.diagnosis.selection import backward_step, columns
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.estimation.identifiability import model_factors
 
 
 def basis_for(prob: FitProblem, joint: int) -> fx.Effect:

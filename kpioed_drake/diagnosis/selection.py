@@ -40,8 +40,10 @@ from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
 from kpioed_drake.diagnosis.sides import side_penalty, side_weights, unit_columns
 from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation.estimator import rms
+from kpioed_drake.estimation.identifiability import identifiability, model_factors, projected_basis
 from kpioed_drake.estimation.multiplicity import adjusted_p, critical_p, min_p_null, normalized
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.data import Measurements
@@ -59,6 +61,7 @@ _VARIABLE = {
     "base_compliance": "gravity moment about the base",
     "lateral_compliance": "gravity moment across the axis of joint {joint}",
     gb.FAMILY: "gravity torque of joint {joint} with any link masses",
+    lb.FAMILY: "gravity moment across the axis of joint {joint} with any link masses",
 }
 
 
@@ -71,9 +74,8 @@ def candidate_effects(
         data: the measurements (n poses of nj joints).
         tau: (n, nj) gravity torques at the commanded angles [N m] (``FitProblem.tau``): joint j's
             elasticity and backlash are candidates where it is nonzero; where it is zero, the
-            mass-free basis if only the file's masses make it so
-            (:func:`~kpioed_drake.effects.gravity_basis.unloaded_candidates`). None: joint 1 is
-            taken for vertical and no backlash is a candidate.
+            mass-free bases if only the file's masses make it so (:func:`.gravity_basis.
+            unloaded_candidates`, :func:`.lateral_basis.candidates`). None: joint 1 vertical.
         robot: the robot; with it, the compliance of a lifting column (a prismatic joint within 30
             deg of gravity that moves in the data) and of the base (a robot with such a column or
             ``compliant_base: true``) are candidates (:func:`~kpioed_drake.effects.compliance.candidates`).
@@ -88,6 +90,11 @@ def candidate_effects(
     idle = np.flatnonzero(~loaded) + 1
     more, notes = gb.unloaded_candidates(tau is not None and robot, data.q, idle, data.payload_kg)
     cands += [dataclasses.replace(fx.Effect(gb.FAMILY, j), n_basis=n) for j, n in more]
+    lateral, lnotes = lb.candidates(tau is not None and robot, data.q, data.payload_kg)
+    cands, notes = (
+        cands + [dataclasses.replace(fx.Effect(lb.FAMILY, j), n_basis=n) for j, n in lateral],
+        notes + lnotes,
+    )
     cands += [fx.Effect("gear_cyclic", j, n) for j in range(1, nj + 1) for n in (1, 2)]
     cands += [fx.Effect("joint_scale", j) for j in range(1, nj + 1)]
     cands += [fx.Effect("joint_coupling", i, coupled=j) for i, j in COUPLING_PAIRS if max(i, j) <= nj]
@@ -126,40 +133,6 @@ def candidate_effects(
     return cands, notes
 
 
-def model_factors(J_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(Q, R)``: thin QR of the model's weighted columns (m, p) scaled to unit norm (a zero one kept)."""
-    D = np.linalg.norm(J_model, axis=0)
-    D[D == 0] = 1.0
-    return np.linalg.qr(J_model / D)
-
-
-def identifiability(J_model: np.ndarray, J_cand: np.ndarray, *, factors=None) -> dict:
-    """How well candidate columns separate from the model's columns (both weighted, (m, .)).
-
-    Returns ``remaining`` (smallest singular value of the candidate's orthonormalised columns after
-    projecting out the model's span: 1 = orthogonal, 0 = absorbed), ``max_corr`` (largest canonical
-    correlation with the model's columns, ``sqrt(1 - remaining^2)``) and ``condition`` (of the
-    column-scaled joint matrix, from its R factor: ``[J_model/D, J_cand/D_c] = [Q, Q_2] [[R, B],
-    [0, R_2]]``). ``factors``: :func:`model_factors` of ``J_model``, computed once per step.
-    """
-    Q, R1 = model_factors(J_model) if factors is None else factors
-    Dc = np.linalg.norm(J_cand, axis=0)
-    if np.any(Dc == 0):
-        return {"remaining": 0.0, "max_corr": 1.0, "condition": float("inf")}
-    Qc, _ = np.linalg.qr(J_cand / Dc)
-    sv = np.linalg.svd(Qc - Q @ (Q.T @ Qc), compute_uv=False)
-    remaining = float(sv.min())
-    B = Q.T @ (J_cand / Dc)
-    _, R2 = np.linalg.qr(J_cand / Dc - Q @ B)
-    R = np.block([[R1, B], [np.zeros((R2.shape[0], R1.shape[1])), R2]])
-    s = np.linalg.svd(R, compute_uv=False)
-    return {
-        "remaining": remaining,
-        "max_corr": float(np.sqrt(max(0.0, 1.0 - remaining**2))),
-        "condition": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
-    }
-
-
 def columns(prob: FitProblem, fit: Fit, cands) -> tuple[np.ndarray, list[np.ndarray]]:
     """Weighted columns at ``fit`` over all poses: the model's (3 n, n_params) and each candidate's."""
     n = prob.data.n
@@ -171,15 +144,6 @@ def columns(prob: FitProblem, fit: Fit, cands) -> tuple[np.ndarray, list[np.ndar
         out.append(E[:, :, c : c + e.n_params].reshape(3 * n, -1) / prob.sigma)
         c += e.n_params
     return Jm, out
-
-
-def projected_basis(Q: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (m, <= k) of the part of the columns C (m, k) outside the span of the
-    orthonormal Q (m, p): the directions in which a candidate moves the fit's residuals."""
-    Cp = C - Q @ (Q.T @ C)
-    Qc, sv, _ = np.linalg.svd(Cp, full_matrices=False)
-    keep = sv > 1e-9 * max(sv.max(), 1e-300)
-    return Qc[:, keep]
 
 
 def score_tests(prob: FitProblem, fit: Fit, cands) -> list:

@@ -39,6 +39,7 @@ from kpioed_drake.diagnosis.records import Selection
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns, with_expected_sides
 from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
@@ -72,7 +73,10 @@ def _prepared(
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
     prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
     sized, resized = gb.size_on_poses(prob.robot, data.q)
-    prob = prob.with_robot(sized)
+    massless = [
+        j for j in range(1, sized.n_joints + 1) if not sized.prismatic[j - 1] and not sized.masses[j:].any()
+    ]
+    prob = prob.with_robot(lb.size_on_poses(sized, data.q, massless)[0])
     notes = [
         f"joint_elasticity_basis:{j} is sized on these poses: {r} of the {r0} moment combinations of the "
         "joint box vary here (the joint angles are dependent, e.g. a coupled joint)"

@@ -26,6 +26,9 @@ family (``parse_effect``)     model                                         para
                               turns by ``c (I - a a^T) M_j`` about ``a_j``
 ============================  ============================================  ====================
 
+``lateral_compliance_basis:j`` is the lateral compliance with any link masses: all joint j carries
+turns by ``P X_j(q) . theta``, theta (r_j) [rad] (:mod:`.lateral_basis`).
+
 The first four (:data:`FAMILIES`) are SPEC's; the next four (:data:`EXTRA_FAMILIES`) are further
 diagnosis candidates and work in simulation and ``--extend``; the gravity basis
 (``joint_elasticity_basis``, also in :data:`EXTRA_FAMILIES`) works in ``--extend`` and in the
@@ -98,7 +101,9 @@ Realistic sizes (SPEC), used when ``parse_effect`` draws a value with a random g
 Modules: :mod:`.model` (:class:`Effect`, the text syntax, sizes), :mod:`.gravity` (gravity and
 payload torques, the elastic lever), :mod:`.gravity_basis` (the gravity torque as a combination of
 identifiable mass moments: elasticity without trusting the model file's masses), :mod:`.compliance`
-(column and base compliance: the rotation, its pivot and their derivatives), :mod:`.response`
+(column, base and lateral compliance: the rotation, its pivot and their derivatives),
+:mod:`.lateral_basis` (the lateral compliance as a combination of identifiable mass moments),
+:mod:`.response`
 (the measurement model with effects, its
 Jacobian, the effects' design and KPI columns).
 """
@@ -114,6 +119,7 @@ from kpioed_drake.effects.model import (
     AIR_PPM_PER_K,
     ALL_FAMILIES,
     BACKLASH_DEG,
+    BASIS_FAMILIES,
     COMPLIANCE_FAMILIES,
     COMPLIANCE_TOOL_MM,
     DRIFT_MM_PER_MIN,
@@ -123,6 +129,7 @@ from kpioed_drake.effects.model import (
     GEAR_DEG,
     JOINT_FAMILIES,
     N_PARAMS,
+    ROTATION_FAMILIES,
     SCALE_PPM,
     STEEL_K,
     T_REF_C,
@@ -148,6 +155,7 @@ __all__ = [
     "AIR_PPM_PER_K",
     "ALL_FAMILIES",
     "BACKLASH_DEG",
+    "BASIS_FAMILIES",
     "COMPLIANCE_FAMILIES",
     "COMPLIANCE_TOOL_MM",
     "DRIFT_MM_PER_MIN",
@@ -157,6 +165,7 @@ __all__ = [
     "GEAR_DEG",
     "JOINT_FAMILIES",
     "N_PARAMS",
+    "ROTATION_FAMILIES",
     "SCALE_PPM",
     "STEEL_K",
     "T_REF_C",

@@ -42,6 +42,7 @@ import dataclasses
 import numpy as np
 import scipy.special
 
+from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.gravity import gravity_model, reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
@@ -214,14 +215,8 @@ def reference_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
 
 
 def _own_basis(robot: Robot, joint: int) -> JointBasis | None:
-    """The basis ``robot`` carries for ``joint`` (its ``gravity_bases``, then its model file's)."""
-    for j, D, V in robot.gravity_bases:
-        if j == joint:
-            return _basis(robot, joint, D, V)
-    for spec in robot.effects:
-        if spec.name == f"{FAMILY}:{joint}" and spec.basis_rms:
-            return _basis(robot, joint, spec.basis_rms, spec.basis_directions)
-    return None
+    own = own_basis(robot, f"{FAMILY}:{joint}")
+    return None if own is None else _basis(robot, joint, *own)
 
 
 def _basis(robot: Robot, joint: int, D, V) -> JointBasis:
@@ -255,7 +250,7 @@ def size_on_poses(robot: Robot, q) -> tuple[Robot, dict[int, tuple[int, int]]]:
         (robot, ``{joint: (rank on the reference poses, rank on q)}`` of the joints re-sized).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    out, bases = {}, {j: (j, D, V) for j, D, V in robot.gravity_bases}
+    out, sized = {}, robot
     for j in range(1, robot.n_joints + 1):
         ref = joint_basis(robot, j)
         Y = link_regressor(robot, q, j, g=ref.g)
@@ -263,11 +258,9 @@ def size_on_poses(robot: Robot, q) -> tuple[Robot, dict[int, tuple[int, int]]]:
         if ref.rank == 0 or _rank(np.hstack([ones, Y @ (ref.V / ref.D[:, None])])) == ref.rank + 1:
             continue
         D, V = _reduced(Y - Y.mean(axis=0), _POSE_RANK_TOL)
-        bases[j] = (j, D, V)
+        sized = with_basis(sized, f"{FAMILY}:{j}", D, V)
         out[j] = (ref.rank, V.shape[1])
-    if not out:
-        return robot, out
-    return dataclasses.replace(robot, gravity_bases=tuple(bases[j] for j in sorted(bases))), out
+    return sized, out
 
 
 def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tuple[list, list[str]]:
@@ -328,9 +321,7 @@ def store_basis(robot: Robot, joint: int, D, V) -> Robot:
         InputError: ``D``/``V`` do not fit joint ``joint``'s full regressor of ``robot``.
     """
     jb = check_basis(robot, joint, D, V)
-    bases = {j: (j, d, v) for j, d, v in robot.gravity_bases}
-    bases[joint] = (joint, jb.D, jb.V)
-    return dataclasses.replace(robot, gravity_bases=tuple(bases[j] for j in sorted(bases)))
+    return with_basis(robot, f"{FAMILY}:{joint}", jb.D, jb.V)
 
 
 def check_basis(robot: Robot, joint: int, D, V) -> JointBasis:

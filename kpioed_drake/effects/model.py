@@ -11,6 +11,7 @@ import re
 import numpy as np
 
 from kpioed_drake.effects import compliance as cp
+from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity import elastic_lever
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_basis
@@ -19,9 +20,13 @@ from kpioed_drake.tracker.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
 """Effect names as in SPEC (and ``none`` for a model that explains the data): diagnosis's candidates."""
-EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", BASIS_FAMILY)
+EXTRA_FAMILIES = ("joint_scale", "joint_coupling", "tracker_scale", "backlash", BASIS_FAMILY, lb.FAMILY)
 """Further families for simulation and ``--extend``; the first four are diagnosis candidates too, the
-gravity basis enters the diagnosis through :mod:`kpioed_drake.diagnosis.elastic_basis`."""
+gravity bases enter the diagnosis through :mod:`kpioed_drake.diagnosis.elastic_basis`."""
+BASIS_FAMILIES = (BASIS_FAMILY, lb.FAMILY)
+"""The mass-free bases: a robot- and data-dependent parameter count (``Effect.n_basis``)."""
+ROTATION_FAMILIES = cp.FAMILIES + (lb.FAMILY,)
+"""Families that turn what they carry rigidly (:class:`~.compliance.Rotation`), not a joint angle."""
 COMPLIANCE_FAMILIES = cp.FAMILIES
 """A column, the base or a joint's bearing that yields under the robot's weight (:mod:`.compliance`):
 simulation, ``--extend``, and diagnosis candidates for robots on a lift (or with ``compliant_base:
@@ -50,6 +55,7 @@ N_PARAMS = {
     cp.BASE: 1,
     cp.LATERAL: 1,
     BASIS_FAMILY: None,  # robot-dependent: Effect.n_basis (gravity_basis.resolve_basis)
+    lb.FAMILY: None,  # robot-dependent: Effect.n_basis (lateral_basis.resolve)
 }
 UNITS = {
     "joint_elasticity": "rad/(N m)",
@@ -61,6 +67,7 @@ UNITS = {
     "tracker_scale": "ppm/K",
     "backlash": "deg",
     BASIS_FAMILY: "rad",
+    lb.FAMILY: "rad",
     **cp.UNITS,
 }
 """Units of the *displayed* values (text syntax, reports); inside the code see :class:`Effect`."""
@@ -81,7 +88,7 @@ BACKLASH_DEG = (0.003, 0.02)
 _DISPLAY = {"joint_elasticity": 1.0, "gear_cyclic": np.pi / 180.0, "thermal_expansion": 1.0}
 _DISPLAY["tracker_drift"] = 1.0 / 60.0  # mm/min -> mm/s
 _DISPLAY.update(joint_scale=1e-6, joint_coupling=1e-6, tracker_scale=1e-6, backlash=np.pi / 180.0)
-_DISPLAY[BASIS_FAMILY] = 1.0
+_DISPLAY[BASIS_FAMILY] = _DISPLAY[lb.FAMILY] = 1.0
 _DISPLAY.update({cp.COLUMN: 1.0, cp.BASE: 1.0, cp.LATERAL: 1.0})
 COMPLIANCE_TOOL_MM = (0.1, 1.0)
 """Largest reflector displacement [mm] over the joint box of a drawn column or base compliance."""
@@ -123,7 +130,7 @@ class Effect:
 
     @property
     def n_params(self) -> int:
-        if self.family == BASIS_FAMILY:
+        if self.family in BASIS_FAMILIES:
             if self.n_basis is None:
                 raise InputError(f"effect {self.name}: its size depends on the robot; resolve it first")
             return self.n_basis
@@ -148,7 +155,7 @@ class Effect:
 
     @property
     def param_names(self) -> list[str]:
-        if self.family == BASIS_FAMILY:
+        if self.family in BASIS_FAMILIES:
             return [f"{self.name}.t{k}" for k in range(self.n_params)]
         sub = {
             "joint_elasticity": ["c"],
@@ -210,7 +217,8 @@ _SYNTAX = (
     "joint_elasticity:JOINT[=c rad/(N m)], gear_cyclic:JOINT:N[=a,b deg], thermal_expansion[=k 1/K], "
     "tracker_drift[=vx,vy,vz mm/min], joint_scale:JOINT[=eps ppm], joint_coupling:JOINT:JOINT[=c ppm], "
     "tracker_scale[=k ppm/K], backlash:JOINT[=b deg], column_compliance:JOINT[=c 1/(N m^2)], "
-    "base_compliance[=c rad/(N m)], lateral_compliance:JOINT[=c rad/(N m)]"
+    "base_compliance[=c rad/(N m)], lateral_compliance:JOINT[=c rad/(N m)], "
+    "joint_elasticity_basis:JOINT[=t1,... rad], lateral_compliance_basis:JOINT[=t1,... rad]"
 )
 
 
@@ -302,7 +310,7 @@ def parse_effect(
         return resolve(eff, model) if model is not None else eff
     if family in EXTRA_FAMILIES:
         eff = _parse_extra(family, parts, given, rng, spec, nj)
-        return resolve(eff, model) if model is not None and family == BASIS_FAMILY else eff
+        return resolve(eff, model) if model is not None and family in BASIS_FAMILIES else eff
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
     if family == "thermal_expansion":
@@ -324,12 +332,13 @@ def parse_effect(
 
 def _parse_extra(family: str, parts: list[str], given, rng, spec: str, nj: int = 6) -> Effect:
     """The further families (:data:`EXTRA_FAMILIES`): ``parts`` = the ':'-separated left side."""
-    if family == BASIS_FAMILY:
+    if family in BASIS_FAMILIES:
         if len(parts) != 2:
-            raise InputError(f"effect {spec!r}: expected {BASIS_FAMILY}:JOINT[=t1,t2,... rad]")
+            raise InputError(f"effect {spec!r}: expected {family}:JOINT[=t1,t2,... rad]")
         joint = _joint(parts[1], spec, nj)
         if given is None and rng is not None:
-            raise InputError(f"effect {spec!r}: no size to draw; simulate joint_elasticity:{joint} instead")
+            physical = "joint_elasticity" if family == BASIS_FAMILY else cp.LATERAL
+            raise InputError(f"effect {spec!r}: no size to draw; simulate {physical}:{joint} instead")
         vals = None if given is None else _numbers(given, len(given.split(",")), spec)
         return Effect(family, joint, values=vals, n_basis=None if vals is None else len(vals))
     form = {
@@ -400,6 +409,8 @@ def resolve(effect: Effect, model: TrackerModel) -> Effect:
     gets its parameter count (no payload column)."""
     if effect.family == BASIS_FAMILY:
         return resolve_basis(effect, model, n_given=effect.n_basis)
+    if effect.family == lb.FAMILY:
+        return lb.resolve(effect, model.robot, n_given=effect.n_basis)
     if effect.family == cp.COLUMN:
         cp.check_column(model.robot, effect.joint)
     if effect.family == cp.LATERAL:

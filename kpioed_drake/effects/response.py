@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.effects import compliance as cp
+from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
@@ -124,24 +125,28 @@ def _scale_and_drift(effects, n: int, temperature_C, time_s):
 
 
 def _rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False) -> dict:
-    """{index in effects: :class:`~.compliance.Rotation`} of the compliance effects (payload at p_FQ)."""
-    return {
-        i: cp.rotation(
-            model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=payload_kg, with_dq=with_dq
-        )
-        for i, e in enumerate(effects)
-        if e.family in cp.FAMILIES
-    }
+    """{index in effects: [:class:`~.compliance.Rotation` per parameter]} of the effects that turn
+    what they carry: the compliances (payload at p_FQ) and the lateral basis."""
+    out = {}
+    for i, e in enumerate(effects):
+        if e.family in cp.FAMILIES:
+            rot = cp.rotation(
+                model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=payload_kg, with_dq=with_dq
+            )
+            out[i] = [rot]
+        elif e.family == lb.FAMILY:
+            out[i] = lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq)
+    return out
 
 
 def _turned(effects, rots: dict, p_W: np.ndarray):
-    """``p_W`` (n, 3) turned by the compliance effects at their values, and their rotation vector (n, 3)."""
+    """``p_W`` (n, 3) turned by the rotation effects at their values, and their rotation vector (n, 3)."""
     w = np.zeros_like(p_W)
     shift = np.zeros_like(p_W)
-    for i, r in rots.items():
-        v = effects[i].value_array()[0]
-        w += v * r.m
-        shift += v * r.displacement(p_W)
+    for i, parts in rots.items():
+        for v, r in zip(effects[i].value_array(), parts, strict=True):
+            w += v * r.m
+            shift += v * r.displacement(p_W)
     return p_W + shift, w
 
 
@@ -270,7 +275,7 @@ def _add_payload_point_columns(H, model, q, effects, rots: dict, payload_kg, *, 
             dq_dp = c_el[None, :, None] * dtau_dp  # (n,6,3) d q_act / d p_FQ
             dh_dq = s[:, None, None] * np.einsum("ab,nbj->naj", R_TW, theta)  # (n,3,6)
             H[:, :, lay.target(0)] += np.einsum("naj,njd->nad", dh_dq, dq_dp)
-    for i, r in rots.items():  # a payload's moment moves with the reflector point p_FQ
+    for i, (r, *_) in rots.items():  # a payload's moment moves with the reflector point p_FQ
         if r.dm_dp is not None:
             v = effects[i].value_array()[0]
             dp = v * cross(r.dm_dp.transpose(0, 2, 1), (p_raw - r.pivot)[:, None, :])  # (n, 3 d, 3)
@@ -308,12 +313,12 @@ def _effect_columns(model, effects, jd, rots: dict, out, p_raw, theta_raw, *, s,
                 dE[:, :, :, col : col + m] = (
                     dG[..., None] * f[:, None, None, :] + G[:, None, :, None] * df[:, :, None, :]
                 )
-        elif e.family in cp.FAMILIES:
-            r = rots[idx]
-            E[:, :, col] = s[:, None] * (r.displacement(p_raw) @ R_TW.T)
-            if with_dq:
-                d = cross(r.dm, (p_raw - r.pivot)[:, None, :]) + cross(r.m[:, None, :], dp_raw - r.dpivot)
-                dE[:, :, :, col] = s[:, None, None] * (d @ R_TW.T)
+        elif idx in rots:
+            for c, r in enumerate(rots[idx], start=col):
+                E[:, :, c] = s[:, None] * (r.displacement(p_raw) @ R_TW.T)
+                if with_dq:
+                    d = cross(r.dm, (p_raw - r.pivot)[:, None, :]) + cross(r.m[:, None, :], dp_raw - r.dpivot)
+                    dE[:, :, :, c] = s[:, None, None] * (d @ R_TW.T)
         elif e.family == "thermal_expansion":
             E[:, :, col] = (p_WQ @ R_TW.T) * temp[:, None]
             if with_dq:
@@ -450,7 +455,7 @@ def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0
     cols = []
     for i, (e, f) in enumerate(zip(effects, factors, strict=True)):
         if i in rots:
-            cols.append(rots[i].displacement(p)[0][:, None])
+            cols.append(np.stack([r.displacement(p)[0] for r in rots[i]], axis=1))
         elif f is None:
             cols.append(np.zeros((3, e.n_params)))
         else:

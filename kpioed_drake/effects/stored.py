@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import check_basis, joint_basis
-from kpioed_drake.effects.model import UNITS, Effect, parse_effect
+from kpioed_drake.effects.model import BASIS_FAMILIES, UNITS, Effect, parse_effect
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.modelspec import EffectSpec
@@ -36,7 +37,7 @@ def model_effects(robot: Robot) -> list[Effect]:
             raise InputError(f"{at}.name/values: {exc}") from None
         if spec.unit and spec.unit != UNITS[eff.family]:
             raise InputError(f"{at}.unit: {eff.family} values are in {UNITS[eff.family]}, got {spec.unit!r}")
-        if eff.family == BASIS_FAMILY:
+        if eff.family in BASIS_FAMILIES:
             eff = _stored_basis(robot, eff, spec, at)
         if any(e.key == eff.key for e in out):
             raise InputError(f"{at}.name: {eff.name} is given more than once")
@@ -51,8 +52,10 @@ def _stored_basis(robot: Robot, eff: Effect, spec: EffectSpec, at: str) -> Effec
         jb = check_basis(robot, eff.joint, spec.basis_rms, spec.basis_directions)
     except InputError as exc:
         raise InputError(f"{at}.basis_rms: {exc}") from None
-    if eff.n_basis not in (jb.rank, jb.rank + 1):
-        raise InputError(f"{at}.values: expected {jb.rank} or {jb.rank + 1} values, got {eff.n_basis}")
+    sizes = (jb.rank, jb.rank + 1) if eff.family == BASIS_FAMILY else (jb.rank,)
+    if eff.n_basis not in sizes:
+        want = " or ".join(str(k) for k in sizes)
+        raise InputError(f"{at}.values: expected {want} values, got {eff.n_basis}")
     return eff
 
 
@@ -75,8 +78,8 @@ def effect_specs(effects, std=None, *, robot: Robot | None = None) -> list[Effec
             std=[] if s is None else e.display_values(s),
             unit=UNITS[e.family],
         )
-        if e.family == BASIS_FAMILY:
-            jb = joint_basis(robot, e.joint)
+        if e.family in BASIS_FAMILIES:
+            jb = joint_basis(robot, e.joint) if e.family == BASIS_FAMILY else lb.lateral_basis(robot, e.joint)
             spec.basis_rms = jb.D.tolist()
             spec.basis_directions = jb.V.tolist()
         out.append(spec)

@@ -12,6 +12,9 @@ robot (``kpioed info``).
 magnitude, the less determined one (the later in the parameter order when the two are tied,
 ``CORRELATION_TIE``) are held at nominal, so a calibration never writes values the data do not
 determine (e.g. the wrist parameters of a reflector on joint 6's axis).
+
+:func:`identifiability` and :func:`projected_basis` say how far a candidate effect's columns reach
+outside a model's span (the diagnosis's "absorbed" test and its alternatives).
 """
 
 from __future__ import annotations
@@ -243,3 +246,47 @@ def _break_pair(F: np.ndarray, max_correlation: float):
     tied = bool(abs(multiple[0] - multiple[1]) < CORRELATION_TIE)
     held, partner = (j, i) if tied or multiple[1] > multiple[0] else (i, j)
     return held, partner, float(corr[i, j]), tied
+
+
+# Separation of candidate columns from a model's (the diagnosis's absorbed test)
+def model_factors(J_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Q, R)``: thin QR of the model's weighted columns (m, p) scaled to unit norm (a zero one kept)."""
+    D = np.linalg.norm(J_model, axis=0)
+    D[D == 0] = 1.0
+    return np.linalg.qr(J_model / D)
+
+
+def identifiability(J_model: np.ndarray, J_cand: np.ndarray, *, factors=None) -> dict:
+    """How well candidate columns separate from the model's columns (both weighted, (m, .)).
+
+    Returns ``remaining`` (smallest singular value of the candidate's orthonormalised columns after
+    projecting out the model's span: 1 = orthogonal, 0 = absorbed), ``max_corr`` (largest canonical
+    correlation with the model's columns, ``sqrt(1 - remaining^2)``) and ``condition`` (of the
+    column-scaled joint matrix, from its R factor: ``[J_model/D, J_cand/D_c] = [Q, Q_2] [[R, B],
+    [0, R_2]]``). ``factors``: :func:`model_factors` of ``J_model``, computed once per step.
+    """
+    Q, R1 = model_factors(J_model) if factors is None else factors
+    Dc = np.linalg.norm(J_cand, axis=0)
+    if np.any(Dc == 0):
+        return {"remaining": 0.0, "max_corr": 1.0, "condition": float("inf")}
+    Qc, _ = np.linalg.qr(J_cand / Dc)
+    sv = np.linalg.svd(Qc - Q @ (Q.T @ Qc), compute_uv=False)
+    remaining = float(sv.min())
+    B = Q.T @ (J_cand / Dc)
+    _, R2 = np.linalg.qr(J_cand / Dc - Q @ B)
+    R = np.block([[R1, B], [np.zeros((R2.shape[0], R1.shape[1])), R2]])
+    s = np.linalg.svd(R, compute_uv=False)
+    return {
+        "remaining": remaining,
+        "max_corr": float(np.sqrt(max(0.0, 1.0 - remaining**2))),
+        "condition": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+    }
+
+
+def projected_basis(Q: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (m, <= k) of the part of the columns C (m, k) outside the span of the
+    orthonormal Q (m, p): the directions in which a candidate moves the fit's residuals."""
+    Cp = C - Q @ (Q.T @ C)
+    Qc, sv, _ = np.linalg.svd(Cp, full_matrices=False)
+    keep = sv > 1e-9 * max(sv.max(), 1e-300)
+    return Qc[:, keep]

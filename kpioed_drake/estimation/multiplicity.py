@@ -10,7 +10,7 @@ Multiple Testing*, algorithm 2.8) gives the exact family-wise p-value instead.
 Under "no effect" the weighted residuals of the current fit are ``r = (I - P) eps`` with
 ``eps ~ N(0, I)`` and P the projector on the model's columns. Candidate c's score statistic is
 ``|U_c^T r|^2 = |U_c^T eps|^2`` with ``U_c`` (m, k_c) the orthonormal basis of its columns outside
-the model's span (:func:`~kpioed_drake.diagnosis.selection.projected_basis`), a chi-square(k_c)
+the model's span (:func:`~kpioed_drake.estimation.identifiability.projected_basis`), a chi-square(k_c)
 variable; jointly, the stacked ``g = [U_1 ... U_M]^T eps`` is Gaussian with covariance
 ``G = W^T W = R^T R`` (``W`` the stacked bases, ``R`` its QR factor). :func:`min_p_null` draws
 ``g = xi R`` (``xi ~ N(0, I)``, seeded: the same data give the same decision), the p-value of each

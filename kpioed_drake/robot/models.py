@@ -100,8 +100,8 @@ class Robot:
         rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
         effects: an extended model file's effects (``effects:``; :func:`kpioed_drake.effects.model_effects`).
         effects_where: the file holding ``effects`` (for messages).
-        gravity_bases: ``((joint, D, V), ...)`` mass-free gravity bases sized on a data set's poses
-            (:func:`kpioed_drake.effects.gravity_basis.size_on_poses`), else the reference basis.
+        gravity_bases: ``((effect name, D, V), ...)`` mass-free gravity bases sized on a data set's
+            poses (:func:`kpioed_drake.effects.gravity_basis.size_on_poses`), else the reference one.
     """
 
     name: str
