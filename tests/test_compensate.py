@@ -245,6 +245,10 @@ EFFECT_CASES = [
     ("kr16", ["thermal_expansion=11.7e-6", "base_compliance=1e-7", "joint_scale:5=300", "backlash:3=0.01"]),
     ("lift7", ["column_compliance:1=1e-9", "joint_elasticity:3=5e-7"]),
     ("ur5", ["joint_coupling:5:4=-200"]),
+    (
+        "kr16",
+        ["lateral_compliance:2=4e-5", "lateral_compliance_basis:3=1e-5,-2e-5,1e-5,3e-6,-1e-6,2e-6,5e-6"],
+    ),
 ]
 
 

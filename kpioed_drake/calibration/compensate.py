@@ -40,7 +40,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.effects import compliance as cp
-from kpioed_drake.effects.model import T_REF_C, Effect
+from kpioed_drake.effects import lateral_basis as lb
+from kpioed_drake.effects.model import ROTATION_FAMILIES, T_REF_C, Effect
 from kpioed_drake.effects.response import joint_deltas
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross
@@ -112,7 +113,7 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     effects, conditions = list(effects), conditions or {}
     A = np.broadcast_to(np.eye(nj), (n, nj, nj))
     q_act = q
-    if any(e.family not in cp.FAMILIES for e in effects):
+    if any(e.family not in ROTATION_FAMILIES for e in effects):
         jd = joint_deltas(model, q, effects, payload_kg=conditions.get("payload_kg"), with_dq=jacobian)
         q_act = q + jd[0]
         A = A + jd[2] if jacobian else A
@@ -122,17 +123,14 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     dw, dshift = np.zeros((n, nj, 3)), np.zeros((n, nj, 3))  # their d/dq through m(q) and o(q)
     s = np.ones(n)  # thermal length scale
     for e in effects:
-        c = e.value_array()[0]
-        if e.family in cp.FAMILIES:
-            pay = conditions.get("payload_kg")
-            r = cp.rotation(
-                model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=pay, with_dq=jacobian
-            )
-            w, shift = w + c * r.m, shift + c * r.displacement(p)
-            if jacobian:
-                dw += c * r.dm
-                dshift += c * (cross(r.dm, (p - r.pivot)[:, None, :]) - cross(r.m[:, None, :], r.dpivot))
+        if e.family in ROTATION_FAMILIES:
+            for c, r in zip(e.value_array(), _rotations(model, e, q, conditions, jacobian), strict=True):
+                w, shift = w + c * r.m, shift + c * r.displacement(p)
+                if jacobian:
+                    dw += c * r.dm
+                    dshift += c * (cross(r.dm, (p - r.pivot)[:, None, :]) - cross(r.m[:, None, :], r.dpivot))
         elif e.family == "thermal_expansion":
+            c = e.value_array()[0]
             s = s + c * (_condition(conditions, "temperature_C", n, e) - T_REF_C)
     p_out = s[:, None] * (p + shift)
     R_out = Rotation.from_rotvec(w).as_matrix() @ frames.R[:, nj] if np.any(w) else frames.R[:, nj]
@@ -142,9 +140,36 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     Jp = At @ frames.joint_motion(p)  # (n, nj, 3): dp/dq_j through q_act
     Jw = At @ np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes)
     Jp = Jp + cross(w[:, None, :], Jp) + dshift
-    Jw = Jw + cross(w[:, None, :], Jw) + dw
+    Jw = np.einsum("nab,njb->nja", _exp(w), Jw) + np.einsum("nab,njb->nja", _left_jacobian(w), dw)
     J = np.concatenate([s[:, None, None] * Jp, Jw], axis=2).transpose(0, 2, 1)
     return p_out, R_out, J
+
+
+def _rotations(model: TrackerModel, e: Effect, q, conditions: dict, with_dq: bool) -> list:
+    """The :class:`~kpioed_drake.effects.compliance.Rotation` per parameter of a rotation effect."""
+    if e.family == lb.FAMILY:
+        return lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq)
+    pay = conditions.get("payload_kg")
+    return [cp.rotation(model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=pay, with_dq=with_dq)]
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) the rotation of rotation vectors ``w`` (n, 3) [rad]."""
+    return Rotation.from_rotvec(w).as_matrix()
+
+
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) SO(3)'s left Jacobian at ``w`` (n, 3): the angular velocity of ``exp(w)`` per
+    ``dw``, ``I + (1 - cos t)/t^2 [w] + (t - sin t)/t^3 [w]^2`` (series below 1e-4 rad)."""
+    t = np.linalg.norm(w, axis=1)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
+    b = np.where(small, 1.0 / 6.0 - t**2 / 120.0, (ts - np.sin(ts)) / ts**3)
+    W = np.zeros((len(w), 3, 3))
+    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    W = W - W.transpose(0, 2, 1)
+    return np.eye(3) + a[:, None, None] * W + b[:, None, None] * (W @ W)
 
 
 def rotation_error(R_goal: np.ndarray, R: np.ndarray) -> np.ndarray:

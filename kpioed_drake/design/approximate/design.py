@@ -392,9 +392,13 @@ def replicate_poses(problem: Problem, q: np.ndarray, counts: np.ndarray) -> np.n
     turns = [np.zeros(nj)] + [s * 2 * math.pi * np.eye(nj)[j] for j in wrist for s in (1, -1)]
     lo, up = problem.robot.lower, problem.robot.upper
     out = []
-    for qi, c in zip(q, counts, strict=True):
+    counts = np.asarray(counts, dtype=int)
+    if counts.shape != (len(q),):
+        raise ValueError(f"counts {counts.shape} do not match the {len(q)} poses")
+    for i in np.flatnonzero(counts):  # the candidates used (most have no copy)
+        qi = q[i]
         variants = [qi + t for t in turns if np.all(qi + t >= lo) and np.all(qi + t <= up)]
-        out += [variants[r % len(variants)] for r in range(int(c))]
+        out += [variants[r % len(variants)] for r in range(int(counts[i]))]
     return np.array(out, dtype=float).reshape(-1, nj)
 
 
