@@ -26,12 +26,8 @@ from kpioed_drake.tracker.measurement import nominal_model
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
-
-
-@pytest.fixture(scope="module")
-def model(kr16):
+def nominal(kr16):
+    """kr16's nominal model (conftest's ``model`` is a perturbed one)."""
     return nominal_model(kr16, load_cell(robot=kr16))
 
 
@@ -64,37 +60,37 @@ def test_regressor_dq_matches_fd(kr16, q, joint):
     np.testing.assert_allclose(dC, fdc, atol=1e-6)
 
 
-def test_measurement_columns_and_dq_match_fd(model, q):
-    e = fx.resolve(fx.Effect(lb.FAMILY, 2), model)
-    assert e.n_params == lb.lateral_basis(model.robot, 2).rank > 0
+def test_measurement_columns_and_dq_match_fd(nominal, q):
+    e = fx.resolve(fx.Effect(lb.FAMILY, 2), nominal)
+    assert e.n_params == lb.lateral_basis(nominal.robot, 2).rank > 0
     e = e.with_values(1e-5 * np.random.default_rng(3).standard_normal(e.n_params))
-    h, _, E, dE = fx.augmented_jacobian(model, q, [e], with_dq=True)
-    np.testing.assert_allclose(h, fx.augmented_response(model, q, [e]), atol=1e-9)
+    h, _, E, dE = fx.augmented_jacobian(nominal, q, [e], with_dq=True)
+    np.testing.assert_allclose(h, fx.augmented_response(nominal, q, [e]), atol=1e-9)
     v0 = e.value_array()
     fdv = np.zeros_like(E)
     for k in range(v0.size):
         dv = np.eye(v0.size)[k] * 1e-7
         fdv[:, :, k] = (
-            fx.augmented_response(model, q, [e.with_values(v0 + dv)])
-            - fx.augmented_response(model, q, [e.with_values(v0 - dv)])
+            fx.augmented_response(nominal, q, [e.with_values(v0 + dv)])
+            - fx.augmented_response(nominal, q, [e.with_values(v0 - dv)])
         ) / 2e-7
     np.testing.assert_allclose(E, fdv, atol=1e-6 * np.abs(fdv).max())
-    fdq = central_fd(lambda x: fx.extension_columns(model, x, [e]), q, 1e-6)
+    fdq = central_fd(lambda x: fx.extension_columns(nominal, x, [e]), q, 1e-6)
     n = q.shape[0]
     fdq = fdq[np.arange(n), :, :, np.arange(n), :].transpose(0, 3, 1, 2)
     np.testing.assert_allclose(dE, fdq, atol=1e-5 * np.abs(fdq).max())
 
 
-def test_parse_and_refusals(model):
-    e = fx.parse_effect("lateral_compliance_basis:3", model=model)
-    assert e.n_params == lb.lateral_basis(model.robot, 3).rank
+def test_parse_and_refusals(nominal):
+    e = fx.parse_effect("lateral_compliance_basis:3", model=nominal)
+    assert e.n_params == lb.lateral_basis(nominal.robot, 3).rank
     assert e.param_names[0] == "lateral_compliance_basis:3.t0"
     with pytest.raises(InputError, match="no size to draw"):
-        fx.parse_effect("lateral_compliance_basis:3", np.random.default_rng(0), model=model)
+        fx.parse_effect("lateral_compliance_basis:3", np.random.default_rng(0), model=nominal)
     with pytest.raises(InputError, match="values given"):
-        fx.parse_effect("lateral_compliance_basis:3=1,2", model=model)
+        fx.parse_effect("lateral_compliance_basis:3=1,2", model=nominal)
     with pytest.raises(InputError, match="payload that varies"):
-        lb.resolve(fx.Effect(lb.FAMILY, 3), model.robot, np.array([0.0, 5.0]))
+        lb.resolve(fx.Effect(lb.FAMILY, 3), nominal.robot, np.array([0.0, 5.0]))
 
 
 def _split(robot, n: int, seed: int, effects):

@@ -21,12 +21,8 @@ from kpioed_drake.tracker.measurement import nominal_model
 
 
 @pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
-
-
-@pytest.fixture(scope="module")
-def model(kr16):
+def nominal(kr16):
+    """kr16's nominal model (conftest's ``model`` is a perturbed one)."""
     return nominal_model(kr16, load_cell(robot=kr16))
 
 
@@ -36,9 +32,9 @@ def q(kr16):
 
 
 @pytest.mark.parametrize("joint", [1, 2, 3, 5])
-def test_rotation_is_across_the_axis_and_droops_the_arm(kr16, model, joint):
+def test_rotation_is_across_the_axis_and_droops_the_arm(kr16, nominal, joint):
     q = np.array([[0.0, -np.pi / 2, np.pi / 2, 0.0, 0.3, 0.0], [0.5, -1.2, 1.0, 0.4, -0.6, 0.2]])
-    rot = cp.rotation(kr16, cp.LATERAL, joint, q, p_FP=model.p_FQ)
+    rot = cp.rotation(kr16, cp.LATERAL, joint, q, p_FP=nominal.p_FQ)
     fr = forward_kinematics(kr16, q)
     a = fr.joint_axes[:, joint - 1]
     np.testing.assert_allclose(np.einsum("na,na->n", rot.m, a), 0.0, atol=1e-12 * np.abs(rot.m).max())
@@ -71,29 +67,29 @@ def test_rotation_derivatives_match_finite_differences(kr16, q, joint, payload):
     np.testing.assert_allclose(rot.dpivot, fd("pivot"), atol=1e-5)
 
 
-def test_measurement_columns_and_their_joint_derivative(model, q):
+def test_measurement_columns_and_their_joint_derivative(nominal, q):
     effs = [
-        fx.parse_effect("lateral_compliance:2=2e-6", model=model),
+        fx.parse_effect("lateral_compliance:2=2e-6", model=nominal),
         fx.parse_effect("joint_elasticity:3=1e-6"),
     ]
-    h, _, E = fx.augmented_jacobian(model, q, effs, payload_kg=5.0)
-    np.testing.assert_allclose(h, fx.augmented_response(model, q, effs, payload_kg=5.0), atol=1e-9)
+    h, _, E = fx.augmented_jacobian(nominal, q, effs, payload_kg=5.0)
+    np.testing.assert_allclose(h, fx.augmented_response(nominal, q, effs, payload_kg=5.0), atol=1e-9)
     up = [effs[0].with_values([3e-6]), effs[1]]
     dn = [effs[0].with_values([1e-6]), effs[1]]
     fd = (
-        fx.augmented_response(model, q, up, payload_kg=5.0)
-        - fx.augmented_response(model, q, dn, payload_kg=5.0)
+        fx.augmented_response(nominal, q, up, payload_kg=5.0)
+        - fx.augmented_response(nominal, q, dn, payload_kg=5.0)
     ) / 2e-6
     np.testing.assert_allclose(E[:, :, 0], fd, rtol=1e-6, atol=1e-9 * np.abs(E[:, :, 0]).max())
     ext = ["lateral_compliance:2", "lateral_compliance:5"]
-    E0, dE = fx.extension_columns(model, q, ext, payload_kg=5.0, with_dq=True)
+    E0, dE = fx.extension_columns(nominal, q, ext, payload_kg=5.0, with_dq=True)
     assert np.all(np.abs(E0).max(axis=(0, 1)) > 0)
     scale = np.abs(E0).max(axis=(0, 1))
     for j in range(6):
         dq = np.eye(6)[j] * 1e-6
         fdq = (
-            fx.extension_columns(model, q + dq, ext, payload_kg=5.0)
-            - fx.extension_columns(model, q - dq, ext, payload_kg=5.0)
+            fx.extension_columns(nominal, q + dq, ext, payload_kg=5.0)
+            - fx.extension_columns(nominal, q - dq, ext, payload_kg=5.0)
         ) / 2e-6
         np.testing.assert_allclose(dE[:, j] / scale, fdq / scale, atol=1e-6, err_msg=str(j))
 
@@ -103,9 +99,9 @@ def test_measurement_columns_and_their_joint_derivative(model, q):
     [("lateral_compliance", "lateral_compliance:JOINT"), ("lateral_compliance:9", "joint must be"),
      ("lateral_compliance:2=1,2", "2")],
 )  # fmt: skip
-def test_parse_errors_name_the_text(model, text, fragment):
+def test_parse_errors_name_the_text(nominal, text, fragment):
     with pytest.raises(InputError, match=fragment):
-        fx.parse_effect(text, model=model)
+        fx.parse_effect(text, model=nominal)
 
 
 def test_a_prismatic_joint_has_no_lateral_compliance():
