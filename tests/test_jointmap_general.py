@@ -10,7 +10,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from kpioed_drake import simulation
+from kpioed_drake.design import heuristic_design, optimize_design
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.jointmap import CouplingSpec, JointMapSpec, joint_map_from_spec, joint_map_spec
 from kpioed_drake.robot.models import MODELS_DIR, load_robot
 from kpioed_drake.tracker.data import Measurements
@@ -108,3 +110,20 @@ def test_bad_general_maps_name_the_file_and_field(tmp_path, section, match):
     (tmp_path / "b.kpioed.yaml").write_text(side + section)
     with pytest.raises(InputError, match=f"b.kpioed.yaml: joint_map.*{match}"):
         load_robot(str(tmp_path / "b.urdf"))
+
+
+def test_designs_of_a_coupled_robot_are_commandable(coupled):
+    """A6 = -(A4 + A5): the heuristic draws on the coupling, the optimiser keeps it (one linear
+    equality per pose), and the poses go to the controller's six axes."""
+    robot, _ = coupled
+    N, c = robot.joint_map.coupling_equations()
+    assert N.shape == (1, 7)
+    problem = make_problem(robot)
+    q0 = heuristic_design(problem, n=15, seed=1)
+    assert_allclose(q0 @ N.T, np.broadcast_to(c, (15, 1)), atol=1e-9)
+    res = optimize_design(problem, criterion="kpi", n=15, seed=1, start="heuristic")
+    assert res.feasible
+    assert_allclose(res.q @ N.T, np.broadcast_to(c, (15, 1)), atol=1e-7)
+    J = robot.joint_map.to_controller(res.q)
+    assert J.shape == (15, 6)
+    assert res.kpi_avg_var_mm2 < problem.criteria(q0)["kpi_avg_var_mm2"]

@@ -1,6 +1,8 @@
 """The heuristic design (paper section 3.2, SPEC): uniform random poses kept if feasible.
 
-It is the paper's baseline design and the optimiser's starting point. A drawn pose is kept if its
+It is the paper's baseline design and the optimiser's starting point. A robot whose controller
+couples joints (a joint map with fewer axes than joints) draws its poses on the coupling (each
+uniform draw moved onto it, kept if still within the joint limits). A drawn pose is kept if its
 incidence angle is within the cell's limit (paper eq. 4) and, with collision avoidance, every
 capsule clearance of :class:`~kpioed_drake.robot.geometry.ClearanceModel` (robot, obstacles, self pairs,
 laser beam; paper eq. 20-22) is at least :data:`~kpioed_drake.design.common.HEURISTIC_MARGIN_MM`.
@@ -16,6 +18,7 @@ from kpioed_drake.design.common import HEURISTIC_MARGIN_MM
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.tracker.measurement import incidence_cosines
 
@@ -62,10 +65,11 @@ def heuristic_design(
     kept, n_kept, draws = [], 0, 0
     while n_kept < n and draws < max_draws:
         b = min(batch, max_draws - draws)
-        q = rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints))
+        q = commandable_projection(robot, rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints)))
         draws += b
         frames = forward_kinematics(robot, q)
         ok = np.all(incidence_cosines(problem.model, q, frames=frames) >= cos_max, axis=1)
+        ok &= np.all((q >= robot.lower) & (q <= robot.upper), axis=1)  # a coupling may leave the box
         if cm is not None and ok.any():
             vals = cm.values(q[ok])
             ok[ok] = np.all(vals >= margin_mm, axis=1)

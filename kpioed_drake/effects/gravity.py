@@ -5,6 +5,10 @@ See :mod:`kpioed_drake.effects` for the sign and unit conventions.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 
@@ -116,6 +120,35 @@ class GravityModel:
 
 
 _GRAVITY_CACHE: dict = {}
+
+
+_REGRESSORS: OrderedDict = OrderedDict()
+_REGRESSORS_LOCK = threading.Lock()
+MAX_REGRESSORS = 24
+"""Regressors kept by :func:`memoized` (the latest; a fit evaluates the same poses every iteration)."""
+
+
+def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
+    """``compute()`` for the regressor ``kind`` of ``robot`` at poses ``q`` with ``extra`` arguments,
+    kept for the latest :data:`MAX_REGRESSORS` calls. The regressors of the gravity bases depend on
+    the commanded poses and the nominal geometry only, not on the parameters a fit moves, so its
+    iterations find them here. The arrays returned are read-only (shared by every caller)."""
+    q = np.ascontiguousarray(q, dtype=float)
+    key = (kind, _robot_key(robot), q.shape, hashlib.sha1(q.tobytes()).digest(), extra)
+    with _REGRESSORS_LOCK:
+        hit = _REGRESSORS.get(key)
+        if hit is not None:
+            _REGRESSORS.move_to_end(key)
+            return hit
+    out = compute()
+    for a in out if isinstance(out, tuple) else (out,):
+        if isinstance(a, np.ndarray):
+            a.flags.writeable = False
+    with _REGRESSORS_LOCK:
+        _REGRESSORS[key] = out
+        while len(_REGRESSORS) > MAX_REGRESSORS:
+            _REGRESSORS.popitem(last=False)
+    return out
 
 
 def _robot_key(robot: Robot) -> tuple:

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.special
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
-from kpioed_drake.effects.gravity import gravity_model, reference_poses
+from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
 from kpioed_drake.robot.models import Robot
@@ -74,6 +74,14 @@ def com_scales(coms: np.ndarray) -> np.ndarray:
 
 
 def link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
+    """:func:`_link_regressor`, memoized (:func:`~.gravity.memoized`; read-only arrays)."""
+    g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    extra = (int(joint), g.tobytes(), bool(with_dq))
+    return memoized("link", robot, q, extra, lambda: _link_regressor(robot, q, joint, g=g, with_dq=with_dq))
+
+
+def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
     """Full gravity regressor of joint ``joint`` (1-based) over its downstream links.
 
     Args:

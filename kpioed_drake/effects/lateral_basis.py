@@ -29,7 +29,7 @@ import numpy as np
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
-from kpioed_drake.effects.gravity import gravity_model, reference_poses
+from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses
 from kpioed_drake.effects.gravity_basis import check_basis
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
@@ -45,6 +45,18 @@ _CACHE: dict = {}
 
 
 def moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
+    """:func:`_moment_regressor`, memoized (:func:`~.gravity.memoized`; read-only arrays)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    return memoized(
+        "moment",
+        robot,
+        q,
+        (int(joint), bool(with_dq)),
+        lambda: _moment_regressor(robot, q, joint, with_dq=with_dq),
+    )
+
+
+def _moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
     """``P X_j^full`` of joint ``joint`` (1-based, revolute) at poses ``q`` (n, nj) [rad, mm].
 
     Returns:

@@ -93,6 +93,14 @@ class JointMap:
         """
         return np.asarray(J, dtype=float) @ self.A.T + self.b
 
+    def coupling_equations(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N, c)``: the poses the controller can command are those with ``N q = c`` (N (m, n_joints),
+        orthonormal rows spanning what ``A`` leaves out; m = 0 when every pose can be commanded)."""
+        U, s, _ = np.linalg.svd(self.A, full_matrices=True)
+        rank = int(np.sum(s > 1e-12 * max(float(s.max()), 1.0))) if s.size else 0
+        N = U[:, rank:].T
+        return N, N @ self.b
+
     def to_controller(self, q) -> np.ndarray:
         """Controller angles of model angles (the inverse map), (n, n_axes) [rad].
 
@@ -261,3 +269,14 @@ def mimic_joint_map(names: list[str], mimics: dict, units: list[float], where: s
     return JointMapSpec(
         controller_axes=[n for n in names if n not in mimics], joints=joints, offsets_deg=offsets
     )
+
+
+def commandable_projection(robot, q: np.ndarray) -> np.ndarray:
+    """``q`` (n, n_joints) moved, the least in joint space, onto the poses the robot's controller can
+    command (its joint map's coupling equations); ``q`` itself without couplings."""
+    if robot.joint_map is None:
+        return q
+    N, c = robot.joint_map.coupling_equations()
+    if not N.shape[0]:
+        return q
+    return q - (q @ N.T - c) @ N

@@ -389,6 +389,9 @@ def replicate_poses(problem: Problem, q: np.ndarray, counts: np.ndarray) -> np.n
     """
     nj = problem.robot.n_joints
     wrist = (3, 5) if problem.robot.chain is None else np.flatnonzero(~problem.robot.prismatic)[-3:]
+    if problem.robot.joint_map is not None:  # a coupled joint's full turn would break the coupling
+        N, _ = problem.robot.joint_map.coupling_equations()
+        wrist = [j for j in wrist if not np.any(np.abs(N[:, j]) > 1e-12)]
     turns = [np.zeros(nj)] + [s * 2 * math.pi * np.eye(nj)[j] for j in wrist for s in (1, -1)]
     lo, up = problem.robot.lower, problem.robot.upper
     out = []

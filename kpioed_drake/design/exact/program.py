@@ -116,6 +116,10 @@ class DesignProgram:
         x = prog.NewContinuousVariables(self.nj * n, "q")
         robot = problem.robot
         prog.AddBoundingBoxConstraint(np.tile(robot.lower, n), np.tile(robot.upper, n), x)
+        if robot.joint_map is not None:  # poses the controller can command: N q = c per pose
+            N, c = robot.joint_map.coupling_equations()
+            for k in range(n if N.shape[0] else 0):
+                prog.AddLinearEqualityConstraint(N, c, x[self.nj * k : self.nj * (k + 1)])
         self.t = self.epigraph_binding = None
         if self.objective.worst_case:
             self.t = prog.NewContinuousVariables(1, "t")[0]
