@@ -14,6 +14,7 @@ from kpioed_drake.calibration.modelfile import calibrated_robot_yaml
 from kpioed_drake.calibration.validate import validate
 from kpioed_drake.diagnosis import DiagnosisOptions, candidate_effects, diagnose
 from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity_basis import link_moments
@@ -170,13 +171,16 @@ def test_candidates_of_a_robot_without_masses_include_the_lateral_bases(tilt):
     assert not any(c.family == lb.FAMILY for c in cands)  # masses known: not a candidate
 
 
-def test_diagnose_names_the_torso_tilt_among_given_candidates(tilt):
+def test_diagnose_names_the_torso_tilt_among_given_candidates(tilt, tmp_path):
     massless, _, data = tilt
     cands = ("lateral_compliance_basis:1", "joint_elasticity_basis:2", "gear_cyclic:1:1", "joint_scale:1")
     rep = diagnose(massless, data, DiagnosisOptions(sigma_mm=0.5, candidates=cands, max_effects=2))
     assert "lateral_compliance_basis:1" in rep.cause_names
     assert rep.extended["holdout_rms_mm"] < 0.7 * rep.baseline["holdout_rms_mm"]
     assert rep.details["prob"].robot is not massless and massless.gravity_bases == ()
+    assert "[t1, joint 1]" in rep.summary()
+    pictures = write_plots(rep, tmp_path)  # the cause's picture: residuals along its displacement
+    assert all(p.is_file() and p.stat().st_size > 0 for p in pictures)
 
 
 @pytest.mark.slow

@@ -184,7 +184,7 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
             "temperature [C]",
             "apparent scale error [ppm]",
         )
-    if effect.family in fx.COMPLIANCE_FAMILIES:  # a bend under the weight: along its own displacement
+    if effect.family in fx.ROTATION_FAMILIES:  # a bend under the weight: along its own displacement
         size = np.linalg.norm(sig, axis=1)
         along = sig / np.maximum(size, 1e-300)[:, None]
         x, xl = size, f"fitted {effect.name} displacement at the reflector [mm]"
