@@ -28,8 +28,8 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.effects import (
-    COMPLIANCE_FAMILIES,
     JOINT_FAMILIES,
+    ROTATION_FAMILIES,
     effect_kpi_columns,
     extension_columns,
     extension_param_names,
@@ -375,7 +375,7 @@ def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
 def _file_extensions(robot: Robot) -> tuple:
     """The effects of an extended model file that a design can carry (joint-angle effects and
     compliances; the others need per-pose temperature or time)."""
-    return tuple(e for e in model_effects(robot) if e.family in JOINT_FAMILIES + COMPLIANCE_FAMILIES)
+    return tuple(e for e in model_effects(robot) if e.family in JOINT_FAMILIES + ROTATION_FAMILIES)
 
 
 def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
@@ -384,10 +384,10 @@ def _parse_extensions(extend, model: TrackerModel | None = None) -> tuple:
     out = []
     for e in extend:
         eff = parse_effect(e, model=model) if isinstance(e, str) else e
-        if eff.family not in JOINT_FAMILIES + COMPLIANCE_FAMILIES:
+        if eff.family not in JOINT_FAMILIES + ROTATION_FAMILIES:
             raise InputError(
                 f"extend {eff.name}: only joint-angle effects ({', '.join(JOINT_FAMILIES)}) and "
-                f"compliances ({', '.join(COMPLIANCE_FAMILIES)}) can be added to a design or an evaluation "
+                f"compliances ({', '.join(ROTATION_FAMILIES)}) can be added to a design or an evaluation "
                 "(thermal_expansion, tracker_drift and tracker_scale need per-pose temperature and time)",
                 fields=("extend",),
             )
