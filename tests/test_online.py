@@ -111,6 +111,7 @@ def test_the_aposteriori_noise_is_used_when_the_fit_rejects(kr16, measured):
         (["--target-var", "0"], "target_var"),
         (["--target-var", "-1"], "target_var"),
         (["--target-var", "0.1", "--n", "0"], "n:"),
+        (["--target-var", "0.1", "--max-plan", "0"], "max_plan"),
     ],
 )
 def test_bad_input_exits_2_and_writes_nothing(measured, tmp_path, capsys, extra, match):
