@@ -30,7 +30,6 @@ import numpy as np
 from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
 from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses
-from kpioed_drake.effects.gravity_basis import check_basis
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
 from kpioed_drake.robot.models import Robot
@@ -183,12 +182,6 @@ def size_on_poses(robot: Robot, q, joints) -> tuple[Robot, dict[int, tuple[int, 
         robot = with_basis(robot, f"{FAMILY}:{j}", D, V)
         out[j] = (ref.rank, V.shape[1])
     return robot, out
-
-
-def stored(robot: Robot, joint: int, D, V) -> Robot:
-    """``robot`` with ``D``, ``V`` as joint ``joint``'s lateral basis (checked against its regressor)."""
-    check_basis(robot, joint, D, V)
-    return with_basis(robot, f"{FAMILY}:{joint}", D, V)
 
 
 def resolve(effect, robot: Robot, payload_kg=None, *, n_given: int | None = None):
