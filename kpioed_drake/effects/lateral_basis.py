@@ -16,9 +16,12 @@ rows) are reduced by an SVD to their ``r_j`` independent directions ``V_j``, and
 
 (``theta = c V_j^T D_j pi_j`` for the physical form). Every parameter is a rigid rotation about C,
 so each is one :class:`~.compliance.Rotation` and the measurement model treats it as a compliance.
-Like the joint basis, the basis is sized on the data's own poses where the reference basis is
-singular on them (:func:`size_on_poses`) and stored with the values in a model file. A payload
-that is the same at every pose is a link moment (in the span); one that varies is not supported.
+A rotation that is the same in the frame of the link before joint j, or in joint j's own frame, at
+every pose tilts the joint's axis or the next frame as the geometric parameters do, so the SVD runs
+on the regressor with those parts projected out: the basis keeps what the geometry cannot take.
+Like the joint basis, it is sized on the data's own poses where the reference basis is singular on
+them (:func:`size_on_poses`) and stored with the values in a model file. A payload that is the same
+at every pose is a link moment (in the span); one that varies is not supported.
 """
 
 from __future__ import annotations
@@ -139,6 +142,22 @@ def _reduced(X: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     return D, Vt[big].T
 
 
+def _varying(robot: Robot, q, joint: int) -> np.ndarray:
+    """(n, 3, p) the part of the regressor at ``q`` that the geometric parameters cannot take: in
+    the frame of the link before ``joint``, a rotation fixed in that frame or in the joint's own
+    frame (whose axes there are the columns of ``R_{j-1}^T R_j``) tilts the joint's axis or the next
+    frame as the joint rows' parameters do; those six pose functions are projected out."""
+    X, _ = moment_regressor(robot, q, joint)
+    fr = forward_kinematics(robot, q)
+    R0, R1 = fr.R[:, joint - 1], fr.R[:, joint]
+    Xf = np.einsum("nba,nbp->nap", R0, X)
+    n = Xf.shape[0]
+    G = np.concatenate([np.broadcast_to(np.eye(3), (n, 3, 3)), np.einsum("nba,nbc->nac", R0, R1)], axis=2)
+    A, Gm = Xf.reshape(3 * n, -1), G.reshape(3 * n, -1)
+    A = A - Gm @ np.linalg.lstsq(Gm, A, rcond=None)[0]
+    return A.reshape(Xf.shape)
+
+
 def lateral_basis(robot: Robot, joint: int) -> LateralBasis:
     """The robot's own basis of ``joint`` (sized on data, or a model file's), else the (cached)
     reference basis over :data:`_N_REF` seeded poses in the joint box."""
@@ -147,16 +166,18 @@ def lateral_basis(robot: Robot, joint: int) -> LateralBasis:
         return LateralBasis(joint, *own)
     key = (robot.name, robot.geometry.tobytes(), joint)
     if key not in _CACHE:
-        X, _ = moment_regressor(robot, reference_poses(robot, _N_REF), joint)
-        _CACHE[key] = LateralBasis(joint, *_reduced(X, _RANK_TOL))
+        _CACHE[key] = LateralBasis(
+            joint, *_reduced(_varying(robot, reference_poses(robot, _N_REF), joint), _RANK_TOL)
+        )
     return _CACHE[key]
 
 
 def pose_rank(robot: Robot, q, joint: int) -> int:
     """The rank of joint ``joint``'s moment basis on poses ``q`` beyond a rotation that is the same
     at every pose (the geometry's frame errors take it): 0 when nothing varies across the axis."""
-    X, _ = moment_regressor(robot, q, joint)
-    return _reduced(X - X.mean(axis=0), _POSE_RANK_TOL)[1].shape[1]
+    return _reduced(_varying(robot, np.atleast_2d(np.asarray(q, dtype=float)), joint), _POSE_RANK_TOL)[
+        1
+    ].shape[1]
 
 
 def size_on_poses(robot: Robot, q, joints) -> tuple[Robot, dict[int, tuple[int, int]]]:
@@ -173,12 +194,12 @@ def size_on_poses(robot: Robot, q, joints) -> tuple[Robot, dict[int, tuple[int, 
         ref = lateral_basis(robot, j)
         if ref.rank == 0:
             continue
-        X, _ = moment_regressor(robot, q, j)
-        A = np.einsum("nap,pr->nar", X, ref.V / ref.D[:, None]).reshape(-1, ref.rank)
+        Xc = _varying(robot, q, j)
+        A = np.einsum("nap,pr->nar", Xc, ref.V / ref.D[:, None]).reshape(-1, ref.rank)
         s = np.linalg.svd(A / np.maximum(np.linalg.norm(A, axis=0), 1e-300), compute_uv=False)
         if int(np.sum(s > _POSE_RANK_TOL * s[0])) == ref.rank:
             continue
-        D, V = _reduced(X - X.mean(axis=0), _POSE_RANK_TOL)
+        D, V = _reduced(Xc, _POSE_RANK_TOL)
         robot = with_basis(robot, f"{FAMILY}:{j}", D, V)
         out[j] = (ref.rank, V.shape[1])
     return robot, out

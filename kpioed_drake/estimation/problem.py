@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.linalg
 
 from kpioed_drake.effects import (
     JOINT_FAMILIES,
@@ -334,18 +335,51 @@ def make_problem(
             model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
         except ValueError as exc:
             raise InputError(f"{robot.name}: {exc}") from None
-    return Problem(
-        extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
-        robot=robot,
-        cell=cell,
-        model=model,
-        q_work=q_work,
-        sigma=sigma,
-        tool_offset=np.asarray(tool_offset_mm, dtype=float),
-        kpi_weights=weights,
-        kpi_aggregate=kpi_aggregate,
-        param_scaling=param_scaling,
-        kpi_point=kpi_point,
+    return _separable(
+        Problem(
+            extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
+            robot=robot,
+            cell=cell,
+            model=model,
+            q_work=q_work,
+            sigma=sigma,
+            tool_offset=np.asarray(tool_offset_mm, dtype=float),
+            kpi_weights=weights,
+            kpi_aggregate=kpi_aggregate,
+            param_scaling=param_scaling,
+            kpi_point=kpi_point,
+        )
+    )
+
+
+SEPARABLE_POSES = 300
+"""Seeded joint-box poses on which an extended problem's parameters must all be determined."""
+
+
+def _separable(problem: Problem) -> Problem:
+    """``problem``, checked: with extensions, every parameter is determined by some poses (the
+    identification Jacobian of :data:`SEPARABLE_POSES` joint-box poses has full column rank).
+
+    Raises:
+        InputError: naming the extension parameters no poses tell apart from the others.
+    """
+    if not problem.extensions:
+        return problem
+    rng = np.random.default_rng(20170710)
+    q = rng.uniform(problem.robot.lower, problem.robot.upper, size=(SEPARABLE_POSES, problem.robot.n_joints))
+    F = problem.F1(q)
+    norms = np.linalg.norm(F, axis=0)
+    _, R, piv = scipy.linalg.qr(F / np.where(norms > 0, norms, 1.0), mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > 1e-9 * d[0]))
+    if rank == F.shape[1]:
+        return problem
+    names = problem.param_names
+    bad = [names[i] for i in sorted(piv[rank:])]
+    raise InputError(
+        f"extend: {', '.join(bad)} cannot be told apart from the other parameters at any poses of the "
+        "joint box (an effect the geometry or another effect already reproduces)",
+        fields=("extend",),
     )
 
 
