@@ -79,7 +79,7 @@ def test_a_fit_that_moves_a_joint_by_metres_is_refused_and_force_goes_on(kr16_da
     i = nominal.layout.names.index("a2")
     p[i] += 1627.0
     moved = dataclasses.replace(fake, model=fake.model.with_params(p))
-    with pytest.raises(InputError, match=r"a2 by \+1627 mm"):
+    with pytest.raises(InputError, match=r"a2 \[A2 \(joint 2\)\] by \+1627 mm"):
         plausibility.check_fitted(moved, nominal, data, force=False, warnings=[])
     warnings: list[str] = []
     plausibility.check_fitted(moved, nominal, data, force=True, warnings=warnings)

@@ -29,6 +29,7 @@ import numpy as np
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import register_tracker
+from kpioed_drake.robot.parameters import joint_label, parameter_joint
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
 
@@ -193,10 +194,10 @@ def check_fitted(
     far = np.flatnonzero(robot_side & (np.abs(delta) > limit))
     if far.size == 0:
         return
+    robot = nominal.robot
     moved = ", ".join(
-        f"{lay.names[i]} by {np.rad2deg(delta[i]):+.3g} deg"
-        if lay.is_angle[i]
-        else f"{lay.names[i]} by {delta[i]:+.4g} mm"
+        f"{lay.names[i]} [{joint_label(robot, parameter_joint(lay.names[i]))}] by "
+        + (f"{np.rad2deg(delta[i]):+.3g} deg" if lay.is_angle[i] else f"{delta[i]:+.4g} mm")
         for i in far[:6]
     )
     _refuse(
