@@ -345,7 +345,9 @@ def rank3_changes(F: np.ndarray, M: np.ndarray, K: np.ndarray, sign: float) -> n
         return np.where(det > DET_FLOOR, change / det, np.inf if sign < 0 else -np.inf)
 
 
-def exchange_counts(F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_iter: int = EXCHANGE_ITER):
+def exchange_counts(
+    F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_iter: int = EXCHANGE_ITER, M0=None
+):
     """Improve an exact design over candidates by exchanges (Mitchell's DETMAX for the L-criterion).
 
     Each step adds a copy of the candidate whose addition lowers ``Phi`` most, then removes the
@@ -354,15 +356,17 @@ def exchange_counts(F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_ite
 
     Args:
         F: (m, 3, k) candidate rows; K: (k, 3) the KPI factor; counts: (m,) copies per candidate
-            (their information must be regular).
+            (their information, with ``M0``, must be regular).
         max_iter: most exchange steps.
+        M0: (k, k) information held fixed beside the candidates' (measured poses), or None.
 
     Returns:
-        counts (m,) with the same sum, ``Phi`` no larger than the given counts'.
+        counts (m,) with the same sum, ``Phi`` (of the candidates and ``M0``) no larger than the
+        given counts'.
     """
     c = np.asarray(counts, dtype=int).copy()
     G = F.transpose(0, 2, 1) @ F  # (m, k, k)
-    M = np.einsum("i,ikl->kl", c, G)
+    M = np.einsum("i,ikl->kl", c, G) + (0.0 if M0 is None else M0)
     phi = float(np.sum(K * np.linalg.solve(M, K)))
     for _ in range(max_iter):
         j = int(np.argmax(rank3_changes(F, M, K, 1.0)))

@@ -4,7 +4,8 @@ information held fixed (paper section 3.1, sequential re-identification).
 With measured poses of information ``M0`` the KPI criterion of ``n`` new poses from candidates
 ``x_i`` (rows ``F_i``, :mod:`.design`) is ``tr(K^T (M0 + sum_i c_i F_i^T F_i)^-1 K)`` = tr(Cs)/3 of
 the combined design. :func:`given_counts` chooses the counts ``c`` greedily (the candidate that
-lowers it most, one pose at a time: rank-3 updates of ``M``) and improves them by exchanges;
+lowers it most, one pose at a time: rank-3 updates of ``M``) and improves them by the
+approximate start's exchanges with ``M0`` held fixed;
 :func:`given_start` turns them into the optimiser's start (the measured poses' information makes
 the approximate design of the new poses a different one than without them: the poses the measured
 ones lack). :func:`fewest_new_poses` is the greedy count that reaches a target, the horizon an
@@ -19,8 +20,8 @@ import numpy as np
 
 from kpioed_drake.design.approximate.design import (
     EXCHANGE_ITER,
-    EXCHANGE_RTOL,
     ApproximateDesign,
+    exchange_counts,
     kpi_factor,
     rank3_changes,
     replicate_poses,
@@ -68,28 +69,16 @@ def greedy_order(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, avail=
 
 def given_counts(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, max_iter: int = EXCHANGE_ITER):
     """Counts (m,) of ``n`` new poses among candidate rows ``F`` (m, 3, k) for measured information
-    ``M0`` (k, k): greedy additions, then exchanges (add the best, remove the least useful) while
-    the criterion of the combined design falls by more than ``EXCHANGE_RTOL``.
+    ``M0`` (k, k): greedy additions (:func:`greedy_order`), then the exchanges of
+    :func:`~.design.exchange_counts` with ``M0`` held fixed.
 
     Returns:
         (counts (m,) summing to ``n``, tr(K^T M^-1 K) of the combined design [mm^2]).
     """
-    G = F.transpose(0, 2, 1) @ F
     c = np.bincount(greedy_order(F, K, M0, n), minlength=len(F))
-    M = _regular(M0) + np.einsum("i,ikl->kl", c, G)
-    phi = _criterion(K, M)
-    for _ in range(max_iter):
-        j = int(np.argmax(rank3_changes(F, M, K, 1.0)))
-        r = int(np.argmin(np.where(c > 0, rank3_changes(F, M + G[j], K, -1.0), np.inf)))
-        if r == j:
-            break
-        M_new = M + G[j] - G[r]
-        phi_new = _criterion(K, M_new)
-        if not phi_new < phi * (1.0 - EXCHANGE_RTOL):
-            break
-        c[j], c[r] = c[j] + 1, c[r] - 1
-        M, phi = M_new, phi_new
-    return c, phi
+    M0 = _regular(M0)
+    c = exchange_counts(F, K, c, max_iter=max_iter, M0=M0)
+    return c, _criterion(K, M0 + np.einsum("i,iak,ial->kl", c, F, F))
 
 
 def given_start(problem: Problem, approx: ApproximateDesign, *, n: int, given: np.ndarray) -> np.ndarray:
