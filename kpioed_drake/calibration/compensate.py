@@ -39,10 +39,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kpioed_drake.effects import compliance as cp
-from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.model import ROTATION_FAMILIES, T_REF_C, Effect
-from kpioed_drake.effects.response import joint_deltas
+from kpioed_drake.effects.response import effect_rotations, joint_deltas
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross
 from kpioed_drake.tracker.measurement import TrackerModel
@@ -122,9 +120,10 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     w, shift = np.zeros((n, 3)), np.zeros((n, 3))  # compliance: rotation vector, point shift
     dw, dshift = np.zeros((n, nj, 3)), np.zeros((n, nj, 3))  # their d/dq through m(q) and o(q)
     s = np.ones(n)  # thermal length scale
-    for e in effects:
-        if e.family in ROTATION_FAMILIES:
-            for c, r in zip(e.value_array(), _rotations(model, e, q, conditions, jacobian), strict=True):
+    rots = effect_rotations(model, q, effects, conditions.get("payload_kg"), with_dq=jacobian)
+    for i, e in enumerate(effects):
+        if i in rots:
+            for c, r in zip(e.value_array(), rots[i], strict=True):
                 w, shift = w + c * r.m, shift + c * r.displacement(p)
                 if jacobian:
                     dw += c * r.dm
@@ -143,14 +142,6 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     Jw = np.einsum("nab,njb->nja", _exp(w), Jw) + np.einsum("nab,njb->nja", _left_jacobian(w), dw)
     J = np.concatenate([s[:, None, None] * Jp, Jw], axis=2).transpose(0, 2, 1)
     return p_out, R_out, J
-
-
-def _rotations(model: TrackerModel, e: Effect, q, conditions: dict, with_dq: bool) -> list:
-    """The :class:`~kpioed_drake.effects.compliance.Rotation` per parameter of a rotation effect."""
-    if e.family == lb.FAMILY:
-        return lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq)
-    pay = conditions.get("payload_kg")
-    return [cp.rotation(model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=pay, with_dq=with_dq)]
 
 
 def _exp(w: np.ndarray) -> np.ndarray:

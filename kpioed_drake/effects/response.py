@@ -124,7 +124,7 @@ def _scale_and_drift(effects, n: int, temperature_C, time_s):
     return s, drift, temp, tvec, s_T
 
 
-def _rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False) -> dict:
+def effect_rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False) -> dict:
     """{index in effects: [:class:`~.compliance.Rotation` per parameter]} of the effects that turn
     what they carry: the compliances (payload at p_FQ) and the lateral basis."""
     out = {}
@@ -172,7 +172,7 @@ def augmented_response(
     delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau, side=side)
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target))
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
-    p_WQ, _ = _turned(effects, _rotations(model, q, effects, pay_c), p_WQ)
+    p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c), p_WQ)
     s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
@@ -226,7 +226,7 @@ def augmented_jacobian(
     out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
     lay = model.layout
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
-    rots = _rotations(model, q, effects, pay_c, with_dq=with_dq)
+    rots = effect_rotations(model, q, effects, pay_c, with_dq=with_dq)
     p_raw, theta_raw = out[0], out[1][:, :, lay.joint_angles]
     out = _compliance_turned(effects, rots, out, with_dq)
     p_WQ, JW = out[0], out[1]
@@ -451,7 +451,7 @@ def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0
     _, factors = joint_deltas(model, q, effects)
     frames = model.frames(q)
     p, J = point_jacobian(frames, model.p_FQ + np.asarray(tool_offset, dtype=float))
-    rots = _rotations(model, q, effects, None)
+    rots = effect_rotations(model, q, effects, None)
     cols = []
     for i, (e, f) in enumerate(zip(effects, factors, strict=True)):
         if i in rots:
@@ -469,5 +469,7 @@ def effect_tcp_shift(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 
     effects = list(effects)
     delta, _ = joint_deltas(model, q, effects)
     off = model.p_FQ + np.asarray(tool_offset, dtype=float)
-    p, _ = _turned(effects, _rotations(model, q, effects, None), flange_point(model.frames(q + delta), off))
+    p, _ = _turned(
+        effects, effect_rotations(model, q, effects, None), flange_point(model.frames(q + delta), off)
+    )
     return p[0] - flange_point(model.frames(q), off)[0]
