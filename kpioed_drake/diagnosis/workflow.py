@@ -73,10 +73,7 @@ def _prepared(
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
     prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
     sized, resized = gb.size_on_poses(prob.robot, data.q)
-    massless = [
-        j for j in range(1, sized.n_joints + 1) if not sized.prismatic[j - 1] and not sized.masses[j:].any()
-    ]
-    prob = prob.with_robot(lb.size_on_poses(sized, data.q, massless)[0])
+    prob = prob.with_robot(lb.size_on_poses(sized, data.q, lb.massless_joints(sized))[0])
     notes = [
         f"joint_elasticity_basis:{j} is sized on these poses: {r} of the {r0} moment combinations of the "
         "joint box vary here (the joint angles are dependent, e.g. a coupled joint)"

@@ -51,7 +51,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.effects.gravity import _robot_key, gravity_model, reference_poses
+from kpioed_drake.effects.gravity import gravity_model, reference_poses, robot_key
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics
 from kpioed_drake.robot.models import Robot
@@ -126,7 +126,7 @@ def check_lateral(robot: Robot, joint: int, spec: str = "") -> None:
 
 def base_origin(robot: Robot) -> np.ndarray:
     """(3,) the base origin in W [mm]: the root link's origin (0 for a table robot)."""
-    key = ("origin", _robot_key(robot))
+    key = ("origin", robot_key(robot))
     if key not in _CACHE:
         o = np.zeros(3)
         if robot.urdf is not None:
@@ -267,7 +267,7 @@ def lever(robot: Robot, family: str, joint, p_FQ) -> float:
     """Largest reflector displacement per unit c over the joint box [mm per unit c]:
     ``max_q |m(q) x (p_WQ - pivot)|`` over :func:`~kpioed_drake.effects.gravity.reference_poses`
     (no payload); a drawn ``tool_mm`` divided by it is the drawn c."""
-    key = ("lever", _robot_key(robot), np.asarray(p_FQ, float).tobytes(), family, joint)
+    key = ("lever", robot_key(robot), np.asarray(p_FQ, float).tobytes(), family, joint)
     if key not in _CACHE:
         q = reference_poses(robot)
         rot = rotation(robot, family, joint, q, p_FP=p_FQ)

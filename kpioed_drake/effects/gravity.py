@@ -134,7 +134,7 @@ def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
     the commanded poses and the nominal geometry only, not on the parameters a fit moves, so its
     iterations find them here. The arrays returned are read-only (shared by every caller)."""
     q = np.ascontiguousarray(q, dtype=float)
-    key = (kind, _robot_key(robot), q.shape, hashlib.sha1(q.tobytes()).digest(), extra)
+    key = (kind, robot_key(robot), q.shape, hashlib.sha1(q.tobytes()).digest(), extra)
     with _REGRESSORS_LOCK:
         hit = _REGRESSORS.get(key)
         if hit is not None:
@@ -151,7 +151,9 @@ def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
     return out
 
 
-def _robot_key(robot: Robot) -> tuple:
+def robot_key(robot: Robot) -> tuple:
+    """What the caches of a robot's gravity quantities are keyed by: its name, file, joint types,
+    nominal geometry, masses and centres of mass."""
     return (
         robot.name,
         robot.conventions,
@@ -164,7 +166,7 @@ def _robot_key(robot: Robot) -> tuple:
 
 def gravity_model(robot: Robot) -> GravityModel:
     """The cached :class:`GravityModel` of ``robot``."""
-    key = _robot_key(robot)
+    key = robot_key(robot)
     if key not in _GRAVITY_CACHE:
         if len(_GRAVITY_CACHE) > 16:
             _GRAVITY_CACHE.clear()
@@ -192,7 +194,7 @@ def elastic_lever(model: TrackerModel, joint: int) -> float:
     ``max_q |tau_i(q)| * |d p_WQ / d q_i|`` over :func:`reference_poses` (no payload).
     """
     robot = model.robot
-    key = ("lever", _robot_key(robot), model.p_FQ.tobytes(), joint)
+    key = ("lever", robot_key(robot), model.p_FQ.tobytes(), joint)
     if key not in _GRAVITY_CACHE:
         q = reference_poses(robot)
         tau = gravity_torques(robot, q)[:, joint - 1]

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.special
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
-from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses
+from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
 from kpioed_drake.robot.models import Robot
@@ -311,14 +311,7 @@ def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tupl
 
 
 def _key(robot: Robot, joint: int, g: np.ndarray) -> tuple:
-    return (
-        robot.name,
-        robot.geometry.tobytes(),
-        robot.masses.tobytes(),
-        robot.coms.tobytes(),
-        joint,
-        g.tobytes(),
-    )
+    return (robot_key(robot), joint, g.tobytes())
 
 
 def store_basis(robot: Robot, joint: int, D, V) -> Robot:

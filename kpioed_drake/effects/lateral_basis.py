@@ -32,7 +32,7 @@ import numpy as np
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
-from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses
+from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, forward_kinematics
 from kpioed_drake.robot.models import Robot
@@ -164,7 +164,7 @@ def lateral_basis(robot: Robot, joint: int) -> LateralBasis:
     own = own_basis(robot, f"{FAMILY}:{joint}")
     if own is not None:
         return LateralBasis(joint, *own)
-    key = (robot.name, robot.geometry.tobytes(), joint)
+    key = (robot_key(robot), joint)
     if key not in _CACHE:
         _CACHE[key] = LateralBasis(
             joint, *_reduced(_varying(robot, reference_poses(robot, _N_REF), joint), _RANK_TOL)
@@ -235,6 +235,14 @@ def resolve(effect, robot: Robot, payload_kg=None, *, n_given: int | None = None
     return dataclasses.replace(effect, n_basis=lb.rank, values=values)
 
 
+def massless_joints(robot: Robot) -> list[int]:
+    """The revolute joints (1-based) whose carried links the model file gives no masses: those
+    whose lateral compliance only this basis can model."""
+    return [
+        j for j in range(1, robot.n_joints + 1) if not robot.prismatic[j - 1] and not robot.masses[j:].any()
+    ]
+
+
 def candidates(robot: Robot | None, q, payload_kg=None) -> tuple[list[tuple[int, int]], list[str]]:
     """The lateral-basis candidates of a diagnosis: every revolute joint whose carried links the
     model file gives no masses (their moment is unknown, not zero) and whose moment across the axis
@@ -246,9 +254,7 @@ def candidates(robot: Robot | None, q, payload_kg=None) -> tuple[list[tuple[int,
     if robot is None or not robot:
         return [], []
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    joints = [
-        j for j in range(1, robot.n_joints + 1) if not robot.prismatic[j - 1] and not robot.masses[j:].any()
-    ]
+    joints = massless_joints(robot)
     if not joints:
         return [], []
     if payload_kg is not None and np.ptp(np.atleast_1d(np.asarray(payload_kg, dtype=float))) > 0:
