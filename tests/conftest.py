@@ -55,7 +55,14 @@ def kr16():
 
 
 @pytest.fixture(scope="module")
+def nominal(kr16):
+    """kr16's nominal model."""
+    return nominal_model(kr16, load_cell(robot=kr16))
+
+
+@pytest.fixture(scope="module")
 def model(kr16):
+    """kr16's model with its joint rows, tracker rotation and reflector perturbed (seed 3)."""
     nom = nominal_model(kr16, load_cell(robot=kr16))
     rng = np.random.default_rng(3)
     p = nom.p.copy()

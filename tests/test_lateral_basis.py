@@ -21,17 +21,10 @@ from kpioed_drake.effects.gravity_basis import link_moments
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.kinematics import forward_kinematics
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate
 from kpioed_drake.study.synthetic import perturbed_masses
 from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.measurement import nominal_model
-
-
-@pytest.fixture(scope="module")
-def nominal(kr16):
-    """kr16's nominal model (conftest's ``model`` is a perturbed one)."""
-    return nominal_model(kr16, load_cell(robot=kr16))
 
 
 @pytest.fixture(scope="module")

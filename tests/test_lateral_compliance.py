@@ -21,12 +21,6 @@ from kpioed_drake.tracker.measurement import nominal_model
 
 
 @pytest.fixture(scope="module")
-def nominal(kr16):
-    """kr16's nominal model (conftest's ``model`` is a perturbed one)."""
-    return nominal_model(kr16, load_cell(robot=kr16))
-
-
-@pytest.fixture(scope="module")
 def q(kr16):
     return np.random.default_rng(11).uniform(kr16.lower, kr16.upper, size=(5, 6))
 

@@ -13,20 +13,10 @@ from scipy.spatial.transform import Rotation
 from kpioed_drake import simulation
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import estimator
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import load_cell
 from kpioed_drake.robot.parameters import FIXED_NAMES, n_parameters, parameter_layout
 from kpioed_drake.tracker.data import Measurements, per_pose
-from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
-
-
-@pytest.fixture(scope="module")
-def nominal(kr16):
-    return nominal_model(kr16, load_cell(robot=kr16))
+from kpioed_drake.tracker.measurement import measurement_jacobian
 
 
 def test_six_joint_layout_keeps_the_33_vector_order(kr16):
