@@ -61,10 +61,16 @@ def resolve_extension(
     if lateral:
         robot = lateral_basis.size_on_poses(robot, data.q, lateral)[0]
     nominal = dataclasses.replace(nominal, robot=robot)
-    resolved = resolve_all([fx.resolve(e, nominal) for e in given], nominal, data.payload_kg)
-    for e in resolved:
-        if e.family == lateral_basis.FAMILY:  # a payload that varies is refused
-            lateral_basis.resolve(e, robot, data.payload_kg, n_given=e.n_basis)
+    resolved = resolve_all(
+        [
+            lateral_basis.resolve(e, robot, data.payload_kg, n_given=e.n_basis)  # refuses a varying payload
+            if e.family == lateral_basis.FAMILY
+            else fx.resolve(e, nominal)
+            for e in given
+        ],
+        nominal,
+        data.payload_kg,
+    )
     conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)
     _check_conditions(resolved, data, conditions.tau)
     return resolved, conditions, nominal
