@@ -40,6 +40,30 @@ JOINTS = [
     ("a6", "forearm_2", "wrist", (0, 0, -0.14), (0, 1, 0), (-60, 60), 2.0, (0, 0, -0.03)),
     ("a7", "wrist", "hand", (0, 0, -0.06), (1, 0, 0), (-90, 90), 2.0, (0.02, 0, -0.06)),
 ]
+
+
+def _mirrored(joint):
+    """The left arm's joint of a right-arm joint: y mirrored, the roll joints' limits mirrored."""
+    name, parent, child, xyz, axis, (lo, up), m, com = joint
+    side = lambda link: link if link == "chest" else f"{link}_left"  # noqa: E731
+    lims = (-up, -lo) if axis == (1, 0, 0) or axis == (0, 0, 1) else (lo, up)
+    return (
+        "b" + name[1:],
+        side(parent),
+        side(child),
+        (xyz[0], -xyz[1], xyz[2]),
+        axis,
+        lims,
+        m,
+        (com[0], -com[1], com[2]),
+    )
+
+
+TWIN = "humanoid18"
+"""The two-arm twin: the same torso, the right arm and its mirror image on the chest (18 joints,
+one hand marker each)."""
+TWIN_JOINTS = JOINTS + [_mirrored(j) for j in JOINTS[4:]]
+LEFT_REFLECTOR_MM = (30.0, -10.0, -130.0)
 COUPLED = 4
 """The coupled torso joint (1-based): ``q_4 = -(q_2 + q_3)``."""
 REFLECTOR_MM = (30.0, 10.0, -130.0)
@@ -48,9 +72,9 @@ ELASTICITY = {2: 2.5e-5, 3: 3e-5, 4: 5e-5, 5: 1.5e-4, 6: 1.5e-4, 8: 2.5e-4}
 """The truth's joint compliance [rad/(N m)] (hand deflection 10-20 mm at most over the poses)."""
 
 
-def _urdf(with_masses: bool) -> str:
-    lines = [f'<?xml version="1.0"?>\n<robot name="{NAME}">', '  <link name="pelvis"/>']
-    for name, parent, child, xyz, axis, (lo, up), m, com in JOINTS:
+def _urdf(with_masses: bool, twin: bool = False) -> str:
+    lines = [f'<?xml version="1.0"?>\n<robot name="{TWIN if twin else NAME}">', '  <link name="pelvis"/>']
+    for name, parent, child, xyz, axis, (lo, up), m, com in TWIN_JOINTS if twin else JOINTS:
         inert = ""
         if with_masses:
             i = 0.4 * m * 0.05**2
@@ -70,8 +94,25 @@ def _urdf(with_masses: bool) -> str:
     return "\n".join(lines)
 
 
-def _sidecar(truth: bool) -> str:
+def _sidecar(truth: bool, twin: bool = False) -> str:
     what = "with the link masses of the truth simulation" if truth else "without link masses"
+    if twin:
+        return (
+            f"# Sidecar of {TWIN}{'_truth' if truth else ''}.urdf "
+            "(kpioed-drake; written by bench/humanoid.py).\n"
+            f"name: {TWIN}\n"
+            f"description: The two-arm twin of {NAME} ({what}), the coupled torso and two seven-joint\n"
+            "  arms, a marker on each hand (target 1 right, target 2 left).\n"
+            "targets:\n"
+            f"  - {{link: hand, position_mm: [{', '.join(str(v) for v in REFLECTOR_MM)}]}}\n"
+            f"  - {{link: hand_left, position_mm: [{', '.join(str(v) for v in LEFT_REFLECTOR_MM)}]}}\n"
+            f"tracker_position_mm: [{', '.join(str(v) for v in TRACKER_MM)}]\n"
+            "tracker_rpy_deg: [0, 0, 0]\n"
+            "q_work: [0, 10, 10, -20, -60, -20, 0, -60, 0, 0, 0, -60, 20, 0, -60, 0, 0, 0]\n"
+            "joint_map:  # the controller commands 17 axes; t4 follows t2 and t3\n"
+            f"  controller_axes: [{', '.join(j[0] for j in TWIN_JOINTS if j[0] != 't4')}]\n"
+            "  joints: {t4: {t2: -1, t3: -1}}\n"
+        )
     return (
         f"# Sidecar of {NAME}{'_truth' if truth else ''}.urdf (kpioed-drake; written by bench/humanoid.py).\n"
         f"name: {NAME}\n"
@@ -85,13 +126,14 @@ def _sidecar(truth: bool) -> str:
     )
 
 
-def write_models(folder: Path = ROBOTS) -> tuple[Path, Path]:
-    """Write the mass-free model and the truth model (URDF + sidecar each); returns the two URDFs."""
+def write_models(folder: Path = ROBOTS, *, twin: bool = False) -> tuple[Path, Path]:
+    """Write the mass-free model and the truth model (URDF + sidecar each) of the stand-in (or its
+    two-arm ``twin``); returns the two URDFs."""
     out = []
     for truth in (False, True):
-        stem = NAME + ("_truth" if truth else "")
-        (folder / f"{stem}.urdf").write_text(_urdf(truth))
-        (folder / f"{stem}.kpioed.yaml").write_text(_sidecar(truth))
+        stem = (TWIN if twin else NAME) + ("_truth" if truth else "")
+        (folder / f"{stem}.urdf").write_text(_urdf(truth, twin))
+        (folder / f"{stem}.kpioed.yaml").write_text(_sidecar(truth, twin))
         out.append(folder / f"{stem}.urdf")
     return out[0], out[1]
 
@@ -105,7 +147,7 @@ def poses(robot, n: int, seed: int) -> np.ndarray:
 
 
 if __name__ == "__main__":
-    print(*write_models())
+    print(*write_models(), *write_models(twin=True))
 
 
 LATERAL = {1: 1e-4, 5: 3e-4}

@@ -116,11 +116,15 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
         q_act = q + jd[0]
         A = A + jd[2] if jacobian else A
     frames = model.frames(q_act)
-    p = frames.o[:, nj] + frames.R[:, nj] @ model.target_offsets[target]
+    rows = np.full(n, target)
+    link = model.target_links(rows)  # the target's link (a tree robot's arm), None: the flange
+    R_F, o_F = frames.at_link(link)
+    p = o_F + R_F @ model.target_offsets[target]
     w, shift = np.zeros((n, 3)), np.zeros((n, 3))  # compliance: rotation vector, point shift
     dw, dshift = np.zeros((n, nj, 3)), np.zeros((n, nj, 3))  # their d/dq through m(q) and o(q)
     s = np.ones(n)  # thermal length scale
-    rots = effect_rotations(model, q, effects, conditions.get("payload_kg"), with_dq=jacobian)
+    pay = conditions.get("payload_kg")
+    rots = effect_rotations(model, q, effects, pay, with_dq=jacobian, target=rows)
     for i, e in enumerate(effects):
         if i in rots:
             for c, r in zip(e.value_array(), rots[i], strict=True):
@@ -132,12 +136,13 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
             c = e.value_array()[0]
             s = s + c * (_condition(conditions, "temperature_C", n, e) - T_REF_C)
     p_out = s[:, None] * (p + shift)
-    R_out = Rotation.from_rotvec(w).as_matrix() @ frames.R[:, nj] if np.any(w) else frames.R[:, nj]
+    R_out = Rotation.from_rotvec(w).as_matrix() @ R_F if np.any(w) else R_F
     if not jacobian:
         return p_out, R_out
     At = A.transpose(0, 2, 1)
-    Jp = At @ frames.joint_motion(p)  # (n, nj, 3): dp/dq_j through q_act
-    Jw = At @ np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes)
+    on = frames.path[frames.tip if link is None else link[0]][None, :, None]  # the joints moving it
+    Jp = At @ (frames.joint_motion(p) * on)  # (n, nj, 3): dp/dq_j through q_act
+    Jw = At @ np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes * on)
     Jp = Jp + cross(w[:, None, :], Jp) + dshift
     Jw = np.einsum("nab,njb->nja", _exp(w), Jw) + np.einsum("nab,njb->nja", _left_jacobian(w), dw)
     J = np.concatenate([s[:, None, None] * Jp, Jw], axis=2).transpose(0, 2, 1)

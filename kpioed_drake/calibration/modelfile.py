@@ -22,7 +22,7 @@ from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import effect_specs
 from kpioed_drake.robot.jointmap import joint_map_spec
 from kpioed_drake.robot.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
-from kpioed_drake.robot.urdfwrite import calibrated_sidecar, calibrated_urdf
+from kpioed_drake.robot.urdf.write import calibrated_sidecar, calibrated_urdf
 
 
 def _spec_from_robot(robot: Robot) -> RobotSpec:
@@ -138,7 +138,7 @@ def _note(report: CalibrationReport) -> str:
 
 def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
     """A calibrated URDF robot: the URDF text (estimated errors folded into the joint origins) and
-    its sidecar text (estimated reflector offset and tracker pose); :mod:`kpioed_drake.robot.urdfwrite`."""
+    its sidecar text (estimated reflector offset and tracker pose); :mod:`kpioed_drake.robot.urdf.write`."""
     rob, model = report.robot, report.model
     note = _note(report)
     urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))

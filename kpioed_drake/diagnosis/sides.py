@@ -37,6 +37,7 @@ from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.multiplicity import effective_tests, min_p_null
+from kpioed_drake.robot.kinematics import subtree_links
 
 N_PRIOR_DRAWS = 50
 """Draws of the link moments from the mass prior per joint (distinct sign patterns are kept)."""
@@ -48,7 +49,7 @@ def prior_moments(
     robot, joint: int, rng: np.random.Generator, n: int, *, spread: float = gb.MASS_PRIOR_SPREAD
 ):
     """(n, 4 (N - j + 1)) first moments ``m_k, m_k c_k`` of links j..N drawn from the mass prior."""
-    ks = np.arange(joint, robot.n_joints + 1)
+    ks = subtree_links(robot, joint)
     m0, c0 = robot.masses[ks], robot.coms[ks]
     r = gb.com_scales(c0)[:, None]
     m = m0[None, :] * rng.uniform(1 - spread, 1 + spread, size=(n, ks.size))

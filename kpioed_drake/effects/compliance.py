@@ -198,12 +198,13 @@ def rotation(
         first = k
     else:
         raise ValueError(f"not a compliance family: {family}")
-    links = np.arange(first, nj + 1)
+    links = np.arange(1, nj + 1) if k == 0 else np.flatnonzero(fr.path[:, first - 1])  # carried
     p_l = fr.o[:, links] + np.einsum("nlab,lb->nla", fr.R[:, links], robot.coms[links])  # (n, L, 3)
     w_l = robot.masses[links]
     M = 1e-3 * np.einsum("l,nla->na", w_l, cross(p_l - C[:, None, :], g[None, None, :]))  # [N m]
     pay = None
-    if payload_kg is not None and np.any(np.asarray(payload_kg) != 0):
+    carries_tip = k == 0 or bool(fr.path[fr.tip, k - 1])  # the payload sits on the flange
+    if payload_kg is not None and np.any(np.asarray(payload_kg) != 0) and carries_tip:
         pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (n,))
         p_pay = flange_point(fr, np.asarray(p_FP, dtype=float))
         M = M + 1e-3 * pay[:, None] * cross(p_pay - C, g[None, :])
@@ -216,14 +217,16 @@ def rotation(
         m = M
     dm_dp = None
     if pay is not None:
-        RF = fr.R[:, nj]  # (n, 3, 3): d p_pay / d p_FP
+        RF = fr.at_link()[0]  # (n, 3, 3): d p_pay / d p_FP
         dM_dp = 1e-3 * pay[:, None, None] * cross(RF.transpose(0, 2, 1), g[None, None, :]).transpose(0, 2, 1)
         dm_dp = scale[:, None, None] * np.einsum("nab,nbd->nad", P, dM_dp)
     if not with_dq:
         return Rotation(m, pivot, dm_dp=dm_dp)
     dM = _moment_dq(fr, p_l, w_l, links, C, k, g)
     if pay is not None:
-        v = fr.joint_motion(p_pay)  # every joint moves the payload
+        v = fr.joint_motion(p_pay)  # every joint on its path moves the payload
+        if not fr.serial:
+            v = v * fr.point_path()[None, :, None]
         if k:
             v = v - _carriage_motion(fr, C, k)
         dM = dM + 1e-3 * pay[:, None, None] * cross(v, g[None, None, :])
@@ -254,9 +257,8 @@ def _projector_dq(fr, a: np.ndarray, M: np.ndarray, k: int) -> np.ndarray:
 
 def _moment_dq(fr, p_l, w_l, links, C, k: int, g) -> np.ndarray:
     """(n, nj, 3) ``dM/dq_j`` of the links' moment about C [N m per rad or mm] (module docstring)."""
-    nj = fr.n_joints
     v = fr.joint_motion(p_l)  # (n, L, nj, 3)
-    moved = links[:, None] >= np.arange(1, nj + 1)[None, :]  # (L, nj): joint j moves link l
+    moved = fr.path[links]  # (L, nj): joint j moves link l
     v = np.where(moved[None, :, :, None], v, 0.0)
     if k:
         v = v - _carriage_motion(fr, C, k)[:, None]

@@ -75,14 +75,16 @@ class GravityModel:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
         fr = forward_kinematics(self.robot, q)
-        nj = fr.n_joints
         pris = fr.prismatic[:, None]  # (nj, 1)
-        p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], np.asarray(p_FP, float))
+        R_F, o_F = fr.at_link()
+        p = o_F + np.einsum("nij,j->ni", R_F, np.asarray(p_FP, float))
         w = fr.joint_axes  # (n,nj,3)
         r = (p[:, None, :] - fr.joint_points) * 1e-3  # (n,nj,3) [m]
         F = m[:, None] * self.g[None, :]  # (n,3) [N]
         wxr = cross(w, r)
         mi = np.where(pris, w, wxr)
+        carries = fr.path[fr.tip]  # (nj,): the joints that carry the flange (all of a serial robot)
+        mi = mi * carries[None, :, None]
         tau = np.einsum("nc,nic->ni", F, mi)
         if not with_dq:
             return tau
@@ -91,8 +93,9 @@ class GravityModel:
         dr = np.where(pris, 1e-3 * w, wxr)
         part = cross(w[:, None, :, :], dr[:, :, None, :])  # [n, j, i]: w_i x dr_j
         part = np.where(pris.T[None, :, :, None], 0.0, part)
-        jj, ii = np.arange(nj)[:, None], np.arange(nj)[None, :]
-        d = np.where((jj <= ii)[None, :, :, None], full, part)
+        part = part * (carries[:, None] & carries[None, :])[None, :, :, None]
+        turns = fr.path[1:].T  # [j, i]: joint j moves joint i's axis (or is joint i)
+        d = np.where(turns[None, :, :, None], full, part)
         dtau = np.einsum("nc,njic->nij", F, d)
         return tau, dtau
 
@@ -106,7 +109,8 @@ class GravityModel:
         fr = forward_kinematics(self.robot, q)
         F = m[:, None] * self.g[None, :]
         Fxw = np.where(fr.prismatic[:, None], 0.0, cross(F[:, None, :], fr.joint_axes))  # (n,nj,3)
-        return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.R[:, fr.n_joints])
+        Fxw = Fxw * fr.path[fr.tip][None, :, None]  # only the joints carrying the flange
+        return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.at_link()[0])
 
     def torques(self, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):
         """Link torques plus the payload's (if ``payload_kg`` is given) [N m]."""

@@ -45,7 +45,7 @@ import scipy.special
 from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, forward_kinematics
+from kpioed_drake.robot.kinematics import cross, forward_kinematics, subtree_links
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import TrackerModel
 
@@ -102,7 +102,9 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
     w, a = fr.joint_axes, fr.joint_points  # (n, 6, 3)
     wj, aj = w[:, j], a[:, j]
     nj, pris = fr.n_joints, fr.prismatic
-    links = range(joint, nj + 1)
+    links = np.flatnonzero(fr.path[:, j])  # the links joint j carries (its branch of a tree)
+    upstream = fr.path[j + 1].copy()  # the joints that move joint j's axis (strictly before it)
+    upstream[j] = False
     gxw = cross(g[None, :], wj)  # (n, 3)
     Y = np.empty((n, 4 * len(links)))
     dY = np.zeros((n, nj, Y.shape[1])) if with_dq else None
@@ -110,7 +112,7 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
         Rk, ok = fr.R[:, k], fr.o[:, k]
         if pris[j]:  # a prismatic joint carries the links' weight: a force [N per kg], no moments
             Y[:, col], Y[:, col + 1 : col + 4] = wj @ g, 0.0
-            for i in range(j if with_dq else 0):  # only the revolute joints before j turn w_j
+            for i in np.flatnonzero(upstream) if with_dq else ():  # the revolute joints before j turn w_j
                 if not pris[i]:
                     dY[:, i, col] = cross(w[:, i], wj) @ g
             continue
@@ -119,13 +121,13 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
         Y[:, col + 1 : col + 4] = 1e-3 * np.einsum("nab,na->nb", Rk, gxw)
         if not with_dq:
             continue
-        for i in range(k):  # joints 1..k move link k
+        for i in np.flatnonzero(fr.path[k]):  # the joints that move link k
             wi = w[:, i]
             if pris[i]:  # a translation: before joint j nothing changes, after it link k moves by w_i
-                if i > j:
+                if not upstream[i] and i != j:
                     dY[:, i, col] = 1e-3 * (cross(wj, wi) @ g)
                 continue
-            if i < j:  # the whole chain from joint j on turns about w_i
+            if upstream[i]:  # the whole chain from joint j on turns about w_i
                 dX = cross(wi, X)
                 dgxw = cross(g[None, :], cross(wi, wj))
             else:  # only link k turns (about w_i through a_i); w_j and a_j stay
@@ -140,7 +142,7 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
 
 def link_moments(robot: Robot, joint: int) -> np.ndarray:
     """(4 (7 - j),) the model file's first moments of links j..6: ``m_k, m_k c_k`` [kg, kg mm]."""
-    ks = np.arange(joint, robot.n_joints + 1)
+    ks = subtree_links(robot, joint)
     m = robot.masses[ks]
     return np.concatenate([m[:, None], m[:, None] * robot.coms[ks]], axis=1).reshape(-1)
 
@@ -474,7 +476,7 @@ def torque_std(robot: Robot, q, joint: int, *, spread: float = MASS_PRIOR_SPREAD
     v = spread**2 / 3.0
     u2 = np.zeros(Y.shape[0])
     scales = com_scales(robot.coms)
-    for col, k in zip(range(0, Y.shape[1], 4), range(joint, robot.n_joints + 1), strict=True):
+    for col, k in zip(range(0, Y.shape[1], 4), subtree_links(robot, joint), strict=True):
         m, c, r = robot.masses[k], robot.coms[k], float(scales[k])
         p = np.concatenate([[m], m * c])  # d pi / d a
         S = v * np.outer(p, p) + v * (m * r) ** 2 * np.diag([0.0, 1.0, 1.0, 1.0])

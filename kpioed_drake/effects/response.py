@@ -7,6 +7,8 @@ or base compliance (:mod:`.compliance`) turns the reflector point about its pivo
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from kpioed_drake.effects import compliance as cp
@@ -16,7 +18,7 @@ from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
 from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, flange_point, point_jacobian
+from kpioed_drake.robot.kinematics import cross, flange_point, link_paths, point_jacobian
 from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel, tracker_jacobian
 
@@ -124,9 +126,13 @@ def _scale_and_drift(effects, n: int, temperature_C, time_s):
     return s, drift, temp, tvec, s_T
 
 
-def effect_rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False) -> dict:
+def effect_rotations(
+    model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False, target=None
+) -> dict:
     """{index in effects: [:class:`~.compliance.Rotation` per parameter]} of the effects that turn
-    what they carry: the compliances (payload at p_FQ) and the lateral basis."""
+    what they carry: the compliances (payload at p_FQ) and the lateral basis. On a tree robot a
+    row's point turns only if the joint carries its target's link (``target`` (n,); None: the
+    flange)."""
     out = {}
     for i, e in enumerate(effects):
         if e.family in cp.FAMILIES:
@@ -136,7 +142,22 @@ def effect_rotations(model: TrackerModel, q, effects, payload_kg, *, with_dq: bo
             out[i] = [rot]
         elif e.family == lb.FAMILY:
             out[i] = lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq)
+        if i in out and e.joint is not None and model.robot.target_links is not None:
+            out[i] = [_on_carried_rows(model, r, e.joint, target) for r in out[i]]
     return out
+
+
+def _on_carried_rows(model: TrackerModel, rot, joint: int, target):
+    """``rot`` zero on the rows whose target link joint ``joint`` does not carry (another arm)."""
+    links = model.target_links(target)
+    links = model.robot.tip if links is None else links
+    on = link_paths(model.robot)[links, joint - 1].astype(float)
+    if np.all(on == 1.0):
+        return rot
+    on = np.broadcast_to(on, rot.m.shape[:1])
+    scaled = {k: getattr(rot, k) for k in ("dm", "dm_dp") if getattr(rot, k) is not None}
+    scaled = {k: v * on.reshape((-1,) + (1,) * (v.ndim - 1)) for k, v in scaled.items()}
+    return dataclasses.replace(rot, m=rot.m * on[:, None], **scaled)
 
 
 def _turned(effects, rots: dict, p_W: np.ndarray):
@@ -170,9 +191,9 @@ def augmented_response(
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     effects = list(effects)
     delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau, side=side)
-    p_WQ = flange_point(model.frames(q + delta), model.target_points(target))
+    p_WQ = flange_point(model.frames(q + delta), model.target_points(target), model.target_links(target))
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
-    p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c), p_WQ)
+    p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c, target=target), p_WQ)
     s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
@@ -223,10 +244,12 @@ def augmented_jacobian(
     delta = jd[0]
     q_act = q + delta
     frames = model.frames(q_act)
-    out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
+    out = point_jacobian(
+        frames, model.target_points(target), link=model.target_links(target), with_dq=with_dq
+    )
     lay = model.layout
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
-    rots = effect_rotations(model, q, effects, pay_c, with_dq=with_dq)
+    rots = effect_rotations(model, q, effects, pay_c, with_dq=with_dq, target=target)
     p_raw, theta_raw = out[0], out[1][:, :, lay.joint_angles]
     out = _compliance_turned(effects, rots, out, with_dq)
     p_WQ, JW = out[0], out[1]

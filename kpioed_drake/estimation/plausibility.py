@@ -89,7 +89,7 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
         )
     if 3 * n <= n_params:
         raise InputError(
-            f"{where}: {n} poses give {3 * n} coordinates for {n_params} parameters: no degree of freedom "
+            f"{where}: {n} rows give {3 * n} coordinates for {n_params} parameters: no degree of freedom "
             f"is left to test the fit; at least {n_params // 3 + 1} poses are needed"
         )
     warnings: list[str] = []
@@ -118,7 +118,7 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
     rows = data.rows[~good]
     if rows.size > MAX_GROSS_FRACTION * n:
         _refuse(
-            f"{where}: {rows.size} of {n} poses miss the nominal model by more than {gate:.3g} mm "
+            f"{where}: {rows.size} of {n} rows miss the nominal model by more than {gate:.3g} mm "
             f"after registering the tracker and the target offsets (rows {', '.join(map(str, rows[:8]))}"
             f"{', ...' if rows.size > 8 else ''}): more than a third are gross errors, which is no "
             "calibration data; check the file, the joint map and the units",
@@ -145,10 +145,9 @@ def _registered_miss(model: TrackerModel, data: Measurements) -> np.ndarray:
     points, then the tracker position and the offsets jointly by linear least squares
     (``R_WT eta_i + p_WT = o_WF_i + R_WF_i d_t``) given the rotation."""
     frames = model.frames(data.q)
-    nj = frames.n_joints
-    R_WF, o_WF = frames.R[:, nj], frames.o[:, nj]
     n = data.n
     target = np.zeros(n, dtype=int) if data.target is None else np.asarray(data.target)
+    R_WF, o_WF = frames.at_link(model.target_links(target))  # each row's target link
     offsets = np.array(model.target_offsets, dtype=float)
     T = offsets.shape[0]
     # design matrix of [p_WT, d_0 .. d_{T-1}]: I for p_WT, -R_WF_i in target i's columns

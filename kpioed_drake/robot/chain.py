@@ -60,16 +60,43 @@ class Chain:
         p_PJ: (n, 3) origin of J_i in link i-1's frame [mm].
         axis: (n, 3) unit joint axis in J_i.
         prismatic: (n,) True for prismatic joints (q in mm), False for revolute (q in rad).
+        parent: (n,) 0-based index of the joint whose link carries joint i (-1: W), increasing
+            order (``parent[i] < i``); None for a serial chain (``parent[i] = i - 1``). A tree is the
+            union of the chains to several measured links (two arms on one torso).
     """
 
     R_PJ: np.ndarray
     p_PJ: np.ndarray
     axis: np.ndarray
     prismatic: np.ndarray
+    parent: np.ndarray | None = None
 
     @property
     def n_joints(self) -> int:
         return int(self.prismatic.size)
+
+    @property
+    def parents(self) -> np.ndarray:
+        """(n,) the parent joint of every joint (-1: W), serial or tree."""
+        if self.parent is None:
+            return np.arange(self.n_joints) - 1
+        return np.asarray(self.parent, dtype=int)
+
+
+def frame_paths(parent: np.ndarray) -> np.ndarray:
+    """(n + 1, n) ``path[f, j]``: joint j moves link frame f (frame 0 = W, frame i + 1 = the link
+    after joint i), for the parent joints ``parent`` (n,) (-1: W; ``parent[i] < i``).
+
+    A serial chain gives ``path[f, j] = j < f``.
+    """
+    n = len(parent)
+    path = np.zeros((n + 1, n), dtype=bool)
+    for i, p in enumerate(parent):
+        if not -1 <= p < i:
+            raise ValueError(f"joint {i + 1}: parent {p + 1} must precede it (0 = W)")
+        path[i + 1] = path[p + 1]
+        path[i + 1, i] = True
+    return path
 
 
 def param_names(n_joints: int) -> list[str]:
@@ -108,7 +135,7 @@ class ChainFrames:
     elem_rot: np.ndarray  # (nj, 7)
     axes: np.ndarray  # (n, nj, 3) joint axes in W
     points: np.ndarray  # (n, nj, 3) joint origins o_J in W [mm]
-    moved_by: np.ndarray  # (nj, 7) joints 1..moved_by move the element
+    moved_by: np.ndarray  # (nj, 7) the frame whose moving joints move the element
 
 
 def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames:
@@ -126,14 +153,16 @@ def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames
     eu = np.empty((n, nj, PER_JOINT, 3))
     eo = np.empty((n, nj, PER_JOINT, 3))
     rot = np.tile(np.array([True, False, False, False, True, True, True]), (nj, 1))
-    moved = np.tile(np.arange(nj)[:, None], (1, PER_JOINT))
-    moved[:, 0] += 1
+    parent = chain.parents
+    moved = np.tile(parent[:, None] + 1, (1, PER_JOINT))  # placement: moved as the parent link
+    moved[:, 0] = np.arange(1, nj + 1)  # the offset: as the joint's own link
     axes = np.empty((n, nj, 3))
     pts = np.empty((n, nj, 3))
     for i in range(nj):
         off, px, py, pz, rx, ry, rz = errors[i]
-        RA = R[:, i] @ chain.R_PJ[i]
-        oJ = o[:, i] + R[:, i] @ chain.p_PJ[i] + RA @ np.array([px, py, pz])
+        f = parent[i] + 1
+        RA = R[:, f] @ chain.R_PJ[i]
+        oJ = o[:, f] + R[:, f] @ chain.p_PJ[i] + RA @ np.array([px, py, pz])
         RB = RA @ _basic(0, rx)
         RC = RB @ _basic(1, ry)
         RJ = RC @ _basic(2, rz)
@@ -165,6 +194,7 @@ def auto_gauge(
     seed: int = GAUGE_SEED,
     rtol: float = GAUGE_RTOL,
     joint_map=None,
+    links=None,
 ) -> tuple[str, ...]:
     """Names of the joint parameters held at nominal: those that do not add to the rank.
 
@@ -176,6 +206,8 @@ def auto_gauge(
     of a column-pivoted QR (checked). With a ``joint_map`` (:class:`~kpioed_drake.robot.jointmap.JointMap`,
     e.g. of ``<mimic>`` joints) the poses are those the controller can command: its axes drawn in
     the limits of the first joint each drives, mapped to joint values, clipped to the limits.
+    ``links`` (T,): the frame each target is fixed in (a tree's targets on several links; None: the
+    last joint's link).
     """
     nj = chain.n_joints
     rng = np.random.default_rng(seed)
@@ -192,16 +224,20 @@ def auto_gauge(
     fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
     targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
     T = targets.shape[0]
+    links = np.full(T, nj) if links is None else np.broadcast_to(np.asarray(links, dtype=int), (T,))
+    path = frame_paths(chain.parents)
     blocks = []
     for t, p_t in enumerate(targets):
-        p = fr.o[:, nj] + np.einsum("nij,j->ni", fr.R[:, nj], p_t)
+        f = links[t]
+        p = fr.o[:, f] + np.einsum("nij,j->ni", fr.R[:, f], p_t)
         d = p[:, None, None, :] - fr.elem_o
         cols = np.where(fr.elem_rot[None, :, :, None], np.cross(fr.elem_u, d), fr.elem_u)
+        cols = cols * path[f][None, :, None, None]
         joint_cols = cols.reshape(n_poses, nj * PER_JOINT, 3).transpose(0, 2, 1)
         eye = np.broadcast_to(np.eye(3), (n_poses, 3, 3))
         tracker_rot = np.cross((p - _GENERIC_TRACKER)[:, None, :], np.eye(3)[None]).transpose(0, 2, 1)
         target_cols = np.zeros((n_poses, 3, 3 * T))
-        target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, nj]
+        target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, f]
         blocks.append(np.concatenate([-eye, tracker_rot, target_cols, joint_cols], axis=2))
     A = np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
     norms = np.linalg.norm(A, axis=0)

@@ -58,8 +58,9 @@ def segment_distance(p1, q1, p2, q2):
     return np.linalg.norm(cA - cB, axis=-1), s, t
 
 
-def beam_targets(robot: Robot, cell: Cell) -> list[tuple[str, np.ndarray]]:
-    """The laser beams of a pose, one per target: ``(label, p_FQ)`` with ``p_FQ`` (3,) [mm].
+def beam_targets(robot: Robot, cell: Cell) -> list[tuple[str, np.ndarray, int]]:
+    """The laser beams of a pose, one per target: ``(label, p_FQ, link)`` with ``p_FQ`` (3,) [mm]
+    in the frame of link ``link`` (the flange; a tree robot's targets sit on several links).
 
     A pose measures every target, so each target's beam (reflector to tracker) must be clear.
     Target 1 is the cell's reflector ``cell.p_FQ``, targets 2..T the robot file's ``targets_mm``
@@ -68,9 +69,10 @@ def beam_targets(robot: Robot, cell: Cell) -> list[tuple[str, np.ndarray]]:
     """
     offsets = [np.asarray(cell.p_FQ, float)]
     offsets += [np.asarray(robot.targets[t], float) for t in range(1, robot.n_targets)]
+    links = [robot.tip] * len(offsets) if robot.target_links is None else robot.target_links.tolist()
     if len(offsets) == 1:
-        return [("beam", offsets[0])]
-    return [(f"beam{t + 1}", p) for t, p in enumerate(offsets)]
+        return [("beam", offsets[0], links[0])]
+    return [(f"beam{t + 1}", p, f) for t, (p, f) in enumerate(zip(offsets, links, strict=True))]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,8 +141,8 @@ class ClearanceModel:
                         segs.append(self._cap(ci) + self._cap(cj) + (ci.radius + cj.radius,))
                         names.append(f"{ci.name} vs {cj.name}")
                         kinds.append("self")
-        for label, p_FQ in beam_targets(robot, cell) if beam else ():
-            beam_side = (robot.n_joints, p_FQ, 0, np.asarray(cell.p_WT, float))
+        for label, p_FQ, link in beam_targets(robot, cell) if beam else ():
+            beam_side = (link, p_FQ, 0, np.asarray(cell.p_WT, float))
             for c in caps:
                 if c.frame in robot.beam_links:
                     segs.append(beam_side + self._cap(c) + (c.radius + cell.beam_radius,))

@@ -30,7 +30,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.robot.chain import chain_frames
+from kpioed_drake.robot.chain import chain_frames, frame_paths
 from kpioed_drake.robot.models import Robot
 
 
@@ -81,7 +81,11 @@ class Frames:
         joint_axes: (n, nj, 3) axis w_j of joint j in W (DH: z of frame j-1).
         joint_points: (n, nj, 3) a point on the axis of joint j [mm] (DH: origin of frame j-1).
         prismatic: (nj,) True for prismatic joints.
-        moved_by: (nj, P) joints 1..moved_by move the element (DH: every element of row i, i).
+        moved_by: (nj, P) the frame whose moving joints move the element (``path[moved_by]``;
+            DH: every element of row i, frame i).
+        path: (nj + 1, nj) ``path[f, j]``: joint j moves frame f (serial: ``j < f``; a tree robot's
+            from :func:`kpioed_drake.robot.chain.frame_paths`).
+        tip: the frame of the flange (the link of target 0; serial: nj).
     """
 
     R: np.ndarray
@@ -93,10 +97,42 @@ class Frames:
     joint_points: np.ndarray
     prismatic: np.ndarray
     moved_by: np.ndarray
+    path: np.ndarray | None = None
+    tip: int | None = None
+
+    def __post_init__(self):
+        nj = self.n_joints
+        if self.path is None:
+            self.path = np.arange(nj)[None, :] < np.arange(nj + 1)[:, None]
+        if self.tip is None:
+            self.tip = nj
 
     @property
     def n_joints(self) -> int:
         return int(self.prismatic.size)
+
+    @property
+    def serial(self) -> bool:
+        """Every point is measured on the last link of a serial chain (no masks needed)."""
+        return self.tip == self.n_joints and bool(self.path[-1].all())
+
+    def point_path(self, link=None) -> np.ndarray | None:
+        """``path[link]``: (nj,) or (n, nj) the joints that move points on ``link`` (None: the tip);
+        None when every joint does (the serial flange)."""
+        f = self.tip if link is None else link
+        if np.ndim(f) == 0 and f == self.n_joints and self.path[f].all():
+            return None
+        return self.path[np.asarray(f, dtype=int)]
+
+    def at_link(self, link=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(R (n, 3, 3), o (n, 3))`` of the frame ``link`` ((n,) one per pose, scalar, or None:
+        the tip)."""
+        f = self.tip if link is None else link
+        if np.ndim(f) == 0:
+            return self.R[:, int(f)], self.o[:, int(f)]
+        k = np.arange(self.R.shape[0])
+        f = np.asarray(f, dtype=int)
+        return self.R[k, f], self.o[k, f]
 
     def joint_motion(self, p_W: np.ndarray) -> np.ndarray:
         """(n, ..., nj, 3) ``dp/dq_j`` of world points ``p_W`` (n, ..., 3) moved by every joint:
@@ -108,6 +144,20 @@ class Frames:
         if not self.prismatic.any():
             return rev
         return np.where(self.prismatic[:, None], np.broadcast_to(w, rev.shape), rev)
+
+
+def link_paths(robot: Robot) -> np.ndarray:
+    """(nj + 1, nj) ``path[f, j]``: joint j moves link frame f (:attr:`Frames.path`, without poses)."""
+    nj = robot.n_joints
+    if robot.chain is not None and robot.chain.parent is not None:
+        return frame_paths(robot.chain.parents)
+    return np.arange(nj)[None, :] < np.arange(nj + 1)[:, None]
+
+
+def subtree_links(robot: Robot, joint: int) -> np.ndarray:
+    """The link frames joint ``joint`` (1-based) moves, ascending: ``joint .. nj`` of a serial robot,
+    its own branch of a tree (the weights it carries)."""
+    return np.flatnonzero(link_paths(robot)[:, joint - 1])
 
 
 def _as_poses(q, n_joints: int) -> np.ndarray:
@@ -133,8 +183,19 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
     g = robot.geometry if geometry is None else np.asarray(geometry, dtype=float)
     if robot.chain is not None:
         c = chain_frames(robot.chain, q, g)
+        path = frame_paths(robot.chain.parents) if robot.chain.parent is not None else None
         return Frames(
-            c.R, c.o, c.elem_u, c.elem_o, c.elem_rot, c.axes, c.points, robot.chain.prismatic, c.moved_by
+            c.R,
+            c.o,
+            c.elem_u,
+            c.elem_o,
+            c.elem_rot,
+            c.axes,
+            c.points,
+            robot.chain.prismatic,
+            c.moved_by,
+            path,
+            robot.tip,
         )
     n = q.shape[0]
     R = np.empty((n, nj + 1, 3, 3))
@@ -179,24 +240,28 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
     return Frames(R, o, eu, eo, erot, R[:, :nj, :, 2], o[:, :nj], np.zeros(nj, dtype=bool), moved)
 
 
-def flange_point(frames: Frames, p_FP) -> np.ndarray:
+def flange_point(frames: Frames, p_FP, link=None) -> np.ndarray:
     """(n, 3) world position of a point given in the flange frame [mm].
 
-    ``p_FP`` is (3,) or (n, 3) (one point per pose, e.g. each row's target).
+    ``p_FP`` is (3,) or (n, 3) (one point per pose, e.g. each row's target); ``link`` the frame it
+    is fixed in: None (the flange, ``frames.tip``), an index, or (n,) one per pose (the targets of a
+    tree robot sit on several links).
     """
     p_FP = np.asarray(p_FP, dtype=float)
-    nj = frames.n_joints
+    R, o = frames.at_link(link)
     if p_FP.ndim == 2:
-        return frames.o[:, nj] + np.einsum("nij,nj->ni", frames.R[:, nj], p_FP)
-    return frames.o[:, nj] + np.einsum("nij,...j->ni", frames.R[:, nj], p_FP)
+        return o + np.einsum("nij,nj->ni", R, p_FP)
+    return o + np.einsum("nij,...j->ni", R, p_FP)
 
 
-def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
+def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
     """Jacobian of a flange-fixed point w.r.t. the joint parameters and its flange coordinates.
 
     Args:
         frames: result of :func:`forward_kinematics` for n poses (nj joints, P parameters each).
         p_FP: (3,) point in the flange frame [mm] (e.g. the reflector), or (n, 3) one per pose.
+        link: the frame the point is fixed in (None: the flange; an index or (n,) one per pose);
+            the joints off its path (another arm of a tree) get zero columns.
         with_dq: also return the derivative of the Jacobian w.r.t. the joint variables.
 
     Returns:
@@ -206,23 +271,28 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
             [mm/rad or mm/mm], columns ``g..g+2`` the flange coordinates of the point [mm/mm].
         dJ (only with ``with_dq``): (n, nj, 3, g + 3), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
     """
-    p = flange_point(frames, p_FP)  # (n,3)
+    p = flange_point(frames, p_FP, link)  # (n,3)
+    on = frames.point_path(link)  # None, (nj,) or (n, nj): joints that move the point
     u, o = frames.elem_u, frames.elem_o  # (n,nj,P,3)
     rot = frames.elem_rot  # (nj,P)
     nj, P = rot.shape
     col_rot = cross(u, p[:, None, None, :] - o)
     cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,nj,P,3)
+    if on is not None:
+        cols = cols * np.broadcast_to(on, (p.shape[0], nj))[:, :, None, None]
     n = p.shape[0]
     g = nj * P
     J = np.empty((n, 3, g + 3))
     J[:, :, :g] = cols.reshape(n, g, 3).transpose(0, 2, 1)
-    RF = frames.R[:, nj]
+    RF = frames.at_link(link)[0]
     J[:, :, g:] = RF
     if not with_dq:
         return p, J
     w = frames.joint_axes  # (n,nj,3)
     pris = frames.prismatic.any()
     dP = frames.joint_motion(p)  # (n,nj,3): dp/dq_j
+    if on is not None:
+        dP = dP * np.broadcast_to(on, (n, nj))[:, :, None]
     dJ = np.zeros((n, nj, 3, g + 3))
     # element moved by joint j: revolute w_j x col, prismatic 0
     full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,P,3)
@@ -231,11 +301,15 @@ def point_jacobian(frames: Frames, p_FP, *, with_dq: bool = False):
     # element upstream of joint j: rotation: u x dP_j; translation: 0
     part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,P,3)
     part = np.where(rot[None, None, :, :, None], part, 0.0)
-    mask = np.arange(nj)[:, None, None] < frames.moved_by[None, :, :]  # (j,i,P)
+    mask = frames.path[frames.moved_by].transpose(2, 0, 1)  # (j,i,P): joint j moves element (i, p)
     d = np.where(mask[None, :, :, :, None], full, part)  # (n,j,i,P,3)
+    if on is not None:  # elements off the point's path (another arm) stay zero
+        d = d * np.broadcast_to(on, (n, nj))[:, None, :, None, None]
     dJ[:, :, :, :g] = d.reshape(n, nj, g, 3).transpose(0, 1, 3, 2)
     dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF) if pris else dRF
+    if on is not None:
+        dJ[:, :, :, g:] *= np.broadcast_to(on, (n, nj))[:, :, None, None]
     return p, J, dJ
 
 
@@ -251,5 +325,6 @@ def point_velocity_jacobian(frames: Frames, p_W: np.ndarray, link: np.ndarray) -
         (n, m, nj, 3): ``dp_W[k, i] / dq_j`` [mm/rad, mm/mm for prismatic joints].
     """
     d = frames.joint_motion(p_W)  # (n,m,nj,3)
-    active = np.arange(1, frames.n_joints + 1)[None, :] <= np.asarray(link)[:, None]  # (m,nj)
+    link = np.asarray(link, dtype=int)
+    active = frames.path[np.maximum(link, 0)] & (link > 0)[:, None]  # (m,nj)
     return d * active[None, :, :, None]

@@ -15,8 +15,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import yaml
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RollPitchYaw
 
 from kpioed_drake.errors import InputError
@@ -33,6 +31,7 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     RobotSpec,
     checked_effects,
     list_robots,
+    load_yaml_typed,
     rated_payload,
     robot_path,
     spec_joint_names,
@@ -88,6 +87,8 @@ class Robot:
         p_FQ: (3,) reflector offset in the flange frame [mm] overriding the cell's, or None.
         targets: (T, 3) offsets of several targets in the flange frame [mm] (target 1 = ``p_FQ``),
             or None (one target: the reflector).
+        target_links: (T,) the link frame each target is fixed in (1..n_joints; a tree robot's
+            targets on several links, :attr:`chain` ``.parent``), or None (all on the flange).
         X_WT: tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))`` overriding the cell's, or None.
         joint_map: controller angles to model angles, or None (identity).
         extra_gauge: parameter names held at nominal besides SPEC's gauge.
@@ -131,6 +132,7 @@ class Robot:
     effects: tuple[EffectSpec, ...] = ()
     effects_where: str = ""
     gravity_bases: tuple = ()
+    target_links: np.ndarray | None = None
 
     @property
     def n_targets(self) -> int:
@@ -141,6 +143,11 @@ class Robot:
     def n_joints(self) -> int:
         """Number of joints."""
         return len(self.conventions)
+
+    @property
+    def tip(self) -> int:
+        """The flange's frame: the link of target 1 (the reflector); n_joints for a serial robot."""
+        return self.n_joints if self.target_links is None else int(self.target_links[0])
 
     @property
     def per_joint(self) -> int:
@@ -218,34 +225,6 @@ class Cell:
 # ----------------------------------------------------------------------------------------------
 # Loading
 # ----------------------------------------------------------------------------------------------
-def _load_yaml(path: Path, schema):
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a YAML file")
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    try:  # PyYAML first: its syntax errors carry the line and column
-        yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise InputError(f"{path}: YAML syntax error{loc}: {what}") from None
-    try:
-        return yaml_load_typed(filename=str(path), schema=schema)
-    except AssertionError:
-        raise InputError(f"{path}: a field that must be a mapping (key: value) is not") from None
-    except Exception as exc:  # pydrake raises RuntimeError/ValueError with a terse text
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"{path}: {msg}") from None
-
-
-def load_yaml_typed(path: str | Path, schema):
-    """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
-    return _load_yaml(Path(path), schema)
-
-
 def _vec3(values, where: str) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
@@ -415,7 +394,7 @@ def load_robot(name: str) -> Robot:
     """
     path = robot_path(name)
     if path.suffix == ".urdf":
-        fields = read_urdf_robot(path, load_yaml=_load_yaml)
+        fields = read_urdf_robot(path, load_yaml=load_yaml_typed)
         caps = tuple(Capsule(*c) for c in fields.pop("capsules"))
         return Robot(capsules=caps, **fields)
     if not path.is_file():
@@ -424,7 +403,7 @@ def load_robot(name: str) -> Robot:
             f"unknown robot {name!r}: no file {path} (known: {known}, notional-<lambda>-<mu> with "
             "lambda in 650..1100 and mu in 600..1000 in steps of 50, or a path to a .yaml file)"
         )
-    spec = _load_yaml(path, RobotSpec)
+    spec = load_yaml_typed(path, RobotSpec)
     robot = robot_from_spec(spec, where=str(path))
     if not robot.name:
         robot = dataclasses.replace(robot, name=path.stem)
@@ -484,7 +463,7 @@ def load_cell(path: str | Path | None = None, *, robot: Robot | None = None) -> 
     robot- or data-specific target, or a calibrated model's tracker frame).
     """
     path = Path(path) if path is not None else MODELS_DIR / "cell.yaml"
-    spec = _load_yaml(path, CellSpec)
+    spec = load_yaml_typed(path, CellSpec)
     cell = cell_from_spec(spec, where=str(path))
     if robot is not None and robot.car_shift_x:
         shift = np.array([robot.car_shift_x, 0.0, 0.0])

@@ -14,6 +14,8 @@ import re
 from pathlib import Path
 
 import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.jointmap import JointMapSpec
@@ -220,6 +222,14 @@ class LinkCapsuleSpec(CapsuleSpec):
 
 
 @dataclasses.dataclass
+class LinkTargetSpec:
+    """A target (SMR, marker) fixed on URDF link ``link`` at ``position_mm`` in that link's frame."""
+
+    link: str = ""
+    position_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
 class LinkMassSpec:
     """A mass override of robot link ``link`` (1..n): ``mass_kg`` and optionally ``com_mm`` (link frame);
     the URDF's inertia tensor is scaled by the mass ratio."""
@@ -240,6 +250,10 @@ class SidecarSpec:
     ignored); empty: the URDF must be a serial chain."""
     reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
     targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    targets: list[LinkTargetSpec] = dataclasses.field(default_factory=list)
+    """Targets on several links (``{link: NAME, position_mm: [x, y, z]}``, target 1 first, in the
+    named link's frame): the robot is the union of the chains from the root to their links (a tree:
+    two arms on one torso), each joint estimated once; instead of ``tip_link``/``targets_mm``."""
     tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
     tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
     base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
@@ -284,3 +298,28 @@ def rated_payload(value, where: str) -> float | None:
 def spec_joint_names(spec: RobotSpec) -> tuple[str, ...]:
     """The joint names of a robot file (``A1`` .. for a joint without one)."""
     return tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints))
+
+
+def load_yaml_typed(path: str | Path, schema):
+    """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a YAML file")
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:  # PyYAML first: its syntax errors carry the line and column
+        yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InputError(f"{path}: YAML syntax error{loc}: {what}") from None
+    try:
+        return yaml_load_typed(filename=str(path), schema=schema)
+    except AssertionError:
+        raise InputError(f"{path}: a field that must be a mapping (key: value) is not") from None
+    except Exception as exc:  # pydrake raises RuntimeError/ValueError with a terse text
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: {msg}") from None

@@ -122,9 +122,9 @@ def clearance_witness(scene: Scene, robot: Robot, cell: Cell, q, pair: str) -> t
             obstacle, whose points are the closest points of the two axes moved to the surfaces.
     """
     a, _, b = pair.partition(" vs ")
-    beams = dict(beam_targets(robot, cell))  # ``beam``, or ``beam1`` .. ``beamT`` (several targets)
+    beams = {label: (p, f) for label, p, f in beam_targets(robot, cell)}  # ``beam``, ``beam1`` ..
     if a in beams:
-        p_Q = flange_point(forward_kinematics(robot, np.asarray(q, float)[None, :]), beams[a])[0]
+        p_Q = flange_point(forward_kinematics(robot, np.asarray(q, float)[None, :]), *beams[a])[0]
         A, B, radius = _capsule_in_world(robot, cell, q, b)
         d, s, t = segment_distance(p_Q, cell.p_WT, A, B)
         c_beam = p_Q + s * (cell.p_WT - p_Q)

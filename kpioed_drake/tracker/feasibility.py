@@ -91,8 +91,8 @@ class FeasibilityChecker:
                 a, b = b, a
             out[f"{a} vs {b}"] = pr.distance / MM
         fr = forward_kinematics(self.robot, q) if frames is None else frames
-        for label, p_FQ in self._beams:
-            p_Q = flange_point(fr, p_FQ)[0]
+        for label, p_FQ, link in self._beams:
+            p_Q = flange_point(fr, p_FQ, link)[0]
             for c in self._beam_caps:
                 A = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.a
                 B = fr.o[0, c.frame] + fr.R[0, c.frame] @ c.b

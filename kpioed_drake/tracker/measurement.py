@@ -23,7 +23,6 @@ from kpioed_drake.robot.kinematics import (
     flange_point,
     forward_kinematics,
     point_jacobian,
-    point_velocity_jacobian,
 )
 from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.robot.parameters import FIXED_NAMES, N_FULL, ParameterLayout, parameter_layout  # noqa: F401  (re-exported: the layout's historical home)
@@ -90,6 +89,13 @@ class TrackerModel:
             return self.p_FQ
         return self.target_offsets[check_targets(self.layout, target)]
 
+    def target_links(self, target=None):
+        """The frames the rows' targets are fixed in: None (the flange; a serial robot, or
+        ``target`` None) or (n,) frame indices of a tree robot's targets on several links."""
+        if target is None or self.robot.target_links is None:
+            return None
+        return self.robot.target_links[check_targets(self.layout, target)]
+
     def with_params(self, p: np.ndarray) -> TrackerModel:
         return dataclasses.replace(self, p=np.asarray(p, dtype=float))
 
@@ -147,7 +153,7 @@ def hold_unused_targets(model: TrackerModel, target) -> TrackerModel:
 
 def reflector_world(model: TrackerModel, q, target=None) -> np.ndarray:
     """(n, 3) position in W of each row's target (``target`` (n,) 0-based; None: target 0) [mm]."""
-    return flange_point(model.frames(q), model.target_points(target))
+    return flange_point(model.frames(q), model.target_points(target), model.target_links(target))
 
 
 def measure(model: TrackerModel, q, target=None) -> np.ndarray:
@@ -232,7 +238,8 @@ def measurement_jacobian(
     """
     lay = model.layout
     frames = model.frames(q) if frames is None else frames
-    out = point_jacobian(frames, model.target_points(target), with_dq=with_dq)
+    link = model.target_links(target)
+    out = point_jacobian(frames, model.target_points(target), link=link, with_dq=with_dq)
     p_WQ, JW = out[0], out[1]
     h, H = tracker_jacobian(model, p_WQ, JW, target=target)
     if not with_dq:
@@ -243,7 +250,11 @@ def measurement_jacobian(
     dH = np.zeros((h.shape[0], lay.n_joints, 3, lay.size))
     dH[..., lay.joints] = np.einsum("ab,njbc->njac", R_TW, dJW[..., :nj])
     _set_target_columns(dH, np.einsum("ab,njbc->njac", R_TW, dJW[..., nj : nj + 3]), lay, target)
-    dh_dq = point_velocity_jacobian(frames, p_WQ[:, None, :], np.array([lay.n_joints]))[:, 0] @ R_TW.T
+    dp_dq = frames.joint_motion(p_WQ)  # (n, nj, 3)
+    on = frames.point_path(link)
+    if on is not None:
+        dp_dq = dp_dq * np.broadcast_to(on, dp_dq.shape[:2])[:, :, None]
+    dh_dq = dp_dq @ R_TW.T
     r = model.p[lay.tracker_rotation]
     dv = dh_dq @ small_rotation(r).T
     for k, G in enumerate(_drot_transposed(r)):
@@ -264,10 +275,11 @@ def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None, ta
     """(n,) cosine of the incidence angle between the reflector axis z_F and the line of sight
     (to each row's target; ``target`` None: target 0)."""
     frames = model.frames(q) if frames is None else frames
-    p = flange_point(frames, model.target_points(target))
+    link = model.target_links(target)
+    p = flange_point(frames, model.target_points(target), link)
     g = model.p_WT - p
     g /= np.linalg.norm(g, axis=1, keepdims=True)
-    return np.einsum("ni,ni->n", frames.R[:, frames.n_joints, :, 2], g)
+    return np.einsum("ni,ni->n", frames.at_link(link)[0][..., 2], g)
 
 
 def incidence_cosines(model: TrackerModel, q, *, frames: Frames | None = None) -> np.ndarray:

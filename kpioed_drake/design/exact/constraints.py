@@ -56,15 +56,21 @@ def incidence_rows(problem: Problem, q, *, frames: Frames | None = None, target:
     """
     q = as_poses(q, problem.robot.n_joints)
     frames = problem.model.frames(q) if frames is None else frames
-    z = frames.R[:, frames.n_joints, :, 2]  # (n,3)
-    p_FQ = problem.model.p_FQ if target is None else problem.model.target_offsets[target]
-    p = flange_point(frames, p_FQ)  # (n,3)
+    model = problem.model
+    link = None if target is None else model.target_links(np.full(q.shape[0], target))
+    R_F = frames.at_link(link)[0]
+    z = R_F[:, :, 2]  # (n,3)
+    p_FQ = model.p_FQ if target is None else model.target_offsets[target]
+    p = flange_point(frames, p_FQ, link)  # (n,3)
     g = problem.model.p_WT - p
     dist = np.linalg.norm(g, axis=1)
     gh = g / dist[:, None]
     c = np.einsum("ni,ni->n", z, gh)
     dz = np.where(frames.prismatic[:, None], 0.0, cross(frames.joint_axes, z[:, None, :]))
     dp = frames.joint_motion(p)
+    on = frames.point_path(None if link is None else link[0])  # the joints moving the target
+    if on is not None:
+        dz, dp = dz * on[None, :, None], dp * on[None, :, None]
     perp = z - c[:, None] * gh  # (n,3)
     jac = np.einsum("nji,ni->nj", dz, gh) - np.einsum("nji,ni->nj", dp, perp) / dist[:, None]
     return c - math.cos(problem.cell.max_incidence), jac

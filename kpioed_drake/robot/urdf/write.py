@@ -21,7 +21,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import rot_axis
 from kpioed_drake.robot.models import Robot, load_yaml_typed
-from kpioed_drake.robot.urdf import MM, SidecarSpec, sidecar_path
+from kpioed_drake.robot.urdf.read import MM, SidecarSpec, sidecar_path
 
 URDF_SUFFIX = ".urdf"
 
@@ -85,10 +85,18 @@ def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: st
     the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
     src = sidecar_path(Path(robot.urdf.path))
     side = load_yaml_typed(src, SidecarSpec) if src.is_file() else SidecarSpec()
+    if side.targets:  # targets on links: each back in its named link's frame
+        offsets = np.atleast_2d(np.asarray(p_FQ if targets is None else targets, dtype=float))
+        placed = [
+            dataclasses.replace(t, position_mm=(R.T @ (d - p)).tolist())
+            for t, d, (R, p) in zip(side.targets, offsets, robot.urdf.target_placements, strict=True)
+        ]
+        side = dataclasses.replace(side, targets=placed)
+        p_FQ, targets = [], None
     side = dataclasses.replace(
         side,
         name=f"{robot.name}-calibrated",
-        reflector_position_mm=np.asarray(p_FQ, dtype=float).tolist(),
+        reflector_position_mm=np.asarray(p_FQ, dtype=float).tolist(),  # [] with targets on links
         tracker_position_mm=np.asarray(p_WT, dtype=float).tolist(),
         tracker_rpy_deg=np.rad2deg(RollPitchYaw(RotationMatrix(R_WT)).vector()).tolist(),
         gauge=list(robot.gauge),

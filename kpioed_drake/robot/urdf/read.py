@@ -2,9 +2,10 @@
 serial chain, limits, inertias and collision geometry back out of it (plus a sidecar YAML file).
 
 The robot is the chain of revolute, continuous (without limits) and prismatic joints from the root
-to the sidecar's ``tip_link`` (other branches ignored), or the whole tree when it is serial; fixed
-joints are folded into the neighbouring links; ``<mimic>`` joints follow their leader (a joint map,
-:func:`~kpioed_drake.robot.jointmap.mimic_joint_map`). Link i of the robot
+to the sidecar's ``tip_link``, or the union of the chains to the links of its ``targets`` (a tree:
+each shared joint once, :mod:`.tree`), other branches ignored, or the whole tree when it is serial;
+fixed joints are folded into the neighbouring links; ``<mimic>`` joints follow their leader (a
+joint map, :func:`~kpioed_drake.robot.jointmap.mimic_joint_map`). Link i of the robot
 is the child link of the i-th movable joint (its URDF frame is the joint frame, so the chain of
 :mod:`kpioed_drake.robot.chain` is Drake's own); link 0 is W, the base pose ``X_WB`` folded into joint 1's
 placement: the URDF's own weld to a link named ``world``, or the sidecar's ``base_xyz_mm`` /
@@ -33,9 +34,9 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
+from kpioed_drake.robot.urdf.tree import chain_joints, measured_links, mimics
 
 MM = 1e-3
-MOVABLE = ("revolute", "continuous", "prismatic")
 _GENERIC_REFLECTOR = np.array([80.0, -60.0, 150.0])
 """Reflector offset [mm] for the automatic gauge when the sidecar gives none (off every axis)."""
 
@@ -49,6 +50,7 @@ class UrdfSource:
     X_WB: RigidTransform | None  # weld of the root link (None: the URDF welds to "world")
     root: str
     joints: tuple[str, ...]  # the movable joints, base to flange
+    target_placements: tuple = ()  # per sidecar target: (R_OL (3, 3), p_OL (3,) [mm]) of its link
 
 
 def sidecar_path(path: Path) -> Path:
@@ -86,80 +88,6 @@ def _parse_xml(path: Path) -> ET.Element:
     if root.tag != "robot":
         raise InputError(f"{path}: not a URDF (the root element is <{root.tag}>, expected <robot>)")
     return root
-
-
-def _chain_joints(root: ET.Element, path: Path, tip_link: str = "") -> tuple[list[ET.Element], str, bool]:
-    """The movable joints base to flange (to ``tip_link``: other branches ignored; else the tree must
-    be serial), the root link, and whether the URDF welds to "world"."""
-    joints = root.findall("joint")
-    children: dict[str, list[ET.Element]] = {}
-    parent_joint: dict[str, ET.Element] = {}
-    for j in joints:
-        name, kind = j.get("name", "?"), j.get("type", "")
-        if kind not in MOVABLE + ("fixed",):
-            raise InputError(
-                f"{path}: joint {name!r}: type {kind!r} is not supported (revolute, continuous, "
-                "prismatic or fixed)"
-            )
-        p, c = j.find("parent"), j.find("child")
-        if p is None or c is None or not p.get("link") or not c.get("link"):
-            raise InputError(f"{path}: joint {name!r}: needs <parent link=...> and <child link=...>")
-        children.setdefault(p.get("link"), []).append(j)
-        parent_joint[c.get("link")] = j
-    links = [lk.get("name") for lk in root.findall("link")]
-    roots = [lk for lk in links if lk not in parent_joint]
-    if len(roots) != 1:
-        raise InputError(f"{path}: expected one root link, found {roots or 'none'} (not a tree)")
-    chain = _path_to(tip_link, parent_joint, links, path) if tip_link else _serial(roots[0], children, path)
-    if not chain:
-        raise InputError(f"{path}: no revolute or prismatic joint")
-    return chain, roots[0], roots[0] == "world"
-
-
-def _path_to(tip: str, parent_joint: dict, links: list[str], path: Path) -> list[ET.Element]:
-    """The movable joints on the path from the root to link ``tip``."""
-    if tip not in links:
-        raise InputError(f"{path}: tip_link {tip!r} is not a link of the URDF (links: {', '.join(links)})")
-    chain, link = [], tip
-    while link in parent_joint:
-        chain.append(parent_joint[link])
-        link = chain[-1].find("parent").get("link")
-    return [j for j in chain[::-1] if j.get("type") != "fixed"]
-
-
-def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
-    """The movable joints of a serial chain from ``root`` (a branch of movable joints is an error)."""
-
-    def movable_below(link: str) -> int:
-        below = children.get(link, [])
-        return sum((j.get("type") != "fixed") + movable_below(j.find("child").get("link")) for j in below)
-
-    chain, link = [], root
-    while True:
-        branches = [
-            j
-            for j in children.get(link, [])
-            if j.get("type") != "fixed" or movable_below(j.find("child").get("link"))
-        ]
-        if len(branches) > 1:
-            raise InputError(
-                f"{path}: link {link!r}: the tree branches ({', '.join(j.get('name') for j in branches)}); "
-                "name the measured link in the sidecar (tip_link: LINK) to use the chain to it"
-            )
-        if not branches:
-            return chain
-        if branches[0].get("type") != "fixed":
-            chain.append(branches[0])
-        link = branches[0].find("child").get("link")
-
-
-def _mimics(chain: list[ET.Element]) -> dict[str, tuple[str, float, float]]:
-    """The chain's ``<mimic>`` joints: name -> (leader, multiplier, offset [rad or m])."""
-    mimic = {j.get("name"): j.find("mimic") for j in chain if j.find("mimic") is not None}
-    return {
-        n: (m.get("joint", ""), float(m.get("multiplier", 1)), float(m.get("offset", 0)))
-        for n, m in mimic.items()
-    }
 
 
 def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
@@ -234,7 +162,8 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     side_path = sidecar_path(path)
     side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
     sw = str(side_path)
-    chain_xml, root, welded = _chain_joints(xml, path, side.tip_link)
+    tips = measured_links(side, sw, path)
+    chain_xml, parents, root, welded = chain_joints(xml, path, tips)
     X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
     source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
@@ -244,23 +173,29 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     ctx = plant.CreateDefaultContext()
     joints = movable_joints(plant, inst, source)
     n = len(joints)
-    R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, path)
+    R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, parents, path)
     lo, up = _limits(side, names, pris, lo, up, sw, path)
-    chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris)
+    tree = bool(np.any(parents != np.arange(n) - 1))
+    chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris, parent=parents if tree else None)
     masses, coms, owner = _inertia(plant, ctx, bodies)
     if side.capsules:
         caps = _side_capsules(side, n, sw)
     else:
         caps = _capsules(xml, plant, ctx, inst, bodies, owner, path)
-    p_FQ, targets = _reflector(side, sw)
+    if side.targets:
+        p_FQ, targets, target_links, placed = _link_targets(side, plant, ctx, inst, bodies, owner, sw)
+        source = dataclasses.replace(source, target_placements=placed)
+    else:
+        (p_FQ, targets), target_links = _reflector(side, sw), None
     q_work = _q_work(side, pris, lo, up, sw)
     X_WT = _tracker_pose(side, sw)
-    pairs = _link_pairs(side, n, sw)
+    pairs = _link_pairs(side, parents, sw)
     jmap = side.joint_map or mimic_joint_map(
-        list(names), _mimics(chain_xml), [MM if p else 1.0 for p in pris], sw
+        list(names), mimics(chain_xml), [MM if p else 1.0 for p in pris], sw
     )
     joint_map = joint_map_from_spec(jmap, sw, joint_names=names, prismatic=pris)
-    gauge = _gauge(side, chain, lo, up, p_FQ if targets is None else targets, sw, path, joint_map)
+    refl = p_FQ if targets is None else targets
+    gauge = _gauge(side, chain, lo, up, refl, sw, path, joint_map, target_links)
     return dict(
         name=side.name or path.stem,
         conventions=tuple("prismatic" if p else "revolute" for p in pris),
@@ -288,6 +223,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
         effects=checked_effects(side.effects, sw),
         effects_where=sw,
+        target_links=target_links,
     )
 
 
@@ -306,18 +242,18 @@ def _base_pose(side, welded: bool, sw: str, path: Path) -> RigidTransform | None
     return X_WB
 
 
-def _joint_frames(plant: MultibodyPlant, ctx, joints, path: Path):
+def _joint_frames(plant: MultibodyPlant, ctx, joints, parents, path: Path):
     """The chain read from the finalized plant: per joint its placement ``R_PJ`` (n, 3, 3), ``p_PJ``
     (n, 3) [mm] in the parent link's frame, unit ``axis`` (n, 3), ``prismatic`` (n,) and the URDF's
     limits ``lo``, ``up`` (n,) [rad; prismatic mm]; and the bodies, world first, then each joint's
-    child link."""
+    child link (``parents``: each joint's parent joint, -1: W)."""
     n = len(joints)
     R_PJ, p_PJ, axis = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
     pris = np.array([isinstance(j, PrismaticJoint) for j in joints])
     lo, up = np.zeros(n), np.zeros(n)
     bodies = [plant.world_body()]
     for i, j in enumerate(joints):
-        X_P = plant.EvalBodyPoseInWorld(ctx, bodies[-1])
+        X_P = plant.EvalBodyPoseInWorld(ctx, bodies[parents[i] + 1])
         X_PJ = X_P.inverse().multiply(j.frame_on_parent().CalcPoseInWorld(ctx))
         R_PJ[i], p_PJ[i] = X_PJ.rotation().matrix(), X_PJ.translation() / MM
         a = j.translation_axis() if pris[i] else j.revolute_axis()
@@ -347,6 +283,27 @@ def _reflector(side, sw: str) -> tuple[np.ndarray | None, np.ndarray | None]:
     return p_FQ, targets
 
 
+def _link_targets(side, plant, ctx, inst, bodies, owner, sw: str):
+    """``p_FQ`` (3,), the targets (T, 3; None for one) in their moving links' frames [mm], those
+    links' frame indices (T,) and each named link's placement in its moving link, from the
+    sidecar's ``targets`` (each in its named link's frame)."""
+    offsets, links, placements = [], [], []
+    for k, t in enumerate(side.targets):
+        body = plant.GetBodyByName(t.link, inst)
+        i = owner.get(int(body.index()))
+        if i is None:
+            raise InputError(f"{sw}: targets[{k}].link {t.link!r} does not move with the robot's joints")
+        if i == 0:
+            raise InputError(f"{sw}: targets[{k}].link {t.link!r} is fixed to the base (no joint moves it)")
+        X_OL = plant.EvalBodyPoseInWorld(ctx, bodies[i]).inverse() @ plant.EvalBodyPoseInWorld(ctx, body)
+        offsets.append(X_OL @ (_vec(t.position_mm, f"{sw}: targets[{k}].position_mm") * MM) / MM)
+        links.append(i)
+        placements.append((X_OL.rotation().matrix(), X_OL.translation() / MM))
+    targets = np.array(offsets)
+    many = targets if len(targets) > 1 else None
+    return targets[0], many, np.array(links, dtype=int), tuple(placements)
+
+
 def _tracker_pose(side, sw: str) -> tuple[np.ndarray, np.ndarray] | None:
     """The sidecar's tracker pose ``(p_WT (3,) [mm], R_WT (3, 3))``, or None."""
     X_WT = None
@@ -357,12 +314,14 @@ def _tracker_pose(side, sw: str) -> tuple[np.ndarray, np.ndarray] | None:
     return X_WT
 
 
-def _link_pairs(side, n: int, sw: str) -> list[tuple[int, int]]:
+def _link_pairs(side, parents: np.ndarray, sw: str) -> list[tuple[int, int]]:
     """The self-collision pairs (lower link first) of links 0..n, after checking them and the
-    beam links."""
+    beam links (neighbours: a link and its parent link, ``parents`` (n,) per joint, -1: W)."""
+    n = len(parents)
     pairs = []
     for pr in side.self_collision_pairs:
-        if len(pr) != 2 or not all(0 <= x <= n for x in pr) or abs(pr[0] - pr[1]) < 2:
+        ok = len(pr) == 2 and all(0 <= x <= n for x in pr)
+        if not ok or min(pr) == max(pr) or parents[max(pr) - 1] + 1 == min(pr):
             raise InputError(
                 f"{sw}: self_collision_pairs entry {pr} must be two non-neighbour links in 0..{n}"
             )
@@ -372,14 +331,15 @@ def _link_pairs(side, n: int, sw: str) -> list[tuple[int, int]]:
     return pairs
 
 
-def _gauge(side, chain, lo, up, p_FQ, sw, path, joint_map=None) -> tuple[str, ...]:
+def _gauge(side, chain, lo, up, p_FQ, sw, path, joint_map=None, links=None) -> tuple[str, ...]:
     if side.gauge:
         unknown = sorted(set(side.gauge) - set(param_names(chain.n_joints)))
         if unknown:
             raise InputError(f"{sw}: gauge names {unknown}, not joint parameters of {path}")
         return tuple(side.gauge)
     try:
-        return auto_gauge(chain, lo, up, _GENERIC_REFLECTOR if p_FQ is None else p_FQ, joint_map=joint_map)
+        p = _GENERIC_REFLECTOR if p_FQ is None else p_FQ
+        return auto_gauge(chain, lo, up, p, joint_map=joint_map, links=links)
     except ValueError as exc:
         msg = f"{path}: automatic gauge: {exc}; name the parameters to hold in {sw} (gauge:)"
         raise InputError(msg) from None
