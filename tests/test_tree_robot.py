@@ -13,7 +13,9 @@ from scipy.spatial.transform import Rotation
 from kpioed_drake import calibration, simulation
 from kpioed_drake.calibration.modelfile import calibrated_urdf_files
 from kpioed_drake.calibration.validate import validate
+from kpioed_drake.design import DesignConstraints, DesignObjective
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.kinematics import forward_kinematics, point_velocity_jacobian
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.plant import build_scene
@@ -180,3 +182,21 @@ def test_two_arms_in_one_calibration_recover_the_truth_and_validate(twin, tmp_pa
     val = validate(again, hold)
     err = np.linalg.norm(val.residuals_W, axis=1)
     assert err.mean() < 2.0 * 0.05 * np.sqrt(3)
+
+
+def test_design_gradients_of_two_hands_match_finite_differences(twin):
+    """The KPI objective and every constraint row (both hands' incidence and beams, clearances) of a
+    tree robot against central differences."""
+    problem = make_problem(twin)
+    q = _poses(twin, 40, 9)
+    obj = DesignObjective(problem, "kpi")
+    value, grad = obj.value_and_grad(q)
+    fd = central_fd(obj.value, q, 1e-6)
+    assert_allclose(grad, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+    q = q[:4]
+    cons = DesignConstraints(problem, collision=True)
+    assert {"incidence1", "incidence2", "beam2 vs car_body"} <= set(cons.row_names)
+    v, J = cons.evaluate(q)
+    fdc = central_fd(lambda x: cons.evaluate(x)[0], q, 1e-6)
+    own = np.stack([fdc[k, :, k, :] for k in range(len(q))])
+    assert_allclose(J, own, rtol=1e-5, atol=1e-5)

@@ -275,14 +275,15 @@ class ClearanceModel:
 
     @staticmethod
     def _jacobian(frames: Frames, E, W, N, F) -> np.ndarray:
-        """``sum_k W_k [j < F_k] N . (w_j x (E_k - o_j))`` = ``sum_k W_k [j < F_k] (E_k - o_j) . (N x w_j)``;
-        a prismatic joint j moves every point by ``w_j``: ``sum_k W_k [j < F_k] N . w_j``.
+        """``sum_k W_k [j moves F_k] N . (w_j x (E_k - o_j))`` = ``sum_k W_k [..] (E_k - o_j) . (N x w_j)``;
+        a prismatic joint j moves every point by ``w_j``: ``sum_k W_k [j moves F_k] N . w_j``
+        (``[j moves F_k]``: ``j < F_k`` for a serial robot, :attr:`Frames.path` for a tree).
 
         Shapes: E (n, k, 4, 3), W (n, k, 4), N (n, k, 3), F (k, 4) or (n, k, 4); returns (n, k, nj).
         """
         w, o = frames.joint_axes, frames.joint_points  # (n, nj, 3)
         T = cross(N[:, :, None, :], w[:, None, :, :])  # (n, k, nj, 3)
-        moves = np.arange(1, frames.n_joints + 1) <= np.asarray(F)[..., None]  # (.., k, 4, nj)
+        moves = frames.path[np.asarray(F)]  # (.., k, 4, nj): joint j moves frame F_k
         WM = W[..., None] * moves  # (n, k, 4, nj)
         ET = np.einsum("nkpi,nkji->nkpj", E, T)  # (n, k, 4, nj)
         oT = np.einsum("nji,nkji->nkj", o, T)  # (n, k, nj)

@@ -257,7 +257,9 @@ def approximate_design(
     rng = np.random.default_rng(seed)
     K = kpi_factor(problem)
     if warm is None:
-        q = heuristic_design(problem, n=pool, seed=seed, collision=collision, margin_mm=0.0)
+        q = heuristic_design(  # as many draws as the certificate's pool: two hands facing the
+            problem, n=pool, seed=seed, collision=collision, margin_mm=0.0, max_draws=10**7
+        )  # tracker are a few feasible poses in a thousand
         q = np.concatenate([q, corner_poses(problem, q, seed=seed, collision=collision)])
         F, done, n_searched, before_s = pose_rows(problem, q), 0, 0, 0.0
         work = np.arange(min(len(q), first_working))
