@@ -155,45 +155,72 @@ LATERAL = {1: 1e-4, 5: 3e-4}
 shoulder (hand deflection a few millimetres at most)."""
 
 
-def truth_effects(lateral: bool = False) -> tuple[str, ...]:
-    """The truth's effect texts (:data:`ELASTICITY`, with ``lateral`` also :data:`LATERAL`)."""
-    out = [f"joint_elasticity:{j}={c}" for j, c in ELASTICITY.items()]
-    return tuple(out + ([f"lateral_compliance:{j}={c}" for j, c in LATERAL.items()] if lateral else []))
+LEFT = 7
+"""Joint k of the right arm (5..11) is joint k + 7 of the left arm in the twin (12..18)."""
+
+
+def truth_effects(lateral: bool = False, twin: bool = False) -> tuple[str, ...]:
+    """The truth's effect texts (:data:`ELASTICITY`, with ``lateral`` also :data:`LATERAL`); the
+    ``twin``'s left arm has the right arm's (its joints :data:`LEFT` further on)."""
+    el, lat = dict(ELASTICITY), dict(LATERAL) if lateral else {}
+    if twin:
+        el |= {j + LEFT: c for j, c in ELASTICITY.items() if j >= 5}
+        lat |= {j + LEFT: c for j, c in lat.items() if j >= 5}
+    out = [f"joint_elasticity:{j}={c}" for j, c in el.items()]
+    return tuple(out + [f"lateral_compliance:{j}={c}" for j, c in lat.items()])
 
 
 def stand_in_data(
-    n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, sigma_mm: float = 0.5, lateral: bool = False
+    n_fit: int = 400,
+    n_hold: int = 100,
+    *,
+    seed: int = 0,
+    sigma_mm: float = 0.5,
+    lateral: bool = False,
+    twin: bool = False,
 ):
     """Simulated data of the stand-in: (model robot, fitted Measurements, held-out Measurements, truth).
 
     The truth is :func:`write_models`'s truth file with SPEC-sized geometric errors and
-    :func:`truth_effects`; the measurements are read against the mass-free model file.
+    :func:`truth_effects`; the measurements are read against the mass-free model file. The
+    ``twin`` measures both hands at every pose (two rows a pose).
     """
     from kpioed_drake.robot.models import load_robot
     from kpioed_drake.simulation import SimulationOptions, simulate
     from kpioed_drake.tracker.data import Measurements
 
-    model = load_robot(str(ROBOTS / f"{NAME}.urdf"))
-    truth = load_robot(str(ROBOTS / f"{NAME}_truth.urdf"))
+    name = TWIN if twin else NAME
+    model = load_robot(str(ROBOTS / f"{name}.urdf"))
+    truth = load_robot(str(ROBOTS / f"{name}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
-    opts = SimulationOptions(sigma_mm=sigma_mm, seed=seed, effects=truth_effects(lateral))
+    opts = SimulationOptions(
+        sigma_mm=sigma_mm, seed=seed, effects=truth_effects(lateral, twin), n_targets=2 if twin else None
+    )
     table, info = simulate(truth, q, opts)
-    fit = Measurements.from_table(table.iloc[:n_fit].reset_index(drop=True), model, source="stand-in fit")
+    rows = 2 * n_fit if twin else n_fit
+    fit = Measurements.from_table(table.iloc[:rows].reset_index(drop=True), model, source="stand-in fit")
     hold = Measurements.from_table(
-        table.iloc[n_fit:].reset_index(drop=True), model, source="stand-in held out"
+        table.iloc[rows:].reset_index(drop=True), model, source="stand-in held out"
     )
     return model, fit, hold, info
 
 
 def measure(
-    folder: Path, n_fit: int = 400, n_hold: int = 100, *, seed: int = 0, lateral: bool = False
+    folder: Path,
+    n_fit: int = 400,
+    n_hold: int = 100,
+    *,
+    seed: int = 0,
+    lateral: bool = False,
+    twin: bool = False,
 ) -> dict:
     """The stand-in's experiment: geometric calibration against ``diagnose --out``, both validated
-    on the held-out poses (``kpioed validate``, tracker re-registered); files in ``folder``.
+    on the held-out poses (``kpioed validate``, tracker re-registered); files in ``folder``. The
+    ``twin``: both hands at every pose, one calibration and one diagnosis of the 18 joints.
 
     Returns:
-        ``geometric_mm`` / ``extended_mm`` (held-out mean 3-D error), ``named`` (the causes),
-        ``diagnose_s`` (the diagnosis's wall time).
+        ``geometric_mm`` / ``extended_mm`` (held-out mean 3-D error; per hand for the twin:
+        ``*_per_target_mm``), ``named`` (the causes), ``diagnose_s`` (the diagnosis's wall time).
     """
     from kpioed_drake.calibration import CalibrationOptions
     from kpioed_drake.calibration.validate import validate_file
@@ -203,24 +230,31 @@ def measure(
     from kpioed_drake.robot.models import load_robot
     from kpioed_drake.simulation import SimulationOptions, simulate
 
-    truth = load_robot(str(ROBOTS / f"{NAME}_truth.urdf"))
+    name = TWIN if twin else NAME
+    truth = load_robot(str(ROBOTS / f"{name}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
-    table, _ = simulate(truth, q, SimulationOptions(sigma_mm=0.5, seed=seed, effects=truth_effects(lateral)))
+    opts = SimulationOptions(
+        sigma_mm=0.5, seed=seed, effects=truth_effects(lateral, twin), n_targets=2 if twin else None
+    )
+    table, _ = simulate(truth, q, opts)
+    rows = 2 * n_fit if twin else n_fit
     fit_csv, hold_csv = folder / "fit.csv", folder / "holdout.csv"
-    table.iloc[:n_fit].to_csv(fit_csv, index=False)
-    table.iloc[n_fit:].to_csv(hold_csv, index=False)
-    model = str(ROBOTS / f"{NAME}.urdf")
+    table.iloc[:rows].to_csv(fit_csv, index=False)
+    table.iloc[rows:].to_csv(hold_csv, index=False)
+    model = str(ROBOTS / f"{name}.urdf")
     calibrate_file(model, fit_csv, CalibrationOptions(sigma_mm=0.5), out=folder / "geometric.urdf")
     t0 = time.perf_counter()
     rep = diagnose_file(model, fit_csv, DiagnosisOptions(sigma_mm=0.5), out=folder / "extended.urdf")
     dt = time.perf_counter() - t0
-    err = {}
-    for name in ("geometric", "extended"):
-        v = validate_file(str(folder / f"{name}.urdf"), hold_csv)
-        err[name] = float(np.mean(np.linalg.norm(v.residuals_W, axis=1)))
-    return {
-        "geometric_mm": err["geometric"],
-        "extended_mm": err["extended"],
+    out = {}
+    for kind in ("geometric", "extended"):
+        v = validate_file(str(folder / f"{kind}.urdf"), hold_csv)
+        err = np.linalg.norm(v.residuals_W, axis=1)
+        out[f"{kind}_mm"] = float(np.mean(err))
+        if twin:
+            t = np.asarray(table.iloc[rows:]["target"])
+            out[f"{kind}_per_target_mm"] = [float(np.mean(err[t == k])) for k in (1, 2)]
+    return out | {
         "named": [c.effect.name for c in rep.cause_records],
         "diagnose_s": dt,
         "baseline_holdout_rms_mm": rep.baseline["holdout_rms_mm"],

@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 from kpioed_drake import calibration, simulation
 from kpioed_drake.calibration.modelfile import calibrated_urdf_files
 from kpioed_drake.calibration.validate import validate
-from kpioed_drake.design import DesignConstraints, DesignObjective
+from kpioed_drake.design import DesignConstraints, DesignObjective, heuristic_design
+from kpioed_drake.design.approximate import search
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.kinematics import forward_kinematics, point_velocity_jacobian
@@ -200,3 +201,19 @@ def test_design_gradients_of_two_hands_match_finite_differences(twin):
     fdc = central_fd(lambda x: cons.evaluate(x)[0], q, 1e-6)
     own = np.stack([fdc[k, :, k, :] for k in range(len(q))])
     assert_allclose(J, own, rtol=1e-5, atol=1e-5)
+
+
+def test_the_approximate_designs_candidates_follow_the_coupled_torso(twin):
+    """Corner and perturbed variants of commandable poses stay commandable (q4 = -(q2 + q3)); a pose
+    off the coupling is not feasible for the design."""
+    problem = make_problem(twin)
+    q = np.repeat(heuristic_design(problem, n=30, seed=4, collision=False), 4, axis=0)
+    for out in (
+        search.corner_poses(problem, q, seed=1, collision=False),
+        search.perturbed_poses(problem, q, scale_rad=0.02, seed=2, collision=False),
+    ):
+        assert len(out) > 0
+        assert_allclose(out[:, 3], -(out[:, 1] + out[:, 2]), atol=1e-9)
+    off = q.copy()
+    off[:, 3] += 0.05
+    assert not search.feasible(problem, off, collision=False).any()

@@ -15,7 +15,7 @@ MIN_REMAINING = 0.05
 K_FOLDS = 5
 """Folds of the cross-validation over poses."""
 MAX_EFFECTS = 4
-"""Most effects the stepwise selection adds."""
+"""Most effects the stepwise selection adds per measured branch (a tree robot's arm)."""
 FOLD_SEED = 0
 """Seed of the random assignment of poses to folds."""
 MIN_HOLDOUT_GAIN = 0.02
@@ -58,8 +58,9 @@ class DiagnosisOptions:
     """Level of the goodness-of-fit test and family-wise level of each selection step."""
     k_folds: int = K_FOLDS
     """Folds of the cross-validation over poses (the held-out error)."""
-    max_effects: int = MAX_EFFECTS
-    """Most effects the stepwise selection adds."""
+    max_effects: int | None = None
+    """Most effects the stepwise selection adds; None: :data:`MAX_EFFECTS` per measured branch
+    (:func:`effect_budget`: 4 for a serial robot, 8 for two arms on one torso)."""
     candidates: tuple[str, ...] | None = None
     """The candidate effects as texts (``gear_cyclic:2:1``, ``backlash:3``; docs/diagnosis.md, "Effect
     models"); None: the candidates these data can reveal
@@ -72,3 +73,13 @@ class DiagnosisOptions:
 def load_options(*, filename: str | Path | None = None, data: str | None = None) -> DiagnosisOptions:
     """:class:`DiagnosisOptions` from a YAML file or text (:func:`kpioed_drake.options.load_options`)."""
     return options.load_options(DiagnosisOptions, filename=filename, data=data)
+
+
+def effect_budget(robot, max_effects: int | None) -> int:
+    """The most effects a diagnosis of ``robot`` adds: ``max_effects``, or :data:`MAX_EFFECTS` for
+    each measured branch (the distinct links of a tree robot's targets; one for a serial robot)."""
+    if max_effects is not None:
+        return int(max_effects)
+    links = robot.target_links
+    branches = 1 if links is None else len(set(links.tolist()))
+    return MAX_EFFECTS * branches

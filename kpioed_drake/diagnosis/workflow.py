@@ -31,7 +31,7 @@ from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import name_causes, settle
-from kpioed_drake.diagnosis.common import DiagnosisOptions
+from kpioed_drake.diagnosis.common import DiagnosisOptions, effect_budget
 from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, reduce_absorbed, upgrade_elasticity
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
@@ -167,7 +167,14 @@ def diagnose(
     test = _gof_test(base, alpha)
     structure = score_tests(prob, base, cands)
     sel = select_effects(
-        prob, base, base_hold, cands, sides=sides, alpha=alpha, k_folds=k_folds, max_effects=opts.max_effects
+        prob,
+        base,
+        base_hold,
+        cands,
+        sides=sides,
+        alpha=alpha,
+        k_folds=k_folds,
+        max_effects=effect_budget(prob.robot, opts.max_effects),
     )
     sel, basis_notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
     sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)

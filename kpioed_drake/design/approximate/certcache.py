@@ -13,7 +13,8 @@ write the same content).
 Key: a SHA-256 hash of what the search depends on, by content: the robot's name and joint limits,
 the identification rows ``F1`` and the constraint rows (incidence, clearances of the cell) at 16
 fixed test poses (so robot kinematics, measurement model, noise, extensions and cell geometry),
-the KPI factor ``Js`` (working poses, weights, KPI point), ``collision``, the seed and the search
+the KPI factor ``Js`` (working poses, weights, KPI point), the joint map's coupling equations
+(the poses a controller can command), ``collision``, the seed and the search
 settings (the module constants passed in ``settings``), and :data:`CACHE_VERSION`.
 """
 
@@ -31,7 +32,7 @@ from kpioed_drake.design.approximate.design import ApproximateDesign
 from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.estimation.problem import Problem
 
-CACHE_VERSION = "certificate-v1"
+CACHE_VERSION = "certificate-v2"
 """Changes when the stored content or the search changes meaning."""
 CACHE_ENV = "KPIOED_CACHE"
 """Environment variable naming the cache folder (``off``, ``0`` or empty: no disk cache)."""
@@ -61,7 +62,9 @@ def problem_key(problem: Problem, *, collision: bool, seed: int, settings: dict)
             (CACHE_VERSION, problem.robot.name, bool(collision), int(seed), sorted(settings.items()))
         ).encode()
     )
-    for a in (lo, up, problem.F1(q), np.asarray(rows, dtype=float), problem.Js()):
+    jm = problem.robot.joint_map  # its couplings restrict the poses searched
+    coupling = np.concatenate([m.ravel() for m in jm.coupling_equations()]) if jm else np.zeros(0)
+    for a in (lo, up, problem.F1(q), np.asarray(rows, dtype=float), problem.Js(), coupling):
         arr = np.ascontiguousarray(a, dtype=float)
         h.update(repr(arr.shape).encode())
         h.update(arr.tobytes())

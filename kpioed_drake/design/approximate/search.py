@@ -28,6 +28,7 @@ from pydrake.solvers import SnoptSolver, SolverOptions
 from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.robot.jointmap import commandable_projection
 
 SEARCH_BATCH = 8
 """Starts per SNOPT solve of the local maximisation: faster than one start per solve or all starts in
@@ -88,8 +89,8 @@ def maximize_dual(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, colli
         Y: (k, 3) dual matrix.
 
     Returns:
-        q: (s, 6) poses reached [rad]; g: (s,) their ``g``; feasible: (s,) bool, every constraint
-        row of the pose (:meth:`DesignConstraints.evaluate`) is >= 0.
+        q: (s, 6) poses reached [rad] (on the joint map's couplings); g: (s,) their ``g``;
+        feasible: (s,) bool, :func:`feasible`.
     """
     snopt, opts = SnoptSolver(), SolverOptions()
     for name, val in SEARCH_OPTIONS.items():
@@ -103,20 +104,25 @@ def maximize_dual(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, colli
         dp.objective = DualObjective(problem, Y)
         result = snopt.Solve(dp.prog, q_start[k0 : k0 + b].reshape(-1), opts)
         out.append(np.asarray(result.GetSolution(dp.x)).reshape(b, problem.robot.n_joints))
-    q = np.clip(np.concatenate(out), problem.robot.lower, problem.robot.upper)
-    rows, _ = DesignConstraints(problem, collision=collision).evaluate(q)
-    return q, dual_values(pose_rows(problem, q), Y), np.all(rows >= 0.0, axis=1)
+    q = np.clip(
+        commandable_projection(problem.robot, np.concatenate(out)), problem.robot.lower, problem.robot.upper
+    )
+    return q, dual_values(pose_rows(problem, q), Y), feasible(problem, q, collision=collision)
 
 
+COUPLING_TOL = 1e-7
+"""Largest violation of a joint map's coupling equations in a feasible pose [rad, mm]."""
 CORNER_PROBABILITY = 1.0 / 3.0
 """Probability that :func:`corner_poses` puts a joint of a pose at one of its limits."""
 
 
 def feasible(problem: Problem, q: np.ndarray, *, collision: bool = True) -> np.ndarray:
     """(m,) bool: every constraint row of the pose (:meth:`DesignConstraints.evaluate`: incidence,
-    with ``collision`` the clearances) is >= 0 and the joints are within their limits."""
+    with ``collision`` the clearances) is >= 0, the joints are within their limits and follow the
+    joint map's couplings (a pose the controller can command)."""
     rows, _ = DesignConstraints(problem, collision=collision).evaluate(q)
     inside = np.all((q >= problem.robot.lower) & (q <= problem.robot.upper), axis=1)
+    inside &= np.all(np.abs(commandable_projection(problem.robot, q) - q) <= COUPLING_TOL, axis=1)
     return inside & np.all(rows >= 0.0, axis=1)
 
 
@@ -134,7 +140,7 @@ def corner_poses(problem: Problem, q: np.ndarray, *, seed: int = 0, collision: b
     lo, up = problem.robot.lower, problem.robot.upper
     limit = np.where(rng.random(q.shape) < 0.5, lo, up)
     at = rng.random(q.shape) < CORNER_PROBABILITY
-    qc = np.where(at, limit, q)[at.any(axis=1)]
+    qc = commandable_projection(problem.robot, np.where(at, limit, q)[at.any(axis=1)])
     return qc[feasible(problem, qc, collision=collision)]
 
 
@@ -143,4 +149,5 @@ def perturbed_poses(
 ) -> np.ndarray:
     """The :func:`feasible` ones of ``q`` (m, 6) [rad] plus normal noise of ``scale_rad`` per joint."""
     qp = np.asarray(q, dtype=float) + np.random.default_rng(seed).normal(scale=scale_rad, size=np.shape(q))
+    qp = commandable_projection(problem.robot, qp)
     return qp[feasible(problem, qp, collision=collision)]
