@@ -214,6 +214,17 @@ def _held(q, dq, lo, up):
     return ((q <= lo + tol) & (dq < 0)) | ((q >= up - tol) & (dq > 0))
 
 
+def _commandable(robot) -> np.ndarray:
+    """(nj, nj) the projector on the joint motions the controller can command (``I - N^T N`` of the
+    joint map's coupling equations; the identity without couplings): a coupled torso joint
+    follows its leaders in every step."""
+    nj = robot.n_joints
+    if robot.joint_map is None:
+        return np.eye(nj)
+    N, _ = robot.joint_map.coupling_equations()
+    return np.eye(nj) - N.T @ N
+
+
 def _solve(model, q0, goal: _Goal, effects=(), conditions=None, *, target=0) -> tuple[np.ndarray, int]:
     """Projected Levenberg-Marquardt over all rows; (q (n, nj), iterations of the slowest row).
 
@@ -226,16 +237,17 @@ def _solve(model, q0, goal: _Goal, effects=(), conditions=None, *, target=0) -> 
     cond = conditions or {}
     lam = np.full(q.shape[0], _LAM0)
     active = np.ones(q.shape[0], dtype=bool)
+    on_map = _commandable(model.robot)  # steps along the joint map's couplings only
     it = 0
     while active.any() and it < MAX_ITERATIONS:
         it += 1
         rows = np.flatnonzero(active)
         e, merit, J = _residual(model, effects, cond, target, goal, rows, q[rows], jacobian=True)
-        J, e_solved = J[:, : goal.rows], e[:, : goal.rows]
+        J, e_solved = J[:, : goal.rows] @ on_map, e[:, : goal.rows]
         dq = _damped_solve(J, e_solved, lam[rows])
         held = _held(q[rows], dq, lo, up)
         if held.any():
-            dq = _damped_solve(J * ~held[:, None, :], e_solved, lam[rows])
+            dq = _damped_solve((J * ~held[:, None, :]) @ on_map, e_solved, lam[rows])
         cap = np.where(model.robot.prismatic, MAX_STEP[1], MAX_STEP[0])
         dq = dq / np.maximum(1.0, np.max(np.abs(dq) / cap, axis=1))[:, None]
         q_new = np.clip(q[rows] + dq, lo, up)
