@@ -76,8 +76,10 @@ def info(robot: str, *, cell_path=None) -> dict:
         dict with ``robot``, ``reach_mm``, ``q_work_deg``, ``joint_limits_deg``, ``parameters``
         (all 33 names), ``estimated`` (the 27), ``fixed`` (the 6 held at nominal), ``n_params``
         (identifiable count from a rank test at random poses), ``identifiable`` (bool),
-        ``unidentifiable`` (names, if any) and ``car_shift_x_mm``. A prismatic joint's values in
-        ``q_work_deg`` and ``joint_limits_deg`` are millimetres.
+        ``unidentifiable`` (names, if any), ``car_shift_x_mm``, ``joints`` (name and 1-based
+        parent joint, 0 = the base, per joint: a tree robot's branches) and ``targets`` (1-based
+        link, i.e. the joint that moves it, and offset [mm] per target). A prismatic joint's values
+        in ``q_work_deg`` and ``joint_limits_deg`` are millimetres.
     """
     rob = load_robot(robot)
     rep = check_identifiability(rob, load_cell(cell_path, robot=rob))
@@ -94,7 +96,27 @@ def info(robot: str, *, cell_path=None) -> dict:
         "identifiable": rep.identifiable,
         "unidentifiable": rep.unidentifiable,
         "car_shift_x_mm": rob.car_shift_x,
+        "joints": [
+            {"name": n, "parent": int(p) + 1} for n, p in zip(rob.joint_names, _parents(rob), strict=True)
+        ],
+        "targets": [
+            {"link": int(f), "offset_mm": np.asarray(t, float).tolist()}
+            for f, t in zip(_target_links(rob), _target_offsets(rob), strict=True)
+        ],
     }
+
+
+def _parents(rob) -> np.ndarray:
+    return rob.chain.parents if rob.chain is not None else np.arange(rob.n_joints) - 1
+
+
+def _target_links(rob) -> list[int]:
+    return [rob.tip] * rob.n_targets if rob.target_links is None else rob.target_links.tolist()
+
+
+def _target_offsets(rob) -> list:
+    first = rob.p_FQ if rob.p_FQ is not None else load_cell(robot=rob).p_FQ
+    return [first] + [rob.targets[t] for t in range(1, rob.n_targets)]
 
 
 def design(

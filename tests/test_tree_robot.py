@@ -4,6 +4,8 @@ The kinematics and the measurement Jacobians of a tree against finite difference
 plant; the union of the chains read from the URDF (each shared joint once, branches ignored).
 """
 
+import json
+
 import numpy as np
 import pytest
 from fd import central_fd
@@ -15,6 +17,7 @@ from kpioed_drake.calibration.compensate import compensate_program, model_pose
 from kpioed_drake.calibration.modelfile import calibrated_urdf_files
 from kpioed_drake.calibration.validate import validate, validate_file
 from kpioed_drake.calibration.workflow import calibrate_file
+from kpioed_drake.cli import main
 from kpioed_drake.design import DesignConstraints, DesignObjective, heuristic_design
 from kpioed_drake.design.approximate import search
 from kpioed_drake.diagnosis import DiagnosisOptions
@@ -270,3 +273,14 @@ def test_compensating_one_hand_moves_its_chain_on_the_coupling(twin, target):
     other = slice(11, 18) if target == 0 else slice(4, 11)
     assert np.all(comp.q[:, other] == program[:, other])
     assert_allclose(comp.q[:, 3], -(comp.q[:, 1] + comp.q[:, 2]), atol=1e-12)
+
+
+def test_info_shows_the_branch_and_each_targets_link(capsys):
+    assert main(["info", "--robot", TWIN]) == 0
+    out = capsys.readouterr().out
+    assert "branches     b1 (12) on t4" in out
+    assert "target 2     on the link of b7 (18)" in out
+    assert main(["info", "--robot", TWIN, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert [j["parent"] for j in d["joints"]][10:13] == [10, 4, 12]
+    assert [t["link"] for t in d["targets"]] == [11, 18]

@@ -25,4 +25,15 @@ def run(args) -> int:
     print(f"fixed        {', '.join(d['fixed'])} (gauge: trade exactly against tracker pose / reflector)")
     ok = "all identifiable" if d["identifiable"] else f"NOT identifiable: {', '.join(d['unidentifiable'])}"
     print(f"n_params     {d['n_params']} ({ok})")
+    names = [j["name"] for j in d["joints"]]
+    branches = [
+        f"{j['name']} ({k + 1}) on {names[j['parent'] - 1] if j['parent'] else 'the base'}"
+        for k, j in enumerate(d["joints"])
+        if j["parent"] != k  # not on the joint before it: a branch of a tree
+    ]
+    if branches:
+        print(f"branches     {'; '.join(branches)}")
+    for k, t in enumerate(d["targets"]):
+        link = f"{names[t['link'] - 1]} ({t['link']})"
+        print(f"target {k + 1}     on the link of {link}, offset {t['offset_mm']} mm")
     return 0
