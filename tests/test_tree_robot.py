@@ -239,9 +239,15 @@ def test_a_diagnosis_of_the_twin_names_each_arms_elastic_shoulder(tmp_path):
     table.iloc[:300].to_csv(fit, index=False)
     table.iloc[300:].to_csv(hold, index=False)
     cands = ("joint_elasticity_basis:5", "joint_elasticity_basis:12", "joint_elasticity_basis:13")
+    plots = tmp_path / "plots"
     rep = diagnose_file(
-        TWIN, fit, DiagnosisOptions(sigma_mm=0.2, candidates=cands), out=tmp_path / "ext.urdf"
+        TWIN,
+        fit,
+        DiagnosisOptions(sigma_mm=0.2, candidates=cands),
+        out=tmp_path / "ext.urdf",
+        plots_dir=plots,
     )
+    assert (plots / "residual_structure.png").stat().st_size > 0  # 18 joints, six a row pair
     assert {c.effect.name for c in rep.cause_records} >= {cands[0], cands[1]}
     calibrate_file(TWIN, fit, calibration.CalibrationOptions(sigma_mm=0.2), out=tmp_path / "geo.urdf")
     t = np.asarray(table.iloc[300:]["target"])

@@ -21,6 +21,7 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.outputs import pyplot
+from kpioed_drake.robot.kinematics import subtree_links
 from kpioed_drake.tracker.csvio import q_to_file
 from kpioed_drake.tracker.measurement import reflector_world
 
@@ -58,7 +59,8 @@ def _score_title(report, name: str) -> str:
 
 
 def plot_residual_structure(report: DiagnosisReport, path) -> Path:
-    """Baseline residuals against every candidate variable (3 x 6 panels)."""
+    """Baseline residuals against every candidate variable: per joint its angle and its gravity
+    torque (six joints a row pair, 3 x 6 panels for six joints), then the conditions."""
     plt = pyplot()
     prob, base = report.details["prob"], report.details["base"]
     d = prob.data
@@ -67,21 +69,29 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     nj = d.q.shape[1]
     size = np.max(np.abs(prob.tau), axis=0)
     loaded = size > 1e-9 * max(1.0, float(np.max(size)))  # as the candidates: gravity loads the joint
-    fig, axes = plt.subplots(3, nj, figsize=(20 * nj / 6, 10), constrained_layout=True)
+    cols, blocks = max(4, min(nj, 6)), -(-nj // 6)
+    fig, grid = plt.subplots(
+        2 * blocks + 1, cols, figsize=(20 * cols / 6, 10 * (2 * blocks + 1) / 3), constrained_layout=True
+    )
+    massless = [not np.any(prob.robot.masses[subtree_links(prob.robot, j + 1)] > 0) for j in range(nj)]
+    for ax in grid[-3:-1, nj - cols * (blocks - 1) :].ravel():  # the last row pair's empty panels
+        ax.set_axis_off()
     for j in range(nj):
         a = np.rad2deg(_apparent(r, g[:, j]))
-        ax = axes[0, j]
+        axes = grid[2 * (j // cols) :]
+        ax = axes[0, j % cols]
         ax.scatter(q_to_file(prob.robot, d.q)[:, j], a, s=8, color=_BEFORE)
         best = min((_score_title(report, f"gear_cyclic:{j + 1}:{n}"), n) for n in (1, 2))[0]
         ax.set_title(f"joint {j + 1} vs q{j + 1}\n{best}", fontsize=9)
         ax.set_xlabel(f"q{j + 1} [{'mm' if prob.robot.prismatic[j] else 'deg'}]")
         ax.axhline(0, color="0.7", lw=0.8)
-        ax = axes[1, j]
+        ax = axes[1, j % cols]
         if not loaded[j]:
+            why = "no link masses in the file" if massless[j] else "vertical axis,\nno gravity torque"
             ax.text(
                 0.5,
                 0.5,
-                f"joint {j + 1}: vertical axis,\nno gravity torque",
+                f"joint {j + 1}: {why}",
                 ha="center",
                 va="center",
                 transform=ax.transAxes,
@@ -95,8 +105,9 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
             )
             ax.set_xlabel(f"tau{j + 1} [N m]")
             ax.axhline(0, color="0.7", lw=0.8)
-    for ax in axes[:2, 0]:
+    for ax in grid[:-1, 0]:
         ax.set_ylabel("apparent joint-angle error [deg]")
+    axes = grid[-3:]
     ax = axes[2, 0]
     if d.temperature_C is not None:
         ax.scatter(d.temperature_C, 1e6 * _apparent(r, u), s=8, color=_BEFORE)
