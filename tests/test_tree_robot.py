@@ -290,3 +290,20 @@ def test_info_shows_the_branch_and_each_targets_link(capsys):
     d = json.loads(capsys.readouterr().out)
     assert [j["parent"] for j in d["joints"]][10:13] == [10, 4, 12]
     assert [t["link"] for t in d["targets"]] == [11, 18]
+
+
+def test_a_design_of_the_twin_carries_effects_on_both_arms(twin):
+    """Extensions with several targets: F1's effect columns of each hand's rows and their joint
+    derivative against central differences; an effect of the left arm moves only the left hand."""
+    problem = make_problem(twin, extend=["joint_scale:5", "gear_cyclic:12:1"])
+    q = _coupled_poses(twin, 3, 2)
+    F, dF = problem.F1(q, with_dq=True)
+    k = problem.n_params
+    assert F.shape == (3 * 2 * 3, k) and dF.shape == (3, 18, 6, k)
+    fd = central_fd(lambda qq: problem.F1(qq).reshape(len(qq), 6, -1), q, 1e-6)
+    for i in range(len(q)):
+        ref = np.moveaxis(fd[i, :, :, i, :], -1, 0)
+        assert_allclose(dF[i], ref, atol=1e-6 * np.abs(ref).max())
+    rows = F.reshape(3, 2, 3, k)
+    assert np.all(rows[:, 0, :, -2:] == 0) and np.any(rows[:, 1, :, -2:] != 0)  # gear_cyclic:12
+    assert np.all(rows[:, 1, :, -3] == 0) and np.any(rows[:, 0, :, -3] != 0)  # joint_scale:5

@@ -422,6 +422,7 @@ def extension_columns(
     time_s=None,
     payload_kg=None,
     with_dq: bool = False,
+    target=None,
 ):
     """Jacobian columns of the measurement w.r.t. the parameters of model extensions.
 
@@ -437,6 +438,7 @@ def extension_columns(
         temperature_C, time_s: (n,) per-pose values, required by thermal expansion and drift.
         payload_kg: scalar or (n,), adds to the gravity torques.
         with_dq: also return the derivative w.r.t. the joint angles.
+        target: (n,) 0-based target of each row (None: target 0).
 
     Returns:
         E (n, 3, k); with ``with_dq`` also dE (n, 6, 3, k) ``dE[i, j] = dE[i] / dq_j``.
@@ -450,6 +452,7 @@ def extension_columns(
         time_s=time_s,
         payload_kg=payload_kg,
         with_dq=with_dq,
+        target=target,
     )
     if with_dq:
         return out[2], out[3]

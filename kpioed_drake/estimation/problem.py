@@ -178,15 +178,23 @@ class Problem:
         return H.reshape(3 * n, -1), dH
 
     def _F1_targets(self, q: np.ndarray, with_dq: bool):
-        """:meth:`F1` of T > 1 targets: every pose measured at each target (geometric model)."""
+        """:meth:`F1` of T > 1 targets: every pose measured at each target (with the extensions'
+        columns of each target's rows)."""
         n, T, nj = q.shape[0], self.n_targets, self.model.layout.n_joints
         target = np.tile(np.arange(T), n)
-        out = measurement_jacobian(self.model, np.repeat(q, T, axis=0), with_dq=with_dq, target=target)
+        qq = np.repeat(q, T, axis=0)
+        out = measurement_jacobian(self.model, qq, with_dq=with_dq, target=target)
         H = out[1][:, :, self.free] / self.sigma  # (nT, 3, k)
+        dH = out[2][..., self.free] / self.sigma if with_dq else None  # (nT, 6, 3, k)
+        if self.extensions:
+            ext = extension_columns(self.model, qq, self.extensions, with_dq=with_dq, target=target)
+            E, dE = (ext[0], ext[1]) if with_dq else (ext, None)
+            H = np.concatenate([H, E / self.sigma], axis=2)
+            if with_dq:
+                dH = np.concatenate([dH, dE / self.sigma], axis=3)
         F = H.reshape(3 * T * n, -1)
         if not with_dq:
             return F
-        dH = out[2][..., self.free] / self.sigma  # (nT, 6, 3, k)
         dH = dH.reshape(n, T, nj, 3, -1).transpose(0, 2, 1, 3, 4).reshape(n, nj, 3 * T, -1)
         return F, dH
 
@@ -326,10 +334,6 @@ def make_problem(
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
     exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
-    if exts and robot.n_targets > 1:
-        raise InputError(
-            f"{robot.name}: extend is not available with several targets (targets_mm)", fields=("extend",)
-        )
     if fixed is not None:
         try:
             model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
