@@ -58,24 +58,13 @@ def _score_title(report, name: str) -> str:
     return ""
 
 
-def plot_residual_structure(report: DiagnosisReport, path) -> Path:
-    """Baseline residuals against every candidate variable: per joint its angle and its gravity
-    torque (six joints a row pair, 3 x 6 panels for six joints), then the conditions."""
-    plt = pyplot()
-    prob, base = report.details["prob"], report.details["base"]
-    d = prob.data
-    r = base.residuals
-    g, u, R_TW = _signatures(prob, base)
-    nj = d.q.shape[1]
+def _joint_panels(grid, report: DiagnosisReport, prob, r, g, cols: int) -> None:
+    """Per joint j, in row pair ``j // cols``: the apparent joint-angle error against q_j and
+    against its gravity torque (or why there is none: no masses in the file, or a vertical axis)."""
+    d, nj = prob.data, prob.data.q.shape[1]
     size = np.max(np.abs(prob.tau), axis=0)
     loaded = size > 1e-9 * max(1.0, float(np.max(size)))  # as the candidates: gravity loads the joint
-    cols, blocks = max(4, min(nj, 6)), -(-nj // 6)
-    fig, grid = plt.subplots(
-        2 * blocks + 1, cols, figsize=(20 * cols / 6, 10 * (2 * blocks + 1) / 3), constrained_layout=True
-    )
     massless = [not np.any(prob.robot.masses[subtree_links(prob.robot, j + 1)] > 0) for j in range(nj)]
-    for ax in grid[-3:-1, nj - cols * (blocks - 1) :].ravel():  # the last row pair's empty panels
-        ax.set_axis_off()
     for j in range(nj):
         a = np.rad2deg(_apparent(r, g[:, j]))
         axes = grid[2 * (j // cols) :]
@@ -88,14 +77,7 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
         ax = axes[1, j % cols]
         if not loaded[j]:
             why = "no link masses in the file" if massless[j] else "vertical axis,\nno gravity torque"
-            ax.text(
-                0.5,
-                0.5,
-                f"joint {j + 1}: {why}",
-                ha="center",
-                va="center",
-                transform=ax.transAxes,
-            )
+            ax.text(0.5, 0.5, f"joint {j + 1}: {why}", ha="center", va="center", transform=ax.transAxes)
             ax.set_axis_off()
         else:
             ax.scatter(prob.tau[:, j], a, s=8, color=_BEFORE)
@@ -105,6 +87,24 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
             )
             ax.set_xlabel(f"tau{j + 1} [N m]")
             ax.axhline(0, color="0.7", lw=0.8)
+
+
+def plot_residual_structure(report: DiagnosisReport, path) -> Path:
+    """Baseline residuals against every candidate variable: per joint its angle and its gravity
+    torque (six joints a row pair, 3 x 6 panels for six joints), then the conditions."""
+    plt = pyplot()
+    prob, base = report.details["prob"], report.details["base"]
+    d = prob.data
+    r = base.residuals
+    g, u, R_TW = _signatures(prob, base)
+    nj = d.q.shape[1]
+    cols, blocks = max(4, min(nj, 6)), -(-nj // 6)
+    fig, grid = plt.subplots(
+        2 * blocks + 1, cols, figsize=(20 * cols / 6, 10 * (2 * blocks + 1) / 3), constrained_layout=True
+    )
+    for ax in grid[-3:-1, nj - cols * (blocks - 1) :].ravel():  # the last row pair's empty panels
+        ax.set_axis_off()
+    _joint_panels(grid, report, prob, r, g, cols)
     for ax in grid[:-1, 0]:
         ax.set_ylabel("apparent joint-angle error [deg]")
     axes = grid[-3:]

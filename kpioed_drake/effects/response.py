@@ -150,13 +150,12 @@ def effect_rotations(
 def _on_carried_rows(model: TrackerModel, rot, joint: int, target):
     """``rot`` zero on the rows whose target link joint ``joint`` does not carry (another arm)."""
     links = model.target_links(target)
-    links = model.robot.tip if links is None else links
-    on = link_paths(model.robot)[links, joint - 1].astype(float)
+    on = link_paths(model.robot)[model.robot.tip if links is None else links, joint - 1].astype(float)
     if np.all(on == 1.0):
         return rot
     on = np.broadcast_to(on, rot.m.shape[:1])
-    scaled = {k: getattr(rot, k) for k in ("dm", "dm_dp") if getattr(rot, k) is not None}
-    scaled = {k: v * on.reshape((-1,) + (1,) * (v.ndim - 1)) for k, v in scaled.items()}
+    parts = {k: v for k in ("dm", "dm_dp") if (v := getattr(rot, k)) is not None}
+    scaled = {k: v * on.reshape((-1,) + (1,) * (v.ndim - 1)) for k, v in parts.items()}
     return dataclasses.replace(rot, m=rot.m * on[:, None], **scaled)
 
 
