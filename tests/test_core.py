@@ -54,9 +54,17 @@ def test_every_shipped_robot_has_all_its_parameters_identifiable():
     """27 for every robot of the paper (93); the UR5 and UR10 hold theta5 and alpha5 too (their target
     lies on joint 6's axis), and without that extra gauge they are not identifiable."""
     names = list_robots()
-    assert len(names) == 100 and {"ur5", "ur10", "lift7", "humanoid11", "humanoid18"} <= set(
+    assert len(names) == 102 and {
+        "ur5",
+        "ur10",
+        "lift7",
+        "humanoid11",
+        "humanoid18",
+        "column8",
+        "fanuc6",
+    } <= set(
         names
-    )  # URDF: lift7, humanoid11 and its two-arm twin humanoid18 (each with its truth file)
+    )  # URDF: lift7, column8, humanoid11 and its two-arm twin humanoid18 (each with a truth file)
     for name in names:
         robot = load_robot(name)
         rep = check_identifiability(robot, load_cell(robot=robot), seed=3)

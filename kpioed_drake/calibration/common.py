@@ -71,12 +71,23 @@ class CalibrationOptions:
         object.__setattr__(self, "effects", tuple(self.effects or ()))
 
 
-def working_pose(robot: Robot, q_work=None) -> np.ndarray:
-    """(6,) the working pose [rad]: ``q_work`` or the model file's.
+def working_pose(robot: Robot, q_work=None, *, poses=None) -> tuple[np.ndarray, list[str]]:
+    """(n_joints,) the working pose [rad]: ``q_work``, the model file's, or (a model file without
+    one, e.g. a URDF with a two-line sidecar) the measured pose of ``poses`` (n, n_joints) nearest
+    their mean, a pose the robot took; and a note saying so (empty otherwise).
 
     Raises:
-        InputError: no working pose, or one outside the joint limits.
+        InputError: no working pose (and no poses), or one outside the joint limits.
     """
+    note = []
+    if q_work is None and robot.q_work is None and poses is not None and len(poses):
+        q = np.asarray(poses, dtype=float)
+        k = int(np.argmin(np.linalg.norm(q - q.mean(axis=0), axis=1)))
+        q_work = q[k]
+        note = [
+            f"{robot.name}: the model file has no working pose (q_work); the KPI is the TCP at the "
+            f"measured pose nearest the data's mean (row {k + 1}); give q_work_deg for your own"
+        ]
     if q_work is None:
         if robot.q_work is None:
             raise InputError(
@@ -89,8 +100,8 @@ def working_pose(robot: Robot, q_work=None) -> np.ndarray:
         or np.any(q_work < robot.lower - 1e-9)
         or np.any(q_work > robot.upper + 1e-9)
     ):
-        raise InputError(f"{robot.name}: q_work must be 6 angles within the joint limits")
-    return q_work
+        raise InputError(f"{robot.name}: q_work must be {robot.n_joints} angles within the joint limits")
+    return q_work, note
 
 
 def kpi_and_covariance(result: EstimationResult, q_work) -> tuple[np.ndarray, np.ndarray]:

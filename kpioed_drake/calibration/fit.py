@@ -198,7 +198,7 @@ def calibrate(
     rob, options = robot, options or CalibrationOptions()
     sigma_mm, strict, force, max_iter = options.sigma_mm, options.strict, options.force, options.max_iter
     max_outlier_fraction = options.max_outlier_fraction
-    q_work = working_pose(rob, q_work)
+    q_work, work_note = working_pose(rob, q_work, poses=data.q)
     alpha = float(options.outlier_alpha) or None
     cell = load_cell(robot=rob) if cell is None else cell
     nominal = nominal_model(rob, cell)
@@ -212,7 +212,7 @@ def calibrate(
     effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
     rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
     n_effect = sum(e.n_params for e in effects)
-    warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force)
+    warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force) + work_note
     before = nominal.layout.free_names
     nominal = hold_undetermined(nominal, data, strict, warnings)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
