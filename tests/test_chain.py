@@ -61,8 +61,9 @@ def test_loaded_chain_robots(lift7, ur5_urdf):
     assert "off6" in ur5_urdf.gauge  # joint 6 cannot move a reflector on its axis
 
 
-@pytest.mark.parametrize("name", ["lift7", UR5_URDF])
+@pytest.mark.parametrize("name", ["lift7", UR5_URDF, "models/robots/humanoid18.urdf"])
 def test_numpy_kinematics_agree_with_the_parsed_plant(name):
+    """Every link frame of the numpy kinematics (a tree's too: the two-arm twin) is Drake's."""
     robot = load_robot(name)
     scene = build_scene(robot)
     q = _poses(robot, 8, 1)

@@ -26,11 +26,9 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.kinematics import forward_kinematics, point_velocity_jacobian
 from kpioed_drake.robot.models import load_cell, load_robot
-from kpioed_drake.robot.plant import build_scene
 from kpioed_drake.tracker import measurement
 from kpioed_drake.tracker.data import Measurements
 
-MM = 1e-3
 TWIN = "models/robots/humanoid18.urdf"
 
 
@@ -54,18 +52,6 @@ def test_the_twin_is_the_union_of_the_two_arms_chains(twin):
     assert twin.joint_names[11:] == tuple(f"b{k}" for k in range(1, 8))
     assert twin.chain.parents[11] == 3  # the left shoulder sits on the chest (joint t4's link)
     assert twin.target_links.tolist() == [11, 18] and twin.tip == 11
-
-
-def test_tree_kinematics_agree_with_the_parsed_plant(twin):
-    scene = build_scene(twin)
-    q = _poses(twin, 4, 1)
-    f = forward_kinematics(twin, q)
-    for k in range(len(q)):
-        scene.set_q(q[k])
-        for i in range(twin.n_joints + 1):
-            X = scene.X_WB(i)
-            assert_allclose(X.translation() / MM, f.o[k, i], atol=1e-9)
-            assert_allclose(X.rotation().matrix(), f.R[k, i], atol=1e-12)
 
 
 def test_measurement_jacobian_of_two_hands_matches_finite_differences(twin):
