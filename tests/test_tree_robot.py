@@ -22,6 +22,7 @@ from kpioed_drake.design import DesignConstraints, DesignObjective, heuristic_de
 from kpioed_drake.design.approximate import search
 from kpioed_drake.diagnosis import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose_file
+from kpioed_drake.effects.gravity import gravity_torques
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.kinematics import forward_kinematics, point_velocity_jacobian
@@ -293,3 +294,21 @@ def test_a_design_of_the_twin_carries_effects_on_both_arms(twin):
     rows = F.reshape(3, 2, 3, k)
     assert np.all(rows[:, 0, :, -2:] == 0) and np.any(rows[:, 1, :, -2:] != 0)  # gear_cyclic:12
     assert np.all(rows[:, 1, :, -3] == 0) and np.any(rows[:, 0, :, -3] != 0)  # joint_scale:5
+
+
+def test_a_floating_base_joint_is_held_at_its_origin(tmp_path):
+    """A humanoid's URDF with a free base (``floating`` joint from ``world``): the base is held where
+    the joint's origin puts it, the robot's kinematics and gravity torques are the welded twin's."""
+    welded = load_robot("models/robots/humanoid18_truth.urdf")
+    text = open("models/robots/humanoid18_truth.urdf").read()
+    free = '<link name="world"/>\n  <link name="pelvis"/>\n  <joint name="base" type="floating">'
+    text = text.replace(
+        '<link name="pelvis"/>', free + '<parent link="world"/><child link="pelvis"/></joint>', 1
+    )
+    (tmp_path / "f.urdf").write_text(text)
+    (tmp_path / "f.kpioed.yaml").write_text(open("models/robots/humanoid18_truth.kpioed.yaml").read())
+    robot = load_robot(str(tmp_path / "f.urdf"))
+    assert robot.joint_names == welded.joint_names
+    q = _coupled_poses(robot, 5, 0)
+    assert_allclose(forward_kinematics(robot, q).o, forward_kinematics(welded, q).o, atol=1e-12)
+    assert_allclose(gravity_torques(robot, q), gravity_torques(welded, q), atol=1e-9)

@@ -93,8 +93,9 @@ class Scene:
     q_index: np.ndarray
 
     def positions(self, q) -> np.ndarray:
-        """The plant's position vector of joint values ``q`` (nj,) [rad, mm]."""
-        x = np.zeros(self.plant.num_positions())
+        """The plant's position vector of joint values ``q`` (nj,) [rad, mm]; the plant's other
+        joints (branches, a floating base) at their default positions."""
+        x = self.plant.GetDefaultPositions()  # a held joint (a free base) at its default pose
         x[self.q_index] = np.asarray(q, dtype=float) * self.q_scale
         return x
 

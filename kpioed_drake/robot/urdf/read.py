@@ -91,8 +91,12 @@ def _parse_xml(path: Path) -> ET.Element:
 
 
 def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
-    """The URDF text without visual and collision elements, with the sidecar's mass overrides."""
+    """The URDF text without visual and collision elements, with the sidecar's mass overrides and
+    floating or planar joints (a free base) fixed at their origin (:data:`.tree.HELD`)."""
     root = ET.fromstring(ET.tostring(root))
+    for j in root.findall("joint"):
+        if j.get("type") in ("floating", "planar"):
+            j.set("type", "fixed")
     links = {lk.get("name"): lk for lk in root.findall("link")}
     for k, m in enumerate(masses):
         w = f"{where}: masses[{k}]"

@@ -14,6 +14,10 @@ import numpy as np
 from kpioed_drake.errors import InputError
 
 MOVABLE = ("revolute", "continuous", "prismatic")
+HELD = ("fixed", "floating", "planar")
+"""Joints that are not robot joints: fixed ones, and a free (floating) or planar base (no movable
+joint above it), held at its origin (the tracker frame is registered to the data, so the base's
+placement is free anyway); a floating or planar joint below a movable one is refused."""
 
 
 def measured_links(side, sw: str, path: Path) -> tuple[tuple[str, str], ...]:
@@ -43,16 +47,22 @@ def chain_joints(
     parent_joint: dict[str, ET.Element] = {}
     for j in joints:
         name, kind = j.get("name", "?"), j.get("type", "")
-        if kind not in MOVABLE + ("fixed",):
+        if kind not in MOVABLE + HELD:
             raise InputError(
                 f"{path}: joint {name!r}: type {kind!r} is not supported (revolute, continuous, "
-                "prismatic or fixed)"
+                "prismatic, fixed; floating and planar are held at their default pose)"
             )
         p, c = j.find("parent"), j.find("child")
         if p is None or c is None or not p.get("link") or not c.get("link"):
             raise InputError(f"{path}: joint {name!r}: needs <parent link=...> and <child link=...>")
         children.setdefault(p.get("link"), []).append(j)
         parent_joint[c.get("link")] = j
+    for j in joints:
+        if j.get("type") in ("floating", "planar") and _movable_above(j, parent_joint):
+            raise InputError(
+                f"{path}: joint {j.get('name', '?')!r}: type {j.get('type')!r} is not supported below "
+                "a movable joint (a free or planar base is held at its origin)"
+            )
     links = [lk.get("name") for lk in root.findall("link")]
     roots = [lk for lk in links if lk not in parent_joint]
     if len(roots) != 1:
@@ -75,12 +85,22 @@ def chain_joints(
     return chain, np.array(parents, dtype=int), roots[0], roots[0] == "world"
 
 
+def _movable_above(joint: ET.Element, parent_joint: dict) -> bool:
+    """Whether a movable joint lies between the root and ``joint``."""
+    link = joint.find("parent").get("link")
+    while link in parent_joint:
+        if parent_joint[link].get("type") in MOVABLE:
+            return True
+        link = parent_joint[link].find("parent").get("link")
+    return False
+
+
 def _depth_first(link: str, children: dict, used: set) -> list[ET.Element]:
     """The movable joints in ``used`` (ids) below ``link``, depth first in the URDF's order of
     children, so that every joint follows its parent."""
     out = []
     for j in children.get(link, []):
-        if id(j) in used and j.get("type") != "fixed":
+        if id(j) in used and j.get("type") in MOVABLE:
             out.append(j)
         out += _depth_first(j.find("child").get("link"), children, used)
     return out
@@ -103,14 +123,14 @@ def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
 
     def movable_below(link: str) -> int:
         below = children.get(link, [])
-        return sum((j.get("type") != "fixed") + movable_below(j.find("child").get("link")) for j in below)
+        return sum((j.get("type") in MOVABLE) + movable_below(j.find("child").get("link")) for j in below)
 
     chain, link = [], root
     while True:
         branches = [
             j
             for j in children.get(link, [])
-            if j.get("type") != "fixed" or movable_below(j.find("child").get("link"))
+            if j.get("type") in MOVABLE or movable_below(j.find("child").get("link"))
         ]
         if len(branches) > 1:
             raise InputError(
@@ -119,7 +139,7 @@ def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
             )
         if not branches:
             return chain
-        if branches[0].get("type") != "fixed":
+        if branches[0].get("type") in MOVABLE:
             chain.append(branches[0])
         link = branches[0].find("child").get("link")
 
