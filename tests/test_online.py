@@ -12,8 +12,9 @@ import pytest
 
 from kpioed_drake import api
 from kpioed_drake.cli import main
+from kpioed_drake.design.result import DesignError
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.online import NextOptions, closed_loop, next_poses
+from kpioed_drake.online import NextOptions, closed_loop, next_poses, step
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.tracker.csvio import read_design, write_design
@@ -142,3 +143,29 @@ def test_a_reduced_closed_loop_stops_at_the_target(kr16):
     assert r["done"] and r["kpi_avg_var_mm2"] <= 0.1
     assert 35 <= r["n_poses"] <= 60 and (r["n_poses"] - 10) % 5 == 0
     assert r["mahalanobis2"] >= 0 and r["inside_95"] == (r["mahalanobis2"] <= 7.815)
+
+
+def test_a_solver_failure_is_retried_from_heuristic_poses(kr16, measured, monkeypatch):
+    """The first design fails (DesignError): the retry takes the next seed from heuristic poses (no
+    new certified search) and its poses are returned; a failure of every retry is reported."""
+    calls = []
+    real = step.optimize_design
+
+    def failing_first(*args, **kwargs):
+        calls.append((kwargs["seed"], kwargs.get("start")))
+        if len(calls) == 1:
+            raise DesignError("SNOPT failed (test)")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(step, "optimize_design", failing_first)
+    data = Measurements.from_table(pd.read_csv(measured / "data.csv"), kr16)
+    target = 0.9 * _now(kr16, measured)
+    res = next_poses(kr16, data, NextOptions(target_var_mm2=target, sigma_mm=SIGMA, certify=False))
+    assert calls == [(0, None), (1, "heuristic")] and res.q_next.shape == (5, 6)
+
+    def always(*args, **kwargs):
+        raise DesignError("SNOPT failed (test)")
+
+    monkeypatch.setattr(step, "optimize_design", always)
+    with pytest.raises(DesignError):
+        next_poses(kr16, data, NextOptions(target_var_mm2=target, sigma_mm=SIGMA, certify=False))

@@ -213,7 +213,8 @@ def next_poses(
 
 RETRY_SEEDS = 3
 """Seeds tried for the next poses before a solver failure is reported (the design is one local
-optimisation from one start per seed)."""
+optimisation from one start per seed: the approximate design's candidates first, then heuristic
+poses of the next seeds, which need no new certified search)."""
 
 
 def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> int:
@@ -237,8 +238,14 @@ def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[n
     h = plan_size(problem, opts, q_given)
     for k in range(RETRY_SEEDS):
         try:
-            plan = optimize_design(
-                problem, criterion="kpi", n=h, collision=opts.collision, seed=opts.seed + k, given=q_given
+            plan = optimize_design(  # a retry starts from heuristic poses: no new certified search
+                problem,
+                criterion="kpi",
+                n=h,
+                collision=opts.collision,
+                seed=opts.seed + k,
+                given=q_given,
+                start=None if k == 0 else "heuristic",
             )
             break
         except DesignError:
