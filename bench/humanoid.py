@@ -186,23 +186,34 @@ def stand_in_data(
     ``twin`` measures both hands at every pose (two rows a pose).
     """
     from kpioed_drake.robot.models import load_robot
-    from kpioed_drake.simulation import SimulationOptions, simulate
     from kpioed_drake.tracker.data import Measurements
 
-    name = TWIN if twin else NAME
+    name, table, rows, info = _truth_table(
+        n_fit, n_hold, seed=seed, sigma_mm=sigma_mm, lateral=lateral, twin=twin
+    )
     model = load_robot(str(ROBOTS / f"{name}.urdf"))
+    fit = Measurements.from_table(table.iloc[:rows].reset_index(drop=True), model, source="stand-in fit")
+    hold = Measurements.from_table(
+        table.iloc[rows:].reset_index(drop=True), model, source="stand-in held out"
+    )
+    return model, fit, hold, info
+
+
+def _truth_table(n_fit: int, n_hold: int, *, seed: int, sigma_mm: float, lateral: bool, twin: bool):
+    """(model name, the simulated table of n_fit + n_hold poses, the fitted rows, the truth):
+    the truth file with SPEC-sized geometric errors and :func:`truth_effects`, both hands of the
+    ``twin`` at every pose (two rows a pose)."""
+    from kpioed_drake.robot.models import load_robot
+    from kpioed_drake.simulation import SimulationOptions, simulate
+
+    name = TWIN if twin else NAME
     truth = load_robot(str(ROBOTS / f"{name}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
     opts = SimulationOptions(
         sigma_mm=sigma_mm, seed=seed, effects=truth_effects(lateral, twin), n_targets=2 if twin else None
     )
     table, info = simulate(truth, q, opts)
-    rows = 2 * n_fit if twin else n_fit
-    fit = Measurements.from_table(table.iloc[:rows].reset_index(drop=True), model, source="stand-in fit")
-    hold = Measurements.from_table(
-        table.iloc[rows:].reset_index(drop=True), model, source="stand-in held out"
-    )
-    return model, fit, hold, info
+    return name, table, 2 * n_fit if twin else n_fit, info
 
 
 def measure(
@@ -227,17 +238,8 @@ def measure(
     from kpioed_drake.calibration.workflow import calibrate_file
     from kpioed_drake.diagnosis import DiagnosisOptions
     from kpioed_drake.diagnosis.workflow import diagnose_file
-    from kpioed_drake.robot.models import load_robot
-    from kpioed_drake.simulation import SimulationOptions, simulate
 
-    name = TWIN if twin else NAME
-    truth = load_robot(str(ROBOTS / f"{name}_truth.urdf"))
-    q = poses(truth, n_fit + n_hold, seed)
-    opts = SimulationOptions(
-        sigma_mm=0.5, seed=seed, effects=truth_effects(lateral, twin), n_targets=2 if twin else None
-    )
-    table, _ = simulate(truth, q, opts)
-    rows = 2 * n_fit if twin else n_fit
+    name, table, rows, _ = _truth_table(n_fit, n_hold, seed=seed, sigma_mm=0.5, lateral=lateral, twin=twin)
     fit_csv, hold_csv = folder / "fit.csv", folder / "holdout.csv"
     table.iloc[:rows].to_csv(fit_csv, index=False)
     table.iloc[rows:].to_csv(hold_csv, index=False)

@@ -48,6 +48,7 @@ from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_f
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.online import NextOptions, next_file
 from kpioed_drake.options import options_from
+from kpioed_drake.robot.geometry import beam_targets
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.simulation.truth import SimulationOptions
@@ -82,7 +83,8 @@ def info(robot: str, *, cell_path=None) -> dict:
         in ``q_work_deg`` and ``joint_limits_deg`` are millimetres.
     """
     rob = load_robot(robot)
-    rep = check_identifiability(rob, load_cell(cell_path, robot=rob))
+    cell = load_cell(cell_path, robot=rob)
+    rep = check_identifiability(rob, cell)
     lay = parameter_layout(rob)
     return {
         "robot": rob.name,
@@ -100,23 +102,14 @@ def info(robot: str, *, cell_path=None) -> dict:
             {"name": n, "parent": int(p) + 1} for n, p in zip(rob.joint_names, _parents(rob), strict=True)
         ],
         "targets": [
-            {"link": int(f), "offset_mm": np.asarray(t, float).tolist()}
-            for f, t in zip(_target_links(rob), _target_offsets(rob), strict=True)
+            {"link": int(f), "offset_mm": np.asarray(p, float).tolist()}
+            for _, p, f in beam_targets(rob, cell)
         ],
     }
 
 
 def _parents(rob) -> np.ndarray:
     return rob.chain.parents if rob.chain is not None else np.arange(rob.n_joints) - 1
-
-
-def _target_links(rob) -> list[int]:
-    return [rob.tip] * rob.n_targets if rob.target_links is None else rob.target_links.tolist()
-
-
-def _target_offsets(rob) -> list:
-    first = rob.p_FQ if rob.p_FQ is not None else load_cell(robot=rob).p_FQ
-    return [first] + [rob.targets[t] for t in range(1, rob.n_targets)]
 
 
 def design(

@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 from kpioed_drake.effects.model import ROTATION_FAMILIES, T_REF_C, Effect
 from kpioed_drake.effects.response import effect_rotations, joint_deltas
 from kpioed_drake.errors import InputError
+from kpioed_drake.robot.jointmap import commandable_motions
 from kpioed_drake.robot.kinematics import cross
 from kpioed_drake.tracker.measurement import TrackerModel
 
@@ -140,7 +141,8 @@ def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: i
     if not jacobian:
         return p_out, R_out
     At = A.transpose(0, 2, 1)
-    on = frames.path[frames.tip if link is None else link[0]][None, :, None]  # the joints moving it
+    on = frames.point_path(link)  # the joints moving the target (None: all)
+    on = 1.0 if on is None else on[:, :, None]
     Jp = At @ (frames.joint_motion(p) * on)  # (n, nj, 3): dp/dq_j through q_act
     Jw = At @ np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes * on)
     Jp = Jp + cross(w[:, None, :], Jp) + dshift
@@ -214,17 +216,6 @@ def _held(q, dq, lo, up):
     return ((q <= lo + tol) & (dq < 0)) | ((q >= up - tol) & (dq > 0))
 
 
-def _commandable(robot) -> np.ndarray:
-    """(nj, nj) the projector on the joint motions the controller can command (``I - N^T N`` of the
-    joint map's coupling equations; the identity without couplings): a coupled torso joint
-    follows its leaders in every step."""
-    nj = robot.n_joints
-    if robot.joint_map is None:
-        return np.eye(nj)
-    N, _ = robot.joint_map.coupling_equations()
-    return np.eye(nj) - N.T @ N
-
-
 def _solve(model, q0, goal: _Goal, effects=(), conditions=None, *, target=0) -> tuple[np.ndarray, int]:
     """Projected Levenberg-Marquardt over all rows; (q (n, nj), iterations of the slowest row).
 
@@ -237,7 +228,7 @@ def _solve(model, q0, goal: _Goal, effects=(), conditions=None, *, target=0) -> 
     cond = conditions or {}
     lam = np.full(q.shape[0], _LAM0)
     active = np.ones(q.shape[0], dtype=bool)
-    on_map = _commandable(model.robot)  # steps along the joint map's couplings only
+    on_map = commandable_motions(model.robot)  # steps along the joint map's couplings only
     it = 0
     while active.any() and it < MAX_ITERATIONS:
         it += 1

@@ -80,6 +80,4 @@ def effect_budget(robot, max_effects: int | None) -> int:
     each measured branch (the distinct links of a tree robot's targets; one for a serial robot)."""
     if max_effects is not None:
         return int(max_effects)
-    links = robot.target_links
-    branches = 1 if links is None else len(set(links.tolist()))
-    return MAX_EFFECTS * branches
+    return MAX_EFFECTS * len(set(robot.target_frames.tolist()))

@@ -53,7 +53,7 @@ import numpy as np
 
 from kpioed_drake.effects.gravity import gravity_model, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics
+from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics, subtree_links
 from kpioed_drake.robot.models import Robot
 
 COLUMN = "column_compliance"
@@ -183,22 +183,19 @@ def rotation(
         a = fr.joint_axes[:, k - 1]
         h = np.einsum("ni,ni->n", C - fr.o[:, k - 1], a)  # [mm]
         pivot = C - 0.5 * h[:, None] * a
-        first = k
     elif family == BASE:
         k = 0
         C = np.broadcast_to(base_origin(robot), (n, 3))
         pivot = np.array(C)
-        first = 1
     elif family == LATERAL:
         check_lateral(robot, joint)
         k = int(joint)
         C = fr.joint_points[:, k - 1]
         a = fr.joint_axes[:, k - 1]
         pivot = np.array(C)
-        first = k
     else:
         raise ValueError(f"not a compliance family: {family}")
-    links = np.arange(1, nj + 1) if k == 0 else np.flatnonzero(fr.path[:, first - 1])  # carried
+    links = np.arange(1, nj + 1) if k == 0 else subtree_links(robot, k)  # the links it carries
     p_l = fr.o[:, links] + np.einsum("nlab,lb->nla", fr.R[:, links], robot.coms[links])  # (n, L, 3)
     w_l = robot.masses[links]
     M = 1e-3 * np.einsum("l,nla->na", w_l, cross(p_l - C[:, None, :], g[None, None, :]))  # [N m]
@@ -225,8 +222,8 @@ def rotation(
     dM = _moment_dq(fr, p_l, w_l, links, C, k, g)
     if pay is not None:
         v = fr.joint_motion(p_pay)  # every joint on its path moves the payload
-        if not fr.serial:
-            v = v * fr.point_path()[None, :, None]
+        on = fr.point_path()
+        v = v if on is None else v * on[:, :, None]
         if k:
             v = v - _carriage_motion(fr, C, k)
         dM = dM + 1e-3 * pay[:, None, None] * cross(v, g[None, None, :])

@@ -102,9 +102,8 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
     w, a = fr.joint_axes, fr.joint_points  # (n, 6, 3)
     wj, aj = w[:, j], a[:, j]
     nj, pris = fr.n_joints, fr.prismatic
-    links = np.flatnonzero(fr.path[:, j])  # the links joint j carries (its branch of a tree)
-    upstream = fr.path[j + 1].copy()  # the joints that move joint j's axis (strictly before it)
-    upstream[j] = False
+    links = subtree_links(robot, joint)  # the links joint j carries (its branch of a tree)
+    upstream = fr.axis_movers(joint)
     gxw = cross(g[None, :], wj)  # (n, 3)
     Y = np.empty((n, 4 * len(links)))
     dY = np.zeros((n, nj, Y.shape[1])) if with_dq else None

@@ -34,7 +34,7 @@ from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
 from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, forward_kinematics
+from kpioed_drake.robot.kinematics import cross, forward_kinematics, subtree_links
 from kpioed_drake.robot.models import Robot
 
 FAMILY = "lateral_compliance_basis"
@@ -73,7 +73,7 @@ def _moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
     g = gravity_model(robot).g
     n, nj, k = q.shape[0], fr.n_joints, joint
     C, a = fr.joint_points[:, k - 1], fr.joint_axes[:, k - 1]
-    links = np.flatnonzero(fr.path[:, k - 1])  # the links joint k carries
+    links = subtree_links(robot, k)  # the links joint k carries
     o, R = fr.o[:, links], fr.R[:, links]  # (n, L, 3), (n, L, 3, 3)
     cols = np.concatenate([(o - C[:, None])[:, :, None, :], R.transpose(0, 1, 3, 2)], axis=2)  # (n,L,4,3)
     raw = 1e-3 * cross(cols, g)  # (n, L, 4, 3): the moment of each first-moment component
@@ -82,9 +82,7 @@ def _moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
     if not with_dq:
         return X, C
     moved = fr.path[links]  # (L, nj): joint i moves link l
-    before = fr.path[k].copy()  # the joints that move joint k's axis point C
-    before[k - 1] = False
-    dC = np.where(before[None, :, None], fr.joint_motion(C), 0.0)  # (n, nj, 3)
+    dC = np.where(fr.axis_movers(k)[None, :, None], fr.joint_motion(C), 0.0)  # (n, nj, 3): C moves
     vo = np.where(moved[None, :, :, None], fr.joint_motion(o), 0.0) - dC[:, None]  # (n, L, nj, 3)
     w = fr.joint_axes[:, None, :, None, :]  # (n, 1, nj, 1, 3)
     rev = ~fr.prismatic[None, None, :, None, None] & moved[None, :, :, None, None]

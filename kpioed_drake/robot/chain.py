@@ -28,6 +28,7 @@ are held at nominal. Units: millimetres and radians.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import scipy.linalg
@@ -81,6 +82,16 @@ class Chain:
         if self.parent is None:
             return np.arange(self.n_joints) - 1
         return np.asarray(self.parent, dtype=int)
+
+    @functools.cached_property
+    def paths(self) -> np.ndarray:
+        """(n + 1, n) :func:`frame_paths` of :attr:`parents` (computed once per chain)."""
+        return serial_paths(self.n_joints) if self.parent is None else frame_paths(self.parents)
+
+
+def serial_paths(n: int) -> np.ndarray:
+    """(n + 1, n) ``path[f, j] = j < f``: the :func:`frame_paths` of a serial chain of n joints."""
+    return np.arange(n)[None, :] < np.arange(n + 1)[:, None]
 
 
 def frame_paths(parent: np.ndarray) -> np.ndarray:
@@ -225,7 +236,7 @@ def auto_gauge(
     targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
     T = targets.shape[0]
     links = np.full(T, nj) if links is None else np.broadcast_to(np.asarray(links, dtype=int), (T,))
-    path = frame_paths(chain.parents)
+    path = chain.paths
     blocks = []
     for t, p_t in enumerate(targets):
         f = links[t]

@@ -69,7 +69,7 @@ def beam_targets(robot: Robot, cell: Cell) -> list[tuple[str, np.ndarray, int]]:
     """
     offsets = [np.asarray(cell.p_FQ, float)]
     offsets += [np.asarray(robot.targets[t], float) for t in range(1, robot.n_targets)]
-    links = [robot.tip] * len(offsets) if robot.target_links is None else robot.target_links.tolist()
+    links = robot.target_frames.tolist()
     if len(offsets) == 1:
         return [("beam", offsets[0], links[0])]
     return [(f"beam{t + 1}", p, f) for t, (p, f) in enumerate(zip(offsets, links, strict=True))]

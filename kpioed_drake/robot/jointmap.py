@@ -280,3 +280,14 @@ def commandable_projection(robot, q: np.ndarray) -> np.ndarray:
     if not N.shape[0]:
         return q
     return q - (q @ N.T - c) @ N
+
+
+def commandable_motions(robot) -> np.ndarray:
+    """(n_joints, n_joints) ``I - N^T N``: the projector on the joint motions the controller can
+    command (they keep the coupling equations of :func:`commandable_projection`); the identity
+    without couplings."""
+    nj = robot.n_joints
+    if robot.joint_map is None:
+        return np.eye(nj)
+    N, _ = robot.joint_map.coupling_equations()
+    return np.eye(nj) - N.T @ N

@@ -30,7 +30,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.robot.chain import chain_frames, frame_paths
+from kpioed_drake.robot.chain import chain_frames, serial_paths
 from kpioed_drake.robot.models import Robot
 
 
@@ -84,7 +84,7 @@ class Frames:
         moved_by: (nj, P) the frame whose moving joints move the element (``path[moved_by]``;
             DH: every element of row i, frame i).
         path: (nj + 1, nj) ``path[f, j]``: joint j moves frame f (serial: ``j < f``; a tree robot's
-            from :func:`kpioed_drake.robot.chain.frame_paths`).
+            :attr:`kpioed_drake.robot.chain.Chain.paths`).
         tip: the frame of the flange (the link of target 0; serial: nj).
     """
 
@@ -103,7 +103,7 @@ class Frames:
     def __post_init__(self):
         nj = self.n_joints
         if self.path is None:
-            self.path = np.arange(nj)[None, :] < np.arange(nj + 1)[:, None]
+            self.path = serial_paths(nj)
         if self.tip is None:
             self.tip = nj
 
@@ -111,18 +111,19 @@ class Frames:
     def n_joints(self) -> int:
         return int(self.prismatic.size)
 
-    @property
-    def serial(self) -> bool:
-        """Every point is measured on the last link of a serial chain (no masks needed)."""
-        return self.tip == self.n_joints and bool(self.path[-1].all())
-
     def point_path(self, link=None) -> np.ndarray | None:
-        """``path[link]``: (nj,) or (n, nj) the joints that move points on ``link`` (None: the tip);
-        None when every joint does (the serial flange)."""
+        """(n, nj) ``path[link]``: the joints that move points on ``link`` (scalar or (n,) one per
+        pose; None: the tip); None when every joint does (the serial flange: no mask needed)."""
         f = self.tip if link is None else link
         if np.ndim(f) == 0 and f == self.n_joints and self.path[f].all():
             return None
-        return self.path[np.asarray(f, dtype=int)]
+        return np.broadcast_to(self.path[np.asarray(f, dtype=int)], (self.R.shape[0], self.n_joints))
+
+    def axis_movers(self, joint: int) -> np.ndarray:
+        """(nj,) bool: the joints that move joint ``joint``'s (1-based) axis, strictly before it."""
+        before = self.path[joint].copy()
+        before[joint - 1] = False
+        return before
 
     def at_link(self, link=None) -> tuple[np.ndarray, np.ndarray]:
         """``(R (n, 3, 3), o (n, 3))`` of the frame ``link`` ((n,) one per pose, scalar, or None:
@@ -148,10 +149,7 @@ class Frames:
 
 def link_paths(robot: Robot) -> np.ndarray:
     """(nj + 1, nj) ``path[f, j]``: joint j moves link frame f (:attr:`Frames.path`, without poses)."""
-    nj = robot.n_joints
-    if robot.chain is not None and robot.chain.parent is not None:
-        return frame_paths(robot.chain.parents)
-    return np.arange(nj)[None, :] < np.arange(nj + 1)[:, None]
+    return serial_paths(robot.n_joints) if robot.chain is None else robot.chain.paths
 
 
 def subtree_links(robot: Robot, joint: int) -> np.ndarray:
@@ -183,7 +181,6 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
     g = robot.geometry if geometry is None else np.asarray(geometry, dtype=float)
     if robot.chain is not None:
         c = chain_frames(robot.chain, q, g)
-        path = frame_paths(robot.chain.parents) if robot.chain.parent is not None else None
         return Frames(
             c.R,
             c.o,
@@ -194,7 +191,7 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
             c.points,
             robot.chain.prismatic,
             c.moved_by,
-            path,
+            robot.chain.paths,
             robot.tip,
         )
     n = q.shape[0]
@@ -272,14 +269,14 @@ def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
         dJ (only with ``with_dq``): (n, nj, 3, g + 3), ``dJ[k, j] = dJ[k] / dq_j`` [mm/rad^2 ...].
     """
     p = flange_point(frames, p_FP, link)  # (n,3)
-    on = frames.point_path(link)  # None, (nj,) or (n, nj): joints that move the point
+    on = frames.point_path(link)  # None or (n, nj): the joints that move the point
     u, o = frames.elem_u, frames.elem_o  # (n,nj,P,3)
     rot = frames.elem_rot  # (nj,P)
     nj, P = rot.shape
     col_rot = cross(u, p[:, None, None, :] - o)
     cols = np.where(rot[None, :, :, None], col_rot, u)  # (n,nj,P,3)
     if on is not None:
-        cols = cols * np.broadcast_to(on, (p.shape[0], nj))[:, :, None, None]
+        cols = cols * on[:, :, None, None]
     n = p.shape[0]
     g = nj * P
     J = np.empty((n, 3, g + 3))
@@ -292,7 +289,7 @@ def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
     pris = frames.prismatic.any()
     dP = frames.joint_motion(p)  # (n,nj,3): dp/dq_j
     if on is not None:
-        dP = dP * np.broadcast_to(on, (n, nj))[:, :, None]
+        dP = dP * on[:, :, None]
     dJ = np.zeros((n, nj, 3, g + 3))
     # element moved by joint j: revolute w_j x col, prismatic 0
     full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,P,3)
@@ -304,12 +301,12 @@ def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
     mask = frames.path[frames.moved_by].transpose(2, 0, 1)  # (j,i,P): joint j moves element (i, p)
     d = np.where(mask[None, :, :, :, None], full, part)  # (n,j,i,P,3)
     if on is not None:  # elements off the point's path (another arm) stay zero
-        d = d * np.broadcast_to(on, (n, nj))[:, None, :, None, None]
+        d = d * on[:, None, :, None, None]
     dJ[:, :, :, :g] = d.reshape(n, nj, g, 3).transpose(0, 1, 3, 2)
     dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF) if pris else dRF
     if on is not None:
-        dJ[:, :, :, g:] *= np.broadcast_to(on, (n, nj))[:, :, None, None]
+        dJ[:, :, :, g:] *= on[:, :, None, None]
     return p, J, dJ
 
 

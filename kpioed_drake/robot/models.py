@@ -145,6 +145,11 @@ class Robot:
         return len(self.conventions)
 
     @property
+    def target_frames(self) -> np.ndarray:
+        """(T,) the link frame of every target: :attr:`target_links`, or all on the flange."""
+        return np.full(self.n_targets, self.n_joints) if self.target_links is None else self.target_links
+
+    @property
     def tip(self) -> int:
         """The flange's frame: the link of target 1 (the reflector); n_joints for a serial robot."""
         return self.n_joints if self.target_links is None else int(self.target_links[0])

@@ -253,7 +253,7 @@ def measurement_jacobian(
     dp_dq = frames.joint_motion(p_WQ)  # (n, nj, 3)
     on = frames.point_path(link)
     if on is not None:
-        dp_dq = dp_dq * np.broadcast_to(on, dp_dq.shape[:2])[:, :, None]
+        dp_dq = dp_dq * on[:, :, None]
     dh_dq = dp_dq @ R_TW.T
     r = model.p[lay.tracker_rotation]
     dv = dh_dq @ small_rotation(r).T

@@ -68,9 +68,9 @@ def incidence_rows(problem: Problem, q, *, frames: Frames | None = None, target:
     c = np.einsum("ni,ni->n", z, gh)
     dz = np.where(frames.prismatic[:, None], 0.0, cross(frames.joint_axes, z[:, None, :]))
     dp = frames.joint_motion(p)
-    on = frames.point_path(None if link is None else link[0])  # the joints moving the target
+    on = frames.point_path(link)  # the joints moving the target (None: all)
     if on is not None:
-        dz, dp = dz * on[None, :, None], dp * on[None, :, None]
+        dz, dp = dz * on[:, :, None], dp * on[:, :, None]
     perp = z - c[:, None] * gh  # (n,3)
     jac = np.einsum("nji,ni->nj", dz, gh) - np.einsum("nji,ni->nj", dp, perp) / dist[:, None]
     return c - math.cos(problem.cell.max_incidence), jac

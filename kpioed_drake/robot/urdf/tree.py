@@ -58,7 +58,8 @@ def chain_joints(
         children.setdefault(p.get("link"), []).append(j)
         parent_joint[c.get("link")] = j
     for j in joints:
-        if j.get("type") in ("floating", "planar") and _movable_above(j, parent_joint):
+        above = _above(j.find("parent").get("link"), parent_joint)
+        if j.get("type") in ("floating", "planar") and any(a.get("type") in MOVABLE for a in above):
             raise InputError(
                 f"{path}: joint {j.get('name', '?')!r}: type {j.get('type')!r} is not supported below "
                 "a movable joint (a free or planar base is held at its origin)"
@@ -75,24 +76,18 @@ def chain_joints(
     if not chain:
         raise InputError(f"{path}: no revolute or prismatic joint")
     index = {id(j): i for i, j in enumerate(chain)}
-    parents = []
-    for j in chain:  # the nearest movable ancestor on the chain
-        link, k = j.find("parent").get("link"), -1
-        while link in parent_joint and k < 0:
-            k = index.get(id(parent_joint[link]), -1)
-            link = parent_joint[link].find("parent").get("link")
-        parents.append(k)
+    parents = [  # the nearest ancestor on the chain
+        next((index[id(a)] for a in _above(j.find("parent").get("link"), parent_joint) if id(a) in index), -1)
+        for j in chain
+    ]
     return chain, np.array(parents, dtype=int), roots[0], roots[0] == "world"
 
 
-def _movable_above(joint: ET.Element, parent_joint: dict) -> bool:
-    """Whether a movable joint lies between the root and ``joint``."""
-    link = joint.find("parent").get("link")
+def _above(link: str, parent_joint: dict):
+    """The joints from ``link`` up to the root, nearest first."""
     while link in parent_joint:
-        if parent_joint[link].get("type") in MOVABLE:
-            return True
+        yield parent_joint[link]
         link = parent_joint[link].find("parent").get("link")
-    return False
 
 
 def _depth_first(link: str, children: dict, used: set) -> list[ET.Element]:
@@ -111,11 +106,7 @@ def _path_to(tip: str, parent_joint: dict, links: list[str], where: str) -> list
     and field naming it, for the error)."""
     if tip not in links:
         raise InputError(f"{where} {tip!r} is not a link of the URDF (links: {', '.join(links)})")
-    chain, link = [], tip
-    while link in parent_joint:
-        chain.append(parent_joint[link])
-        link = chain[-1].find("parent").get("link")
-    return chain[::-1]
+    return list(_above(tip, parent_joint))[::-1]
 
 
 def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
