@@ -22,6 +22,7 @@ from kpioed_drake.design import DesignConstraints, DesignObjective, heuristic_de
 from kpioed_drake.design.approximate import search
 from kpioed_drake.diagnosis import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose_file
+from kpioed_drake.effects import lateral_basis
 from kpioed_drake.effects.gravity import gravity_torques
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
@@ -312,3 +313,17 @@ def test_a_floating_base_joint_is_held_at_its_origin(tmp_path):
     q = _coupled_poses(robot, 5, 0)
     assert_allclose(forward_kinematics(robot, q).o, forward_kinematics(welded, q).o, atol=1e-12)
     assert_allclose(gravity_torques(robot, q), gravity_torques(welded, q), atol=1e-9)
+
+
+def test_the_left_shoulders_lateral_basis_leaves_out_the_chests_rotations(twin):
+    """The left shoulder (joint 12) sits on the chest (frame 4, not the right hand's frame 11): the
+    moments its lateral basis keeps are orthogonal to the rotations fixed in the chest's frame and in
+    its own, which the geometry takes."""
+    q = _coupled_poses(twin, 30, 8)
+    A = lateral_basis._varying(twin, q, 12)  # (n, 3, p) in the chest's frame
+    fr = forward_kinematics(twin, q)
+    R0, R1 = fr.R[:, 4], fr.R[:, 12]
+    G = np.concatenate([np.broadcast_to(np.eye(3), (30, 3, 3)), np.einsum("nba,nbc->nac", R0, R1)], axis=2)
+    overlap = G.reshape(90, -1).T @ A.reshape(90, -1)
+    assert np.abs(overlap).max() < 1e-9 * np.abs(A).max() * 90
+    assert lateral_basis.massless_joints(twin) == list(range(1, 19))

@@ -34,7 +34,7 @@ from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
 from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, forward_kinematics, subtree_links
+from kpioed_drake.robot.kinematics import cross, forward_kinematics, parent_frame, subtree_links
 from kpioed_drake.robot.models import Robot
 
 FAMILY = "lateral_compliance_basis"
@@ -145,11 +145,12 @@ def _reduced(X: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
 def _varying(robot: Robot, q, joint: int) -> np.ndarray:
     """(n, 3, p) the part of the regressor at ``q`` that the geometric parameters cannot take: in
     the frame of the link before ``joint``, a rotation fixed in that frame or in the joint's own
-    frame (whose axes there are the columns of ``R_{j-1}^T R_j``) tilts the joint's axis or the next
-    frame as the joint rows' parameters do; those six pose functions are projected out."""
+    frame (whose axes there are the columns of ``R_{j-1}^T R_j``; j - 1: the parent link of a tree)
+    tilts the joint's axis or the next frame as the joint rows' parameters do; those six pose
+    functions are projected out."""
     X, _ = moment_regressor(robot, q, joint)
     fr = forward_kinematics(robot, q)
-    R0, R1 = fr.R[:, joint - 1], fr.R[:, joint]
+    R0, R1 = fr.R[:, parent_frame(robot, joint)], fr.R[:, joint]
     Xf = np.einsum("nba,nbp->nap", R0, X)
     n = Xf.shape[0]
     G = np.concatenate([np.broadcast_to(np.eye(3), (n, 3, 3)), np.einsum("nba,nbc->nac", R0, R1)], axis=2)
@@ -239,7 +240,9 @@ def massless_joints(robot: Robot) -> list[int]:
     """The revolute joints (1-based) whose carried links the model file gives no masses: those
     whose lateral compliance only this basis can model."""
     return [
-        j for j in range(1, robot.n_joints + 1) if not robot.prismatic[j - 1] and not robot.masses[j:].any()
+        j
+        for j in range(1, robot.n_joints + 1)
+        if not robot.prismatic[j - 1] and not robot.masses[subtree_links(robot, j)].any()
     ]
 
 

@@ -152,6 +152,12 @@ def link_paths(robot: Robot) -> np.ndarray:
     return serial_paths(robot.n_joints) if robot.chain is None else robot.chain.paths
 
 
+def parent_frame(robot: Robot, joint: int) -> int:
+    """The frame of the link that carries joint ``joint`` (1-based): ``joint - 1`` of a serial
+    robot, its parent joint's link in a tree (0: W)."""
+    return joint - 1 if robot.chain is None else int(robot.chain.parents[joint - 1]) + 1
+
+
 def subtree_links(robot: Robot, joint: int) -> np.ndarray:
     """The link frames joint ``joint`` (1-based) moves, ascending: ``joint .. nj`` of a serial robot,
     its own branch of a tree (the weights it carries)."""
