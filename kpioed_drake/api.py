@@ -171,6 +171,7 @@ def next(  # noqa: A001 (the command's name)
     out=None,
     json_path=None,
     data_format=None,
+    plan=None,
 ) -> dict:
     """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
 
@@ -190,17 +191,22 @@ def next(  # noqa: A001 (the command's name)
         max_plan: most poses planned ahead.
         out: design CSV of the next poses; json_path: the JSON record.
         data_format: format file of a measurement file of another layout.
+        plan: design CSV carrying the plan between steps (read if it exists, then replaced by
+            this step's plan; removed when done): a re-plan then never ends worse than the rest
+            of the previous plan.
 
     Returns:
         The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
-        ``predicted_kpi_avg_var_mm2``, ``n_planned``, ``bound_mm2``, ``efficiency``,
+        ``predicted_kpi_avg_var_mm2``, ``n_planned``, ``min_more_poses``, ``bound_mm2``, ``efficiency``,
         ``next_q_deg``, ...) and
         ``summary``.
     """
     options = NextOptions(
         target_var_mm2=target_var_mm2, n=n, sigma_mm=sigma_mm, seed=seed, certify=certify, max_plan=max_plan
     )
-    result, rob = next_file(robot, data_path, options, out=out, json_path=json_path, data_format=data_format)
+    result, rob = next_file(
+        robot, data_path, options, out=out, json_path=json_path, data_format=data_format, plan_path=plan
+    )
     return {**result.to_dict(rob), "summary": result.summary()}
 
 

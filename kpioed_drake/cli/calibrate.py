@@ -73,13 +73,19 @@ def register_next(sub) -> None:
         "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
     )
     p.add_argument("--out", default=None, metavar="NEXT.csv", help="the next poses (not written when done)")
+    p.add_argument(
+        "--plan",
+        default=None,
+        metavar="PLAN.csv",
+        help="the plan carried from step to step: read if it exists, then replaced (removed when done)",
+    )
     add_json_out(p)
     add_format(p)
     p.set_defaults(func=run_next, api_names=NEXT_API_NAMES)
 
 
 def run_next(args) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out")
+    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan")
     result = api.next(
         args.robot,
         args.data,

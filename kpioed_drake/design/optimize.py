@@ -11,7 +11,10 @@ Starts (``start``, :data:`~kpioed_drake.design.common.START_METHODS`): the paper
 the ``kpi`` criterion the approximate design (column generation over the feasible poses, Clarabel)
 rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`); with poses
 held fixed, the certified approximate design's candidates chosen with their information
-(:func:`~kpioed_drake.design.approximate.sequential.given_start`). The approximate design is the
+(:func:`~kpioed_drake.design.approximate.sequential.given_start`), and as a second start the same
+rounding over the candidates of the approximate design made with their information
+(:func:`~kpioed_drake.design.approximate.given.given_design`): neither start wins on every set of
+measured poses (docs/online.md). The approximate design is the
 optimum of the KPI criterion over weights on poses; it is not defined for the other criteria's
 objectives, so ``start="approximate"`` is an input error there.
 
@@ -28,6 +31,7 @@ import numpy as np
 
 from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.design import approximate_start
+from kpioed_drake.design.approximate.given import given_design
 from kpioed_drake.design.approximate.sequential import given_start
 from kpioed_drake.design.common import (
     ACTIVE_ROWS_PER_POSE,
@@ -109,12 +113,26 @@ def _start_poses(
     """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``; with ``given`` poses
     the approximate start is the certified approximate design's candidates chosen with their
     information (:func:`~kpioed_drake.design.approximate.sequential.given_start`)."""
-    if start == "approximate" and given is not None:
+    if start in ("approximate", "given") and given is not None:
         approx = certificate.certified_design(problem, collision=collision, seed=seed)
+        if start == "given":
+            approx = given_design(problem, approx, given=given, n=n, collision=collision)
         return given_start(problem, approx, n=n, given=given)
     if start == "approximate":
         return approximate_start(problem, n=n, collision=collision, seed=seed)
     return heuristic_design(problem, n=n, seed=seed, collision=collision)
+
+
+def _start_methods(start: str, starts: int, *, given, q0) -> list[str]:
+    """The start method of each solve: ``q0`` first if given; with ``given`` poses and the
+    approximate start, its two roundings (``approximate``: the certified design's candidates;
+    ``given``: those of the approximate design with the measured information) count as one start,
+    and further starts are heuristic (one certified design); else ``start`` each time."""
+    first = "q0" if q0 is not None else start
+    if given is None:
+        return [first] + [start] * (starts - 1)
+    two = [first, "given"] if first == "approximate" else [first]
+    return two + ["heuristic"] * (starts - 1)
 
 
 def _checked_poses(problem: Problem, q, n: int | None, name: str) -> np.ndarray:
@@ -213,8 +231,10 @@ def optimize_design(
         collision: impose collision and laser-beam clearance (paper "CA").
         solver: ``snopt`` or ``ipopt``.
         seed: seed of the start; start k uses ``seed + k``.
-        starts: number of starts; the best feasible result is kept (with ``given`` poses, starts
-            after the first are heuristic: the approximate one is that of the certified design).
+        starts: number of starts; the best feasible result is kept (with ``given`` poses the
+            approximate start is two solves, from the certified design's candidates and from
+            those of the approximate design with the measured information; starts after the
+            first are heuristic).
         q0: (n, 6) [rad] start of the first solve instead of ``start``'s.
         allow_infeasible: return a failed or infeasible result instead of raising.
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
@@ -283,13 +303,14 @@ def optimize_design(
     checks: list[DesignCheck] = []
     initial: list[float] = []
     start_s = 0.0
-    for k in range(starts):
-        if k == 0 and q0 is not None:
+    methods = _start_methods(start, starts, given=given, q0=q0)
+    for k, method in enumerate(methods):
+        if method == "q0":
             q_start = q0
         else:
             t_start = time.perf_counter()
-            method = start if k == 0 or given is None else "heuristic"  # one certified design
-            q_start = _start_poses(problem, method, n=n, seed=seed + k, collision=collision, given=given)
+            s = seed if method == "given" else seed + k  # the certified design of ``seed``
+            q_start = _start_poses(problem, method, n=n, seed=s, collision=collision, given=given)
             start_s += time.perf_counter() - t_start
         try:
             initial.append(float(obj.value(q_start)))

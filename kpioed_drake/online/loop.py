@@ -44,17 +44,21 @@ def closed_loop(
         ``{"seed", "n_poses": poses measured when it stopped, "done", "rounds",
         "kpi_avg_var_mm2": the reported tr(Cs)/3 at the stop [mm^2], "mahalanobis2": of the true
         TCP, "inside_95": within the reported 95 % ellipsoid, "error_mm": |estimate - truth| [mm],
-        "aposteriori"}``.
+        "aposteriori", "certified_min_poses": the start's poses plus the first step's
+        ``min_more_poses`` (fewer poses in all provably cannot reach the target after that start)}``.
     """
     problem = make_problem(robot, sigma_mm=sigma_mm)
     q = optimize_design(problem, criterion="heuristic", n=n_start, seed=seed).q
     opts = NextOptions(target_var_mm2=target_var_mm2, n=n_step, sigma_mm=sigma_mm, seed=seed, certify=False)
     sim = SimulationOptions(sigma_mm=sigma_mm, seed=seed)
     table, truth = simulate(robot, q, sim)
-    rounds = 0
+    rounds, fewest, plan = 0, None, None
     while True:
         data = Measurements.from_table(table, robot)
-        step = next_poses(robot, data, opts, cell=problem.cell)
+        step = next_poses(robot, data, opts, cell=problem.cell, plan=plan)
+        plan = step.q_plan
+        if fewest is None:
+            fewest = len(q) + step.min_more_poses
         if step.done or len(q) >= max_poses:
             break
         q = np.concatenate([q, step.q_next])
@@ -77,4 +81,5 @@ def closed_loop(
         "inside_95": bool(d2 <= ELLIPSOID_95),
         "error_mm": float(np.linalg.norm(e)),
         "aposteriori": bool(step.aposteriori),
+        "certified_min_poses": int(fewest),
     }

@@ -24,6 +24,7 @@ from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
+from kpioed_drake.design.approximate.given import fewest_certified, given_design
 from kpioed_drake.design.approximate.sequential import fewest_new_poses, most_useful
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.result import DesignError
@@ -79,6 +80,13 @@ class NextResult:
         q_next: (n, n_joints) the next poses [rad] (empty when done).
         predicted_kpi_avg_var_mm2: tr(Cs)/3 of the measured and the next poses together [mm^2].
         n_planned: poses the step planned ahead (the next ones are the most useful of them).
+        q_plan: (n_planned, n_joints) the planned poses [rad] (the next ones among them): the
+            ``plan`` of the following step.
+        min_more_poses: fewest more poses with which the target can be reached at all: with
+            fewer, the dual bound of the design with the measured information
+            (:func:`~kpioed_drake.design.approximate.given.fewest_certified`) exceeds it, for any
+            feasible poses the search reached (nominal kinematics, the noise used); 0 when done,
+            ``max_plan + 1`` when not even ``max_plan`` can.
         certificate: the certificate of the combined design (None when done or not asked).
         report: the calibration on the data so far.
     """
@@ -92,6 +100,8 @@ class NextResult:
     q_next: np.ndarray
     predicted_kpi_avg_var_mm2: float | None
     n_planned: int
+    q_plan: np.ndarray
+    min_more_poses: int
     certificate: dict | None
     report: CalibrationReport
 
@@ -115,6 +125,7 @@ class NextResult:
             "efficiency": cert.get("efficiency"),
             "n_next": int(len(self.q_next)),
             "n_planned": self.n_planned,
+            "min_more_poses": self.min_more_poses,
             "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
         }
 
@@ -130,6 +141,8 @@ class NextResult:
         lines = [
             head,
             f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2",
+            f"  planned {self.n_planned} more; at least {self.min_more_poses} more are needed "
+            "(with fewer, the certified bound exceeds the target)",
         ]
         if self.certificate is not None:
             c = self.certificate
@@ -158,7 +171,12 @@ def measured_poses(data: Measurements) -> np.ndarray:
 
 
 def next_poses(
-    robot: Robot, data: Measurements, options: NextOptions | None = None, *, cell: Cell | None = None
+    robot: Robot,
+    data: Measurements,
+    options: NextOptions | None = None,
+    *,
+    cell: Cell | None = None,
+    plan: np.ndarray | None = None,
 ) -> NextResult:
     """One online step on the data so far (module docstring).
 
@@ -167,6 +185,10 @@ def next_poses(
         data: the measurements so far.
         options: :class:`NextOptions`.
         cell: the measuring cell (default ``models/cell.yaml``).
+        plan: (H, n_joints) [rad] the previous step's plan (:attr:`NextResult.q_plan`), or None:
+            its poses not measured yet start one more design of the new plan, kept if better, so
+            that a re-plan is never worse than the rest of the plan it replaces (the estimate and
+            the noise aside).
 
     Raises:
         InputError: no poses yet, too few to calibrate, bad data.
@@ -194,18 +216,22 @@ def next_poses(
             q_next=np.zeros((0, robot.n_joints)),
             predicted_kpi_avg_var_mm2=None,
             n_planned=0,
+            q_plan=np.zeros((0, robot.n_joints)),
+            min_more_poses=0,
             certificate=None,
             **base,
         )
     problem = design_problem(robot, sigma_used, cell)
-    q_next, predicted, planned = _design(problem, opts, q_given)
+    q_next, predicted, q_plan, fewest = _design(problem, opts, q_given, plan)
     cert = None
     if opts.certify:
         cert = certificate.certify(problem, q_next, collision=opts.collision, seed=opts.seed, given=q_given)
     return NextResult(
         q_next=q_next,
         predicted_kpi_avg_var_mm2=predicted,
-        n_planned=planned,
+        n_planned=len(q_plan),
+        q_plan=q_plan,
+        min_more_poses=fewest,
         certificate=cert,
         **base,
     )
@@ -217,25 +243,47 @@ optimisation from one start per seed: the approximate design's candidates first,
 poses of the next seeds, which need no new certified search)."""
 
 
-def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> int:
-    """Poses the step plans ahead: the fewest that reach the target when added greedily to the
-    measured ones from the certified approximate design's candidates
-    (:func:`~kpioed_drake.design.approximate.sequential.fewest_new_poses`), at least ``opts.n`` and
-    at most ``opts.max_plan``."""
-    approx = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
-    fewest = fewest_new_poses(problem, approx, given=q_given, target=opts.target_var_mm2, n_max=opts.max_plan)
-    return int(np.clip(fewest, opts.n, max(opts.n, opts.max_plan)))
+def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[int, int]:
+    """Poses the step plans ahead, and the fewest more poses the certified bound does not exclude.
 
-
-def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[np.ndarray, float, int]:
-    """The next poses: the KPI design of the planned number of poses with ``q_given`` held fixed
-    (a solver failure retried with the next seeds), and of it the ``opts.n`` that lower tr(Cs)/3
-    most first (all of it when the plan is ``opts.n`` poses: then it is ``design --given``).
+    The plan is the best design of the poses of as few batches of ``opts.n`` as could reach the
+    target (the poses the following steps measure if it is reached as soon as it can be): the
+    fewest poses whose bound
+    (:func:`~kpioed_drake.design.approximate.given.fewest_certified`) is at most the target, with
+    the approximate design with the measured information solved for the greedy count (the fewest
+    poses that reach the target when added greedily from the certified design's candidates,
+    :func:`~kpioed_drake.design.approximate.sequential.fewest_new_poses`), rounded up to whole
+    batches; at most ``opts.max_plan``. A plan of the greedy count is a design for more poses than
+    needed, and its most useful poses are not those of the smallest design that reaches the
+    target (docs/online.md).
 
     Returns:
-        (q_next (n, n_joints) [rad], tr(Cs)/3 of the measured and next poses [mm^2], poses planned).
+        (poses planned, fewest more poses: 0 .. ``max_plan + 1``).
     """
-    h = plan_size(problem, opts, q_given)
+    approx = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
+    top = max(opts.n, opts.max_plan)
+    greedy = fewest_new_poses(problem, approx, given=q_given, target=opts.target_var_mm2, n_max=top)
+    gd = given_design(
+        problem, approx, given=q_given, n=int(np.clip(greedy, opts.n, top)), collision=opts.collision
+    )
+    fewest = fewest_certified(problem, gd, target=opts.target_var_mm2, n_max=top)
+    rounds = -(-fewest // opts.n)  # whole batches: 19 poses still take four batches of five
+    return int(np.clip(rounds * opts.n, opts.n, top)), fewest
+
+
+def _design(
+    problem: Problem, opts: NextOptions, q_given: np.ndarray, previous: np.ndarray | None
+) -> tuple[np.ndarray, float, np.ndarray, int]:
+    """The next poses: the KPI design of the planned number of poses with ``q_given`` held fixed
+    (a solver failure retried with the next seeds; also from the rest of the ``previous`` plan),
+    and of it the ``opts.n`` that lower tr(Cs)/3 most first (all of it when the plan is ``opts.n``
+    poses: then it is ``design --given``).
+
+    Returns:
+        (q_next (n, n_joints) [rad], tr(Cs)/3 of the measured and next poses [mm^2], the plan
+        (h, n_joints) [rad], the fewest more poses the bound does not exclude).
+    """
+    h, fewest = plan_size(problem, opts, q_given)
     for k in range(RETRY_SEEDS):
         try:
             plan = optimize_design(  # a retry starts from heuristic poses: no new certified search
@@ -251,10 +299,38 @@ def _design(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[n
         except DesignError:
             if k == RETRY_SEEDS - 1:
                 raise
+    plan = _continued(problem, opts, q_given, previous, plan)
     if h == opts.n:
-        return plan.q, float(plan.kpi_avg_var_mm2), h
+        return plan.q, float(plan.kpi_avg_var_mm2), plan.q, fewest
     q_next = plan.q[most_useful(problem, plan.q, given=q_given, n=opts.n)]
-    return q_next, float(problem.criteria(np.concatenate([q_given, q_next]))["kpi_avg_var_mm2"]), h
+    value = float(problem.criteria(np.concatenate([q_given, q_next]))["kpi_avg_var_mm2"])
+    return q_next, value, plan.q, fewest
+
+
+PLAN_MEASURED_TOL = 1e-6
+"""A planned pose within this of a measured one (every joint) [rad, mm] was measured."""
+
+
+def _continued(problem: Problem, opts: NextOptions, q_given: np.ndarray, previous, plan):
+    """``plan``, or the design of as many poses started from the ``previous`` plan's poses not
+    measured yet (its most useful ones if more) if that one is better; ``plan`` too when
+    fewer of them are left than planned now or that design fails."""
+    if previous is None or len(previous) == 0:
+        return plan
+    measured = np.all(np.abs(previous[:, None, :] - q_given[None, :, :]) <= PLAN_MEASURED_TOL, axis=2)
+    rest = previous[~measured.any(axis=1)]
+    h = len(plan.q)
+    if len(rest) < h:
+        return plan
+    if len(rest) > h:
+        rest = rest[most_useful(problem, rest, given=q_given, n=h)]
+    try:
+        alt = optimize_design(
+            problem, criterion="kpi", n=h, collision=opts.collision, seed=opts.seed, given=q_given, q0=rest
+        )
+    except DesignError:
+        return plan
+    return alt if alt.kpi_avg_var_mm2 < plan.kpi_avg_var_mm2 else plan
 
 
 def next_file(
@@ -266,22 +342,32 @@ def next_file(
     json_path: str | Path | None = None,
     data_format: str | Path | None = None,
     cell_path=None,
+    plan_path: str | Path | None = None,
 ) -> tuple[NextResult, Robot]:
     """``kpioed next``: one step on a measurement file; ``out`` gets the next poses (a design CSV,
     nothing written when done), ``json_path`` the record; written after all succeeded.
+    ``plan_path``: a design CSV carrying the plan from step to step: read if it exists (the
+    previous plan, :func:`next_poses`), then replaced by this step's plan (removed when done).
 
     Returns:
         (result, robot).
     """
-    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[out, json_path])
+    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[out, json_path, plan_path])
     rob, cell, data = read_inputs(
-        robot, data_path, data_format, cell_path=cell_path, outputs=[out, json_path]
+        robot, data_path, data_format, cell_path=cell_path, outputs=[out, json_path, plan_path]
     )
-    result = next_poses(rob, data, options, cell=cell)
+    previous = None
+    if plan_path is not None and Path(plan_path).is_file():
+        previous = csvio.read_design(plan_path, rob)
+    result = next_poses(rob, data, options, cell=cell, plan=previous)
     with Outputs() as staged:
         if out is not None and not result.done:
             staged.add_text(out, csvio.design_csv_text(result.q_next, robot=rob))
+        if plan_path is not None and not result.done:
+            staged.add_text(plan_path, csvio.design_csv_text(result.q_plan, robot=rob))
         if json_path is not None:
             staged.add_json(json_path, result.to_dict(rob))
         staged.commit()
+    if plan_path is not None and result.done:
+        Path(plan_path).unlink(missing_ok=True)
     return result, rob

@@ -47,6 +47,7 @@ from kpioed_drake.design.approximate.design import (
     l_criterion,
     solve_pool,
 )
+from kpioed_drake.design.approximate.given import bound_of, given_design
 from kpioed_drake.design.approximate.search import (
     corner_poses,
     dual_values,
@@ -271,6 +272,22 @@ def _near_design(problem: Problem, q: np.ndarray, approx: ApproximateDesign, *, 
     return g_near, q_all[ok_all & (g_all > approx.g_max * (1.0 + ROUND_TOL))], len(starts)
 
 
+def given_bound(
+    problem: Problem, q: np.ndarray, approx: ApproximateDesign, *, given: np.ndarray, collision: bool
+) -> float:
+    """The bound on tr(Cs)/3 of the measured poses ``given`` and any ``len(q)`` more with the
+    ``Y`` of the approximate design made with the measured information
+    (:func:`~kpioed_drake.design.approximate.given.given_design`, one round), ``g`` also at the
+    design's poses ``q`` and the local maxima from the :data:`DESIGN_STARTS` of them with largest
+    ``g`` [mm^2]."""
+    gd = given_design(problem, approx, given=given, n=len(q), collision=collision, rounds=1)
+    g_design = dual_values(pose_rows(problem, q), gd.Y)
+    starts = q[np.argsort(-g_design)[:DESIGN_STARTS]]
+    _, g_found, ok = maximize_dual(problem, starts, gd.Y, collision=collision)
+    g_max = max(gd.g_max, float(g_design.max()), float(g_found[ok].max(initial=0.0)))
+    return float(bound_of(kpi_factor(problem), gd.Y, gd.fixed, g_max, len(q)))
+
+
 def certify(
     problem: Problem,
     q: np.ndarray,
@@ -286,7 +303,9 @@ def certify(
     With ``given`` poses (information ``M0 = F0^T F0`` held fixed) the bound is on the combined
     design: for any ``Y``, tr(K^T (M0 + M)^-1 K) >= tr(K^T Y)^2 / (n g_max + tr(Y^T M0 Y)) (the
     proof of the module docstring with the given rows as one more term of the Cauchy-Schwarz sum);
-    ``Y`` is the one without given poses, so this bound is valid but looser.
+    with ``Y`` of the design without given poses this bound is valid but loose, so the bound of
+    :func:`given_bound` (``Y`` of the approximate design with the measured information) is
+    computed too and the larger kept.
 
     ``g`` is also evaluated at the design's poses and maximised locally from the
     :data:`DESIGN_STARTS` of them with largest ``g`` (the optimiser may have found feasible poses
@@ -347,6 +366,8 @@ def certify(
         GY = pose_rows(problem, given) @ approx.Y
         fixed = float(np.sum(GY * GY))
     bound = approx.dual / (max(approx.g_max, g_near) * n + fixed)
+    if given is not None:  # both bounds are valid: keep the larger
+        bound = max(bound, given_bound(problem, q, approx, given=given, collision=collision))
     value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
     return {
         "bound_mm2": bound,

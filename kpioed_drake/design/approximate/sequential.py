@@ -81,10 +81,11 @@ def given_counts(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, max_it
     return c, _criterion(K, M0 + np.einsum("i,iak,ial->kl", c, F, F))
 
 
-def given_start(problem: Problem, approx: ApproximateDesign, *, n: int, given: np.ndarray) -> np.ndarray:
+def given_start(problem: Problem, approx, *, n: int, given: np.ndarray) -> np.ndarray:
     """(n, n_joints) [rad] the optimiser's start for ``n`` poses added to ``given``: the candidates
-    of ``approx`` (the approximate design of ``problem``, its noise included, every candidate
-    feasible) chosen by :func:`given_counts` with the measured information."""
+    of ``approx`` (an :class:`ApproximateDesign` of ``problem`` or a
+    :class:`~.given.GivenDesign`: candidates ``q`` and rows ``F``, the noise included, every
+    candidate feasible) chosen by :func:`given_counts` with the measured information."""
     counts, _ = given_counts(approx.F, kpi_factor(problem), given_information(problem, given), n)
     return replicate_poses(problem, approx.q, counts)
 
