@@ -19,6 +19,7 @@ from kpioed_drake.design.approximate.search import pose_rows
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.online import start_bound
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.tracker.csvio import read_design, write_design
@@ -137,3 +138,13 @@ def test_next_plans_whole_batches_and_carries_its_plan(measured):
     done = api.next("kr16", measured / "data2.csv", target_var_mm2=1e6, n=5, sigma_mm=1.0, certify=False,
                     out=measured / "next3.csv", plan=plan_file)  # fmt: skip
     assert done["done"] and not plan_file.exists() and not (measured / "next3.csv").exists()
+
+
+def test_start_bound_is_below_the_design_after_the_loops_start():
+    """The study's bound on any continuation of a loop's start holds for the optimised one."""
+    robot = load_robot("kr16")
+    rec = start_bound(robot, seed=0, n_more=N_NEW, rounds=1)
+    problem = make_problem(robot, sigma_mm=1.0)
+    start = optimize_design(problem, criterion="heuristic", n=10, seed=0).q
+    best = optimize_design(problem, criterion="kpi", n=N_NEW, seed=0, given=start)
+    assert rec["bound_mm2"] <= rec["pool_mm2"] <= best.kpi_avg_var_mm2

@@ -16,6 +16,10 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
+from kpioed_drake.design.approximate.certificate import certified_design
+from kpioed_drake.design.approximate.design import kpi_factor
+from kpioed_drake.design.approximate.given import bound_of, given_design
+from kpioed_drake.design.approximate.search import dual_values
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.online.step import NextOptions, next_poses
@@ -82,4 +86,31 @@ def closed_loop(
         "error_mm": float(np.linalg.norm(e)),
         "aposteriori": bool(step.aposteriori),
         "certified_min_poses": int(fewest),
+    }
+
+
+def start_bound(
+    robot: Robot, *, seed: int, n_more: int, sigma_mm: float = 1.0, n_start: int = 10, rounds: int = 6
+) -> dict:
+    """How well any ``n_more`` poses can do after the loop's start (:func:`closed_loop`, ``seed``):
+    the approximate design of ``n_more`` poses with the start's information held fixed
+    (:func:`~kpioed_drake.design.approximate.given.given_design`, ``rounds`` of column generation)
+    at the nominal model.
+
+    Returns:
+        ``{"seed", "bound_mm2": lower bound on tr(Cs)/3 of the start and any n_more feasible poses
+        (rigorous for the poses the search reached), "pool_mm2": the approximate optimum over its
+        candidates (what weights, not poses, reach), "n_candidates"}``.
+    """
+    problem = make_problem(robot, sigma_mm=sigma_mm)
+    q = optimize_design(problem, criterion="heuristic", n=n_start, seed=seed).q
+    approx = certified_design(problem, collision=True, seed=seed)
+    gd = given_design(problem, approx, given=q, n=n_more, collision=True, rounds=rounds)
+    K = kpi_factor(problem)
+    pool_g = float(dual_values(gd.F, gd.Y).max())
+    return {
+        "seed": int(seed),
+        "bound_mm2": float(gd.bound(K, n_more)),
+        "pool_mm2": float(bound_of(K, gd.Y, gd.fixed, pool_g, n_more)),
+        "n_candidates": int(len(gd.q)),
     }
