@@ -163,7 +163,9 @@ def given_design(
     working: int = GIVEN_WORKING,
 ) -> GivenDesign:
     """The column generation of ``n`` poses added to the measured ``given`` (m0, 6) [rad], warm
-    from ``approx`` (the certified approximate design of ``problem``, same ``collision``).
+    from ``approx`` (the certified approximate design of ``problem``, same ``collision``): each
+    round prices every candidate and the local maxima found; the candidates of largest ``g`` join
+    the working set until none lies above it (or ``rounds`` are run).
 
     Returns:
         :class:`GivenDesign`; its ``Y`` is the certified design's if every cone program failed.
@@ -188,40 +190,46 @@ def given_design(
 def _column_generation(
     problem: Problem, approx: ApproximateDesign, *, given, n, collision, rounds, starts, working
 ) -> GivenDesign:
-    """:func:`given_design`, not cached."""
+    """:func:`given_design`, not cached. The ``Y`` kept is the one of the largest bound (the
+    certified design's to begin with: every ``Y`` with the largest ``g`` of its own search gives a
+    valid bound)."""
     K = kpi_factor(problem)
     R0 = information_factor(_information(problem, given))
     q, F = approx.q, approx.F
-    Y, g_max, done, searched = approx.Y, approx.g_max, 0, 0
+    best = (_bound_with(K, R0, approx.Y, approx.g_max, n), approx.Y, approx.g_max)
+    done, searched = 0, 0
     work = np.union1d(approx.support, np.argsort(-dual_values(F, approx.Y))[:working])
     while done < rounds:
-        Y_new = solve_given_pool(F[work], K, R0, n)
-        if Y_new is None or _pool_bound(F, K, R0, Y_new, n) <= _pool_bound(F, K, R0, Y, n):
+        Y = solve_given_pool(F[work], K, R0, n)
+        if Y is None:
             break
-        Y, done = Y_new, done + 1
+        done += 1
         g = dual_values(F, Y)
         top = np.argsort(-g)[:starts]
         q_max, g_found, ok = maximize_dual(problem, q[top], Y, collision=collision)
         searched += len(top)
         g_max = max(float(g.max()), float(g_found[ok].max(initial=0.0)))
-        new = ok & (g_found > float(g.max()) * (1.0 + ROUND_TOL))
+        best = max(best, (_bound_with(K, R0, Y, g_max, n), Y, g_max), key=lambda b: b[0])
+        g_work = float(g[work].max())
+        new = ok & (g_found > g_work * (1.0 + ROUND_TOL))
         if new.any():
             F_new = pose_rows(problem, q_max[new])
             keep = distinct_rows(F, F_new)
             q, F = np.concatenate([q, q_max[new][keep]]), np.concatenate([F, F_new[keep]])
-        if not new.any():
+        if g_max <= g_work * (1.0 + ROUND_TOL):  # nothing priced above the working set: optimal
             break
-        work = np.argsort(-dual_values(F, Y))[:working]
+        g = dual_values(F, Y)  # the candidates above the working set join it (at most ``working``)
+        above = np.flatnonzero(g > g_work * (1.0 + ROUND_TOL))
+        work = np.union1d(work, above[np.argsort(-g[above])[:working]])
+    _, Y, g_max = best
     fixed = float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
-    if Y is approx.Y:  # no cone program solved: the certified design's g over its own search
-        g_max = approx.g_max
     return GivenDesign(q=q, F=F, Y=Y, fixed=fixed, g_max=g_max, n=int(n), rounds=done, n_searched=searched)
 
 
-def _pool_bound(F: np.ndarray, K: np.ndarray, R0: np.ndarray, Y: np.ndarray, n: int) -> float:
-    """The bound of ``Y`` over the candidates ``F`` alone (to compare two ``Y``)."""
+def _bound_with(K: np.ndarray, R0: np.ndarray, Y: np.ndarray, g_max: float, n: int) -> float:
+    """The bound of ``Y`` whose largest ``g`` found is ``g_max``."""
     fixed = float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
-    return float(bound_of(K, Y, fixed, float(dual_values(F, Y).max()), n))
+    return float(bound_of(K, Y, fixed, g_max, n))
 
 
 def _information(problem: Problem, given: np.ndarray) -> np.ndarray:
