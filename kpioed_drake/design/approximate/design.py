@@ -32,7 +32,9 @@ Units: millimetres and radians; ``Phi`` in mm^2 (a variance times a number of po
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import logging
 import math
 import time
 
@@ -91,6 +93,19 @@ little faster than :data:`CLARABEL_TOL` for a start of the same value to a few 1
 (docs/certificate.md, design notes)."""
 
 
+@contextlib.contextmanager
+def quiet_solver_notes():
+    """Drake's log at WARNING within: Clarabel's "returns InsufficientProgress" notes (INFO) are
+    expected where a tight tolerance is tried before a looser one, and would reach the user."""
+    log = logging.getLogger("drake")
+    level = log.level
+    log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 def kpi_factor(problem: Problem) -> np.ndarray:
     """``K = Js^T / sqrt(3)`` (k, 3): tr(Cs)/3 = tr(K^T M^-1 K); several working poses: (k, 3K)
     from the weighted stack :meth:`Problem.Js` (their weighted mean; every ``Y`` below is then
@@ -147,7 +162,8 @@ def solve_pool(F: np.ndarray, K: np.ndarray, *, tol: float = CLARABEL_TOL) -> Po
         opts = SolverOptions()
         for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
             opts.SetOption(solver.solver_id(), name, t)
-        result = solver.Solve(prog, None, opts)
+        with quiet_solver_notes():
+            result = solver.Solve(prog, None, opts)
         if result.is_success():
             break
     else:

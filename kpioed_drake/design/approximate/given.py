@@ -41,6 +41,7 @@ from kpioed_drake.design.approximate.design import (
     ApproximateDesign,
     distinct_rows,
     kpi_factor,
+    quiet_solver_notes,
 )
 from kpioed_drake.design.approximate.search import dual_values, maximize_dual, pose_rows
 from kpioed_drake.estimation.problem import Problem
@@ -107,7 +108,8 @@ def solve_given_pool(F: np.ndarray, K: np.ndarray, R0: np.ndarray, n: int) -> np
         opts = SolverOptions()
         for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
             opts.SetOption(solver.solver_id(), name, tol)
-        result = solver.Solve(prog, None, opts)
+        with quiet_solver_notes():
+            result = solver.Solve(prog, None, opts)
         Y = np.asarray(result.GetSolution(y)).reshape(k, nc)
         if result.is_success():
             return Y
