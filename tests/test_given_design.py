@@ -148,3 +148,32 @@ def test_start_bound_is_below_the_design_after_the_loops_start():
     start = optimize_design(problem, criterion="heuristic", n=10, seed=0).q
     best = optimize_design(problem, criterion="kpi", n=N_NEW, seed=0, given=start)
     assert rec["bound_mm2"] <= rec["pool_mm2"] <= best.kpi_avg_var_mm2
+
+
+def test_the_cone_program_is_the_approximate_design_with_measured_poses(setup):
+    """Strong duality: the cone program's value equals the best weights (SLSQP, independent)."""
+    from scipy.optimize import minimize
+
+    from kpioed_drake.design.approximate.given import solve_given_pool
+    from kpioed_drake.design.approximate.search import dual_values
+
+    problem, given, _, _ = setup
+    F = pose_rows(problem, heuristic_design(problem, n=40, seed=11))
+    K = kpi_factor(problem)
+    F0 = pose_rows(problem, given).reshape(-1, problem.n_params)
+    M0 = F0.T @ F0
+    Y = solve_given_pool(F, K, information_factor(M0), N_NEW)
+    dual = 2 * np.sum(K * Y) - np.sum((F0 @ Y) ** 2) - N_NEW * dual_values(F, Y).max()
+    G = F.transpose(0, 2, 1) @ F
+
+    def value_and_grad(c):
+        X = np.linalg.solve(M0 + np.einsum("i,ikl->kl", c, G), K)
+        FX = F @ X  # (m, 3, 3)
+        return float(np.sum(K * X)), -np.einsum("iac,iac->i", FX, FX)
+
+    m = len(F)
+    res = minimize(value_and_grad, np.full(m, N_NEW / m), jac=True, method="SLSQP",
+                   bounds=[(0, None)] * m, constraints=[{"type": "eq", "fun": lambda c: c.sum() - N_NEW}],
+                   options={"maxiter": 500, "ftol": 1e-14})  # fmt: skip
+    assert dual <= res.fun * (1 + 1e-9)
+    assert dual == pytest.approx(res.fun, rel=1e-6)  # measured 1e-8

@@ -4,11 +4,13 @@ estimate with the noise the data show, then stop or design the next poses.
 The variance is the KPI's tr(Cs)/3 (paper eq. 19, 24e) of the calibration, a-posteriori (times
 chi2/dof) when the goodness-of-fit test rejects: the guarantee must hold for the real spread. The
 next poses are planned to the target: the KPI design (paper eq. 24 with the measured poses'
-information held fixed, section 3.1) of the poses still needed at that noise, with collision
-avoidance (:func:`design_problem`: the constraints on the model file's kinematics), of which the
-``n`` that lower tr(Cs)/3 most are measured next (a batch designed alone would be greedy: the
-last rounds could not make up for it). The certificate (a lower bound on tr(Cs)/3 of any combined
-design of as many poses) says how far from the best they are.
+information held fixed, section 3.1) of the poses still needed at that noise (the fewest the
+certified bound does not exclude, in whole batches), with collision avoidance
+(:func:`design_problem`: the constraints on the model file's kinematics), of which the ``n`` that
+lower tr(Cs)/3 most are measured next (a batch designed alone would be greedy: the last rounds
+could not make up for it); the previous step's plan, when given, is continued if that is better.
+The certificate (a lower bound on tr(Cs)/3 of any combined design of as many poses) says how far
+from the best they are.
 """
 
 from __future__ import annotations
@@ -246,7 +248,7 @@ poses of the next seeds, which need no new certified search)."""
 
 TIGHTEN_STEPS = 3
 """Most cone programs solved for the fewest count itself (:func:`plan_size`): the ``Y`` solved for
-the greedy count bounds fewer poses loosely (kr16 after ten heuristic poses: 30 instead of 31)."""
+the greedy count bounds fewer poses more loosely than one solved for them."""
 
 
 def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple[int, int]:
