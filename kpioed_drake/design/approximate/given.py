@@ -192,13 +192,13 @@ def given_design(
 def _column_generation(
     problem: Problem, approx: ApproximateDesign, *, given, n, collision, rounds, starts, working
 ) -> GivenDesign:
-    """:func:`given_design`, not cached. The ``Y`` kept is the one of the largest bound (the
-    certified design's to begin with: every ``Y`` with the largest ``g`` of its own search gives a
-    valid bound)."""
+    """:func:`given_design`, not cached. The ``Y`` kept is the one of the largest bound among those
+    tried (the certified design's and each round's), each with the largest ``g`` over its own
+    search and every candidate at the end: a valid bound for every pose evaluated."""
     K = kpi_factor(problem)
     R0 = information_factor(_information(problem, given))
     q, F = approx.q, approx.F
-    best = (_bound_with(K, R0, approx.Y, approx.g_max, n), approx.Y, approx.g_max)
+    tried = [(approx.Y, approx.g_max)]  # each Y with the largest g of its own search
     done, searched = 0, 0
     work = np.union1d(approx.support, np.argsort(-dual_values(F, approx.Y))[:working])
     while done < rounds:
@@ -211,7 +211,7 @@ def _column_generation(
         q_max, g_found, ok = maximize_dual(problem, q[top], Y, collision=collision)
         searched += len(top)
         g_max = max(float(g.max()), float(g_found[ok].max(initial=0.0)))
-        best = max(best, (_bound_with(K, R0, Y, g_max, n), Y, g_max), key=lambda b: b[0])
+        tried.append((Y, g_max))
         g_work = float(g[work].max())
         new = ok & (g_found > g_work * (1.0 + ROUND_TOL))
         if new.any():
@@ -223,7 +223,9 @@ def _column_generation(
         g = dual_values(F, Y)  # the candidates above the working set join it (at most ``working``)
         above = np.flatnonzero(g > g_work * (1.0 + ROUND_TOL))
         work = np.union1d(work, above[np.argsort(-g[above])[:working]])
-    _, Y, g_max = best
+    # every Y's largest g over all poses evaluated (candidates found later included), the best kept
+    tried = [(Y, max(g, float(dual_values(F, Y).max()))) for Y, g in tried]
+    Y, g_max = max(tried, key=lambda t: _bound_with(K, R0, t[0], t[1], n))
     fixed = float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
     return GivenDesign(q=q, F=F, Y=Y, fixed=fixed, g_max=g_max, n=int(n), rounds=done, n_searched=searched)
 
