@@ -32,6 +32,14 @@ ELLIPSOID_95 = float(chi2.ppf(0.95, 3))
 """chi^2(3) quantile of the 95 % confidence ellipsoid of the TCP."""
 
 
+def loop_start(robot: Robot, *, seed: int, n_start: int, sigma_mm: float):
+    """The loop's problem (the model file, noise ``sigma_mm``) and its start: ``n_start`` heuristic
+    poses (n_start, n_joints) [rad] of ``seed``, the same in :func:`closed_loop` and
+    :func:`start_bound`."""
+    problem = make_problem(robot, sigma_mm=sigma_mm)
+    return problem, optimize_design(problem, criterion="heuristic", n=n_start, seed=seed).q
+
+
 def closed_loop(
     robot: Robot,
     *,
@@ -51,8 +59,7 @@ def closed_loop(
         "aposteriori", "certified_min_poses": the start's poses plus the first step's
         ``min_more_poses`` (fewer poses in all provably cannot reach the target after that start)}``.
     """
-    problem = make_problem(robot, sigma_mm=sigma_mm)
-    q = optimize_design(problem, criterion="heuristic", n=n_start, seed=seed).q
+    problem, q = loop_start(robot, seed=seed, n_start=n_start, sigma_mm=sigma_mm)
     opts = NextOptions(target_var_mm2=target_var_mm2, n=n_step, sigma_mm=sigma_mm, seed=seed, certify=False)
     sim = SimulationOptions(sigma_mm=sigma_mm, seed=seed)
     table, truth = simulate(robot, q, sim)
@@ -102,8 +109,7 @@ def start_bound(
         (rigorous for the poses the search reached), "pool_mm2": the approximate optimum over its
         candidates (what weights, not poses, reach), "n_candidates"}``.
     """
-    problem = make_problem(robot, sigma_mm=sigma_mm)
-    q = optimize_design(problem, criterion="heuristic", n=n_start, seed=seed).q
+    problem, q = loop_start(robot, seed=seed, n_start=n_start, sigma_mm=sigma_mm)
     approx = certified_design(problem, collision=True, seed=seed)
     gd = given_design(problem, approx, given=q, n=n_more, collision=True, rounds=rounds)
     K = kpi_factor(problem)

@@ -172,7 +172,8 @@ def given_design(
     Returns:
         :class:`GivenDesign`; its ``Y`` is the certified design's if every cone program failed.
         Cached per thread for the same problem object, approximate design, measured poses and
-        settings (an online step's start and its certified count use one).
+        settings (an online step's count and its design's second start share one when the greedy
+        count equals the plan).
     """
     given = np.asarray(given, dtype=float)
     key = (id(problem), id(approx), given.tobytes(), int(n), bool(collision), rounds, starts, working)
@@ -225,15 +226,15 @@ def _column_generation(
         work = np.union1d(work, above[np.argsort(-g[above])[:working]])
     # every Y's largest g over all poses evaluated (candidates found later included), the best kept
     tried = [(Y, max(g, float(dual_values(F, Y).max()))) for Y, g in tried]
-    Y, g_max = max(tried, key=lambda t: _bound_with(K, R0, t[0], t[1], n))
-    fixed = float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
-    return GivenDesign(q=q, F=F, Y=Y, fixed=fixed, g_max=g_max, n=int(n), rounds=done, n_searched=searched)
+    Y, g_max = max(tried, key=lambda t: float(bound_of(K, t[0], _fixed(R0, t[0]), t[1], n)))
+    return GivenDesign(
+        q=q, F=F, Y=Y, fixed=_fixed(R0, Y), g_max=g_max, n=int(n), rounds=done, n_searched=searched
+    )
 
 
-def _bound_with(K: np.ndarray, R0: np.ndarray, Y: np.ndarray, g_max: float, n: int) -> float:
-    """The bound of ``Y`` whose largest ``g`` found is ``g_max``."""
-    fixed = float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
-    return float(bound_of(K, Y, fixed, g_max, n))
+def _fixed(R0: np.ndarray, Y: np.ndarray) -> float:
+    """``||R0 Y||_F^2``: the measured poses' term of the bound."""
+    return float(np.sum((R0 @ Y) ** 2)) if R0.size else 0.0
 
 
 def _information(problem: Problem, given: np.ndarray) -> np.ndarray:
