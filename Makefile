@@ -2,6 +2,10 @@
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
+# one BLAS thread a process: the tests run a process per core, and the small dense problems of a
+# fit gain nothing from more threads (several processes with several threads each spin-wait)
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
 STAMP  := $(VENV)/.installed-stamp
 
 .PHONY: setup demo test test-slow lint format bench tables tables-quick models clean

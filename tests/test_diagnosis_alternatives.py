@@ -11,10 +11,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.alternatives import settle
+from kpioed_drake.diagnosis.fit import held_out_gain, pose_groups
 from kpioed_drake.diagnosis.records import Selection
 from kpioed_drake.diagnosis.selection import stand_in_reason
 from kpioed_drake.effects import physical
@@ -117,7 +119,8 @@ def test_error_outside_the_library_is_unexplained(kr16):
         source="synthetic",
     )
     rep = D.diagnose(kr16, data, D.DiagnosisOptions(sigma_mm=case.sigma))
-    # the best candidate (joint_scale:3, LR 72) fits 7 % of the excess: a stand-in, noted, not named
+    # the best candidate (joint_scale:3, LR 72) predicts the held-out poses better by 1.5 standard
+    # errors only while the model still fails: a stand-in, noted, not named
     assert rep.causes == [] and any("stand-in" in n for n in rep.notes)
     u = rep.unexplained
     assert u is not None and u["p_value"] < 0.01 and u["chi2_per_dof"] > 1.5
@@ -173,13 +176,27 @@ def test_plausibility_bounds(text, std, ok):
 
 
 @pytest.mark.parametrize(
-    ("cost", "after", "stand_in"),
+    ("cost", "ratio", "stand_in"),
     [
-        (500.0, 0.0490, True),  # model still fails; 2 % of the RMS but 5 % of the excess
-        (500.0, 0.0350, False),  # still fails but removes half the excess: a cause
-        (205.0, 0.0495, False),  # the model with it fits: the last missing piece, named
+        (500.0, 1.5, True),  # the model still fails; a gain of 1.5 standard errors: within its uncertainty
+        (500.0, 3.0, False),  # still fails but predicts better by 3 standard errors: a cause
+        (205.0, 1.5, False),  # the model with it fits: its LR test decides, named
+        (500.0, -0.5, False),  # no gain at all: not a stand-in, just no gain
     ],
 )
-def test_stand_in_rule(cost, after, stand_in):
-    why = stand_in_reason(SimpleNamespace(cost=cost, dof=200), after, before=0.050, sigma=0.02, alpha=0.01)
+def test_stand_in_rule(cost, ratio, stand_in):
+    """A stand-in: the model with it fails the goodness-of-fit test and its held-out gain, paired by
+    pose, is positive but within its uncertainty (two standard errors)."""
+    rng = np.random.default_rng(3)
+    n = 400
+    before = rng.normal(0.0, 0.05, (n, 3))
+    d = rng.normal(0.0, 1.0, n)
+    d = (d - d.mean()) / d.std(ddof=1) * 1e-4  # per-pose gains of standard error 1e-4 / sqrt(n)
+    d += ratio * 1e-4 / np.sqrt(n)
+    # the same poses with each one's squared error lowered by d_i (scaled per coordinate)
+    sq = np.sum(before**2, axis=1)
+    after = before * np.sqrt((sq - d) / sq)[:, None]
+    gain = held_out_gain(before, after, pose_groups(np.arange(n)[:, None]))
+    assert_allclose(gain.ratio, ratio, rtol=1e-6, atol=1e-9)
+    why = stand_in_reason(SimpleNamespace(cost=cost, dof=200), gain, alpha=0.01)
     assert (why is not None) is stand_in

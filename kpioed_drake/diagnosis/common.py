@@ -14,16 +14,13 @@ MIN_REMAINING = 0.05
 """A candidate whose columns keep less than this fraction outside the model's span is 'absorbed'."""
 K_FOLDS = 5
 """Folds of the cross-validation over poses."""
-MAX_EFFECTS = 4
-"""Most effects the stepwise selection adds per measured branch (a tree robot's arm)."""
+MAX_SWAPS = 4
+"""Most swaps of a named cause for a competing candidate (:func:`~.alternatives.settle`)."""
+GAIN_STANDARD_ERRORS = 2.0
+"""A candidate joins when its held-out gain exceeds this many standard errors: its uncertainty, the
+half-width of about a 95 % interval (:func:`~kpioed_drake.diagnosis.fit.held_out_gain`)."""
 FOLD_SEED = 0
 """Seed of the random assignment of poses to folds."""
-MIN_HOLDOUT_GAIN = 0.02
-"""A candidate that lowers the held-out RMS by less than this fraction while the model with it still
-fails the goodness-of-fit test is a stand-in for an unexplained error, not a cause: not named."""
-MIN_EXCESS_SHARE = 0.10
-"""Likewise a candidate that removes less than this share of the held-out mean square above the
-noise (``holdout_rms^2 - sigma^2``) while the model with it still fails the goodness-of-fit test."""
 NESTED_REMAINING = 0.1
 """A significant candidate of which no direction keeps more than this fraction outside the span of the
 named causes and the geometry is reported as a nested alternative of the cause that holds it ..."""
@@ -59,8 +56,8 @@ class DiagnosisOptions:
     k_folds: int = K_FOLDS
     """Folds of the cross-validation over poses (the held-out error)."""
     max_effects: int | None = None
-    """Most effects the stepwise selection adds; None: :data:`MAX_EFFECTS` per measured branch
-    (:func:`effect_budget`: 4 for a serial robot, 8 for two arms on one torso)."""
+    """Most effects the stepwise selection adds; None: as many as predict the held-out poses better
+    by more than their uncertainty (:func:`~kpioed_drake.diagnosis.fit.held_out_gain`)."""
     candidates: tuple[str, ...] | None = None
     """The candidate effects as texts (``gear_cyclic:2:1``, ``backlash:3``; docs/diagnosis.md, "Effect
     models"); None: the candidates these data can reveal
@@ -73,11 +70,3 @@ class DiagnosisOptions:
 def load_options(*, filename: str | Path | None = None, data: str | None = None) -> DiagnosisOptions:
     """:class:`DiagnosisOptions` from a YAML file or text (:func:`kpioed_drake.options.load_options`)."""
     return options.load_options(DiagnosisOptions, filename=filename, data=data)
-
-
-def effect_budget(robot, max_effects: int | None) -> int:
-    """The most effects a diagnosis of ``robot`` adds: ``max_effects``, or :data:`MAX_EFFECTS` for
-    each measured branch (the distinct links of a tree robot's targets; one for a serial robot)."""
-    if max_effects is not None:
-        return int(max_effects)
-    return MAX_EFFECTS * len(set(robot.target_frames.tolist()))

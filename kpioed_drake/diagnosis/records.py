@@ -16,7 +16,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain
 
 
 def _statistics(test) -> dict:
@@ -79,6 +79,7 @@ class CandidateTest:
     weight: float | None = None
     fit: Fit | None = dataclasses.field(default=None, repr=False)
     holdout: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    holdout_gain: HeldOutGain | None = dataclasses.field(default=None, repr=False)
 
     @property
     def effects(self) -> tuple[fx.Effect, ...]:
@@ -123,6 +124,7 @@ class PairTest:
         holdout_rms_mm: held-out RMS of the model with both [mm] (an accepted refit only).
         status: why the pair was not added, or None.
         fit, holdout: the refit with both and its (n, 3) held-out residuals [mm] (accepted refit only).
+        holdout_gain: the gain of ``holdout`` with its uncertainty (an added pair only).
     """
 
     effects: tuple[fx.Effect, fx.Effect]
@@ -138,6 +140,7 @@ class PairTest:
     status: str | None = None
     fit: Fit | None = dataclasses.field(default=None, repr=False)
     holdout: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    holdout_gain: HeldOutGain | None = dataclasses.field(default=None, repr=False)
 
     STATISTICS = (
         "canonical_correlation",
@@ -227,10 +230,12 @@ class Selection:
         steps: the selection steps.
         evidence: per chosen effect's name, the statistics that put it in the model (JSON-ready;
             replaced, not changed in place).
-        stand_ins: significant candidates left unnamed because their held-out gain was negligible
-            while the model still failed the goodness-of-fit test.
+        stand_ins: significant candidates left unnamed because their held-out gain was within its
+            uncertainty while the model still failed the goodness-of-fit test.
         swaps: causes replaced by a candidate that fits significantly better given the other causes
             (:func:`~kpioed_drake.diagnosis.alternatives.settle`).
+        stop: why the selection stopped, ``{"reason": key, "text": ...}``
+            (:data:`~kpioed_drake.diagnosis.fit.STOPS`); None until it has.
     """
 
     problem: FitProblem
@@ -240,6 +245,7 @@ class Selection:
     evidence: Mapping[str, dict] = dataclasses.field(default_factory=dict)
     stand_ins: tuple[StandIn, ...] = ()
     swaps: tuple[Swap, ...] = ()
+    stop: dict | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -272,6 +278,8 @@ class Cause:
             and its size at the reflector (JSON-ready).
         plausible: whether its value is physically plausible; plausible_reason: why not, or None.
         alternatives: the competing explanations the data cannot tell apart from it.
+        description: the cause in words, its joint and link and its size at the reflector
+            (:func:`~kpioed_drake.diagnosis.alternatives.describe`).
     """
 
     effect: fx.Effect
@@ -280,3 +288,4 @@ class Cause:
     plausible: bool
     plausible_reason: str | None
     alternatives: tuple[Alternative, ...] = ()
+    description: dict = dataclasses.field(default_factory=dict)

@@ -71,6 +71,8 @@ class DiagnosisReport:
         unexplained: None when the extended model fits to the noise level, else the rest's size and
             the variables it follows (:func:`unexplained_rest`).
         joint_names: the robot's joint names (reports name a cause's joint by them, index second).
+        selection_stop: why the selection of effects stopped, ``{"reason", "text"}``
+            (:data:`~kpioed_drake.diagnosis.fit.STOPS`).
     """
 
     robot: str
@@ -90,6 +92,7 @@ class DiagnosisReport:
     details: dict = dataclasses.field(default_factory=dict, repr=False)
     unexplained: dict | None = None
     joint_names: tuple[str, ...] = ()
+    selection_stop: dict | None = None
 
     @functools.cached_property
     def causes(self) -> list[dict]:
@@ -133,6 +136,7 @@ class DiagnosisReport:
                 "kpi": self.kpi,
                 "residual_structure": self.residual_structure,
                 "steps": self.steps,
+                "selection_stop": self.selection_stop,
                 "notes": self.notes,
                 "unexplained": self.unexplained,
             }
@@ -163,6 +167,8 @@ class DiagnosisReport:
                 f"p_corrected {ev['p_value_corrected']:.2g}, "
                 f"up to {ev['tool_max_mm']:.3f} mm at the reflector)"
             )
+            if c.get("description"):
+                lines.append(f"    {c['description']['text']}")
             lines += _alternative_lines(c)
             if not c.get("plausible", True):
                 lines.append(f"    implausible: {c['plausible_reason']}")
@@ -170,6 +176,8 @@ class DiagnosisReport:
             lines.append(
                 "  no cause named (no candidate effect is significant, or only as a stand-in: notes)"
             )
+        if self.selection_stop:
+            lines.append(f"  selection stopped: {self.selection_stop['text']}")
         if self.unexplained:
             u = self.unexplained
             top = ", ".join(f"{f['variable']} (R^2 {f['strength']:.2f})" for f in u["follows"][:3])
@@ -260,6 +268,7 @@ def cause_dict(c: Cause) -> dict:
         "plausible": c.plausible,
         "plausible_reason": c.plausible_reason,
         "alternatives": [alternative_dict(a) for a in c.alternatives],
+        "description": c.description,
     }
 
 

@@ -15,8 +15,9 @@
   step by the weighted min-p method, :mod:`~kpioed_drake.estimation.multiplicity`; a backlash scored
   with every side its joint's torque may take under the mass prior, its sides weighted by
   :func:`~kpioed_drake.diagnosis.sides.side_weights`),
-  BIC (``LR > k ln(3 n)``) and K-fold held-out error; after each addition every chosen effect is
-  re-tested for removal (stepwise).
+  BIC (``LR > k ln(3 n)``) and the K-fold held-out error, which must fall by more than its own
+  uncertainty (:func:`.fit.held_out_gain`); no fixed number of effects; after each addition every chosen
+  effect is re-tested for removal (stepwise).
 """
 
 from __future__ import annotations
@@ -27,15 +28,8 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import (
-    BACKLASH_MIN_SIDE,
-    COUPLING_PAIRS,
-    MIN_EXCESS_SHARE,
-    MIN_HOLDOUT_GAIN,
-    MIN_REMAINING,
-    PAIR_ALPHA_SHARE,
-)
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, COUPLING_PAIRS, MIN_REMAINING, PAIR_ALPHA_SHARE
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain, held_out_gain, pose_groups, stop_reason
 from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
 from kpioed_drake.diagnosis.sides import side_penalty, side_weights, unit_columns
@@ -314,6 +308,10 @@ def _test_step(prob: FitProblem, current: Fit, pool, sides, *, alpha: float, ln_
 def backward_step(sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
     """Remove every chosen effect (but ``added``, the one just added) that no longer earns its place.
 
+    An effect whose Wald statistic ``v^T C^-1 v`` (its values and their covariance in the current
+    fit, the linearised LR of its removal) exceeds twice the larger of the critical value and the
+    BIC penalty is kept without a refit; the others are refitted without it and tested.
+
     Returns:
         (selection, removed): the selection without them and their names.
     """
@@ -321,6 +319,9 @@ def backward_step(sel: Selection, added, *, alpha: float, ln_n: float, k_folds: 
     evidence, removed = dict(sel.evidence), []
     for old in list(sel.fit.effects):
         if old.name == added.name or len(fit.effects) < 2:
+            continue
+        bar = max(float(scipy.stats.chi2.isf(alpha, old.n_params)), old.n_params * ln_n)
+        if _wald(fit, old) > 2.0 * bar:
             continue
         rest = [x for x in fit.effects if x.name != old.name]
         f = prob.fit(rest, start=fit)
@@ -333,39 +334,54 @@ def backward_step(sel: Selection, added, *, alpha: float, ln_n: float, k_folds: 
     return dataclasses.replace(sel, fit=fit, holdout=hold, evidence=evidence), removed
 
 
-def stand_in_reason(fit: Fit, after: float, *, before: float, sigma: float, alpha: float) -> str | None:
+def _wald(fit: Fit, e) -> float:
+    """``v^T C^-1 v`` of effect ``e``'s values ``v`` in ``fit`` (0 where its covariance is singular)."""
+    c = fit.layout.effects.start
+    for x in fit.effects:
+        if x.name == e.name:
+            break
+        c += x.n_params
+    C = fit.Cp[c : c + e.n_params, c : c + e.n_params]
+    v = next(x for x in fit.effects if x.name == e.name).value_array()
+    try:
+        return float(v @ np.linalg.solve(C, v))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def stand_in_reason(fit: Fit, gain: HeldOutGain, *, alpha: float) -> str | None:
     """Why a significant candidate is a stand-in (not named), or None.
 
-    A stand-in: the model with it (``fit``, held-out RMS ``after``) still fails the goodness-of-fit
-    test and it lowers the held-out RMS (``before`` without it) by less than ``MIN_HOLDOUT_GAIN`` or
-    removes less than ``MIN_EXCESS_SHARE`` of the held-out mean square above the noise
-    (``before^2 - sigma^2``): a small piece of an error outside the candidate list that the
-    candidate's columns happen to fit.
+    A stand-in: the model with it (``fit``) still fails the goodness-of-fit test and its held-out
+    gain (``gain``, :func:`~.fit.held_out_gain`) is positive but not above its own standard
+    error: a piece of an error outside the candidate list that the candidate's columns happen to fit
+    on the poses it was fitted to.
     """
-    if scipy.stats.chi2.sf(fit.cost, fit.dof) >= alpha:
-        return None
-    gain = 1.0 - after / before
-    excess = before**2 - sigma**2
-    share = (before**2 - after**2) / excess if excess > 0 else 1.0
-    if gain >= MIN_HOLDOUT_GAIN and share >= MIN_EXCESS_SHARE:
+    if scipy.stats.chi2.sf(fit.cost, fit.dof) >= alpha or gain.predicts_better or gain.gain_mm2 <= 0:
         return None
     return (
-        f"lowers the held-out RMS by {100 * gain:.1f} % and removes {100 * share:.0f} % of its excess "
-        f"over the noise (named from {100 * MIN_HOLDOUT_GAIN:g} % and {100 * MIN_EXCESS_SHARE:g} %) while "
-        "the model with it still fails the goodness-of-fit test"
+        f"does not predict fresh poses better by more than its uncertainty ({gain.text()}) while the "
+        "model with it still fails the goodness-of-fit test"
     )
 
 
-def _verdict(t: CandidateTest, before: float, sigma: float, alpha: float):
-    """Why the step's best candidate is not added (its status) and, if it is a stand-in, its record;
-    (None, None): add it."""
-    gain = 1.0 - t.holdout_rms_mm / before
-    why = stand_in_reason(t.fit, t.holdout_rms_mm, before=before, sigma=sigma, alpha=alpha)
-    if gain <= 0:
-        return NO_GAIN, None
+def _verdict(t: CandidateTest, before: np.ndarray, groups: np.ndarray, alpha: float):
+    """Whether the step's best candidate joins: (status, stand-in record, gain); status None: add it.
+
+    It joins when it predicts the held-out poses better by more than the gain's uncertainty
+    (:class:`~.fit.HeldOutGain`), or, when the model with it fits to the noise level (the
+    goodness-of-fit test passes, so that its likelihood-ratio test is exact), better at all: a
+    small true effect that the noise hides from the held-out error is still named by its LR.
+    """
+    gain = held_out_gain(before, t.holdout, groups)
+    fits = scipy.stats.chi2.sf(t.fit.cost, t.fit.dof) >= alpha
+    if gain.gain_mm2 > 0 and (fits or gain.predicts_better):
+        return None, None, gain
+    why = stand_in_reason(t.fit, gain, alpha=alpha)
     if why:
-        return f"stand-in: {why}", StandIn(t.effect.name, gain, t.lr_stat, why)
-    return None, None
+        name = t.effect.name if isinstance(t, CandidateTest) else " + ".join(e.name for e in t.effects)
+        return f"stand-in: {why}", StandIn(name, 1.0 - gain.after_mm / gain.before_mm, t.lr_stat, why), gain
+    return f"{NO_GAIN} ({gain.text()})", None, gain
 
 
 def _pair(sel: Selection, tests, sides, step: SelectionStep, *, alpha: float, ln_n: float, k_folds: int):
@@ -386,14 +402,11 @@ def _pair(sel: Selection, tests, sides, step: SelectionStep, *, alpha: float, ln
     sel, step = dataclasses.replace(sel, problem=problem), dataclasses.replace(step, pairs=tuple(pairs))
     if best is None:
         return sel, step, None
-    before = rms(sel.holdout)
-    gain = 1.0 - best.holdout_rms_mm / before
-    why = stand_in_reason(best.fit, best.holdout_rms_mm, before=before, sigma=problem.sigma, alpha=alpha)
-    if gain <= 0 or why:
-        status = f"stand-in: {why}" if why else NO_GAIN
+    status, _, gain = _verdict(best, sel.holdout, pose_groups(problem.data.q), alpha)
+    if status is not None:
         step = dataclasses.replace(step, pairs=(dataclasses.replace(best, status=status), *step.pairs[1:]))
         return sel, step, None
-    return sel, step, best
+    return sel, step, dataclasses.replace(best, holdout_gain=gain)
 
 
 def _accept(
@@ -404,6 +417,8 @@ def _accept(
     ev = t.statistics()
     ev["holdout_rms_mm_with"] = ev.pop("holdout_rms_mm")
     ev.update({"step": step.step, "holdout_rms_mm_without": before})
+    if t.holdout_gain is not None:
+        ev["holdout_gain"] = t.holdout_gain.as_dict()
     evidence = dict(sel.evidence)
     for e in t.effects:
         with_ = [x.name for x in t.effects if x.name != e.name]
@@ -423,43 +438,62 @@ def select_effects(
     sides,
     alpha: float,
     k_folds: int,
-    max_effects: int,
+    max_effects: int | None = None,
 ) -> Selection:
-    """Stepwise selection of effects from ``cands`` on top of the geometric fit ``base``.
+    """Stepwise selection of effects from ``cands`` on top of the geometric fit ``base``: each step
+    adds the best significant candidate (or correlated pair) while it predicts the held-out poses
+    better by more than its uncertainty (:func:`.fit.held_out_gain`); why it stopped is ``Selection.stop``.
 
     Args:
         prob, base, base_holdout: the fit problem, the geometric fit and its held-out residuals.
         cands: the candidate effects.
         sides: ``{joint: (K, n)}`` candidate sides of each backlash whose side the masses leave
             uncertain (:func:`~kpioed_drake.diagnosis.sides.side_patterns`; row 0 the problem's).
-        alpha, k_folds, max_effects: the family-wise level of a step, the folds of the held-out
-            error and the most effects to add.
+        alpha, k_folds: the family-wise level of a step and the folds of the held-out error.
+        max_effects: the most effects to add (None: as many as the data support).
     """
     sel = Selection(problem=prob, fit=base, holdout=base_holdout)
     kw = {"alpha": alpha, "ln_n": np.log(3 * prob.data.n), "k_folds": k_folds}
-    for number in range(1, max_effects + 1):
+    groups = pose_groups(prob.data.q)
+    limit = len(cands) if max_effects is None else int(max_effects)
+    number = 0
+    while True:
+        number += 1
         in_model = {e.name for e in sel.fit.effects}
         pool = [c for c in cands if c.name not in in_model]
+        if len(sel.fit.effects) >= limit:
+            return dataclasses.replace(sel, stop=stop_reason("max_effects" if pool else "no_candidate"))
         if not pool:
-            break
+            return dataclasses.replace(sel, stop=stop_reason("no_candidate"))
         tests, best, problem = _test_step(sel.problem, sel.fit, pool, sides, **kw)
         sel = dataclasses.replace(sel, problem=problem)
         before = rms(sel.holdout)
-        accepted = None
+        accepted, stop = None, _no_best_reason(tests) if best is None else None
         if best is not None:
-            status, stand_in = _verdict(tests[best], before, problem.sigma, alpha)
+            status, stand_in, gain = _verdict(tests[best], sel.holdout, groups, alpha)
             if status is None:
-                accepted = tests[best]
+                accepted = dataclasses.replace(tests[best], holdout_gain=gain)
             else:
                 tests[best] = dataclasses.replace(tests[best], status=status)
                 sel = dataclasses.replace(sel, stand_ins=sel.stand_ins + ((stand_in,) if stand_in else ()))
+                stop = stop_reason(
+                    "stand_in" if stand_in else "no_holdout_gain", f"{tests[best].effect.name}: {gain.text()}"
+                )
         step = SelectionStep(
             number, candidates=tuple(tests), holdout_rms_mm_before=before, chi2_before=sel.fit.cost
         )
-        if accepted is None and len(sel.fit.effects) + 2 <= max_effects:
+        if accepted is None and len(sel.fit.effects) + 2 <= limit:
             sel, step, accepted = _pair(sel, tests, sides, step, **kw)
         if accepted is None:
-            sel = dataclasses.replace(sel, steps=(*sel.steps, step))
-            break
+            return dataclasses.replace(sel, steps=(*sel.steps, step), stop=stop)
         sel = _accept(sel, step, accepted, before, **kw)
-    return sel
+
+
+def _no_best_reason(tests) -> dict:
+    """Why a step found no significant candidate: all absorbed, or none significant."""
+    if all(t.status == ABSORBED for t in tests):
+        return stop_reason("identifiability", f"{len(tests)} candidates")
+    absorbed = sum(t.status == ABSORBED for t in tests)
+    return stop_reason(
+        "not_significant", f"{len(tests) - absorbed} tested, {absorbed} absorbed" if absorbed else ""
+    )

@@ -30,8 +30,8 @@ from kpioed_drake.calibration import calibrate, hold_undetermined
 from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
-from kpioed_drake.diagnosis.alternatives import name_causes, settle
-from kpioed_drake.diagnosis.common import DiagnosisOptions, effect_budget
+from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, settle
+from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, reduce_absorbed, upgrade_elasticity
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
@@ -174,11 +174,12 @@ def diagnose(
         sides=sides,
         alpha=alpha,
         k_folds=k_folds,
-        max_effects=effect_budget(prob.robot, opts.max_effects),
+        max_effects=opts.max_effects,
     )
     sel, basis_notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
     sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
     causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    causes = describe_causes(causes, robot, sel.problem, sel.fit)
     final = sel.problem
     baseline = rp.fit_summary(base, base_hold)
     extended = rp.fit_summary(sel.fit, sel.holdout)
@@ -208,6 +209,7 @@ def diagnose(
         },
         unexplained=rp.unexplained_rest(final, sel.fit, alpha=alpha),
         joint_names=tuple(robot.joint_names),
+        selection_stop=sel.stop,
     )
 
 

@@ -51,7 +51,7 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.effects.gravity import gravity_model, reference_poses, robot_key
+from kpioed_drake.effects.gravity import gravity_model, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics, subtree_links
 from kpioed_drake.robot.models import Robot
@@ -174,7 +174,7 @@ def rotation(
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n, nj = q.shape
-    fr = forward_kinematics(robot, q)
+    fr = nominal_frames(robot, q)
     g = gravity_model(robot).g
     if family == COLUMN:
         check_column(robot, joint)

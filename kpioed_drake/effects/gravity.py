@@ -5,6 +5,7 @@ See :mod:`kpioed_drake.effects` for the sign and unit conventions.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import threading
 from collections import OrderedDict
@@ -12,7 +13,7 @@ from collections import OrderedDict
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 
-from kpioed_drake.robot.kinematics import cross, forward_kinematics, point_jacobian
+from kpioed_drake.robot.kinematics import Frames, cross, forward_kinematics, point_jacobian
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.plant import build_scene
 from kpioed_drake.tracker.measurement import TrackerModel
@@ -74,7 +75,7 @@ class GravityModel:
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
-        fr = forward_kinematics(self.robot, q)
+        fr = nominal_frames(self.robot, q)
         pris = fr.prismatic[:, None]  # (nj, 1)
         R_F, o_F = fr.at_link()
         p = o_F + np.einsum("nij,j->ni", R_F, np.asarray(p_FP, float))
@@ -106,7 +107,7 @@ class GravityModel:
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         m = np.broadcast_to(np.asarray(payload_kg, dtype=float), (q.shape[0],))
-        fr = forward_kinematics(self.robot, q)
+        fr = nominal_frames(self.robot, q)
         F = m[:, None] * self.g[None, :]
         Fxw = np.where(fr.prismatic[:, None], 0.0, cross(F[:, None, :], fr.joint_axes))  # (n,nj,3)
         Fxw = Fxw * fr.path[fr.tip][None, :, None]  # only the joints carrying the flange
@@ -128,8 +129,12 @@ _GRAVITY_CACHE: dict = {}
 
 _REGRESSORS: OrderedDict = OrderedDict()
 _REGRESSORS_LOCK = threading.Lock()
-MAX_REGRESSORS = 24
-"""Regressors kept by :func:`memoized` (the latest; a fit evaluates the same poses every iteration)."""
+MAX_REGRESSORS = 256
+"""Most regressors kept by :func:`memoized` (the latest; a fit evaluates the same poses every
+iteration, a diagnosis the same poses for every candidate and fold) ..."""
+MAX_REGRESSOR_BYTES = 1 << 30
+"""... and the most bytes they may hold together."""
+_REGRESSOR_BYTES = [0]
 
 
 def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
@@ -143,16 +148,38 @@ def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
         hit = _REGRESSORS.get(key)
         if hit is not None:
             _REGRESSORS.move_to_end(key)
-            return hit
+            return hit[0]
     out = compute()
-    for a in out if isinstance(out, tuple) else (out,):
-        if isinstance(a, np.ndarray):
-            a.flags.writeable = False
+    arrays = [a for a in _arrays(out) if isinstance(a, np.ndarray)]
+    for a in arrays:
+        a.flags.writeable = False
+    size = sum(a.nbytes for a in arrays)
     with _REGRESSORS_LOCK:
-        _REGRESSORS[key] = out
-        while len(_REGRESSORS) > MAX_REGRESSORS:
-            _REGRESSORS.popitem(last=False)
+        if key not in _REGRESSORS:
+            _REGRESSORS[key] = (out, size)
+            _REGRESSOR_BYTES[0] += size
+        while len(_REGRESSORS) > 1 and (
+            len(_REGRESSORS) > MAX_REGRESSORS or _REGRESSOR_BYTES[0] > MAX_REGRESSOR_BYTES
+        ):
+            _REGRESSOR_BYTES[0] -= _REGRESSORS.popitem(last=False)[1][1]
     return out
+
+
+def _arrays(out) -> tuple:
+    """The arrays of a memoized value: a tuple's items, a :class:`Frames`' fields, or the value."""
+    if isinstance(out, tuple):
+        return out
+    if dataclasses.is_dataclass(out):
+        return tuple(getattr(out, f.name) for f in dataclasses.fields(out))
+    return (out,)
+
+
+def nominal_frames(robot: Robot, q) -> Frames:
+    """:func:`~kpioed_drake.robot.kinematics.forward_kinematics` at the nominal geometry, memoized
+    (:func:`memoized`; read-only arrays): the regressors of every gravity basis and moment start
+    from the same frames of the same poses."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    return memoized("frames", robot, q, (), lambda: forward_kinematics(robot, q))
 
 
 def robot_key(robot: Robot) -> tuple:

@@ -43,9 +43,9 @@ import numpy as np
 import scipy.special
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
-from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
+from kpioed_drake.effects.gravity import gravity_model, memoized, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, forward_kinematics, subtree_links
+from kpioed_drake.robot.kinematics import cross, subtree_links
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import TrackerModel
 
@@ -96,7 +96,7 @@ def _link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = Fals
         ``m_k, m_k c_kx, m_k c_ky, m_k c_kz``; with ``with_dq`` also dY (n, 6, 4 (7 - j)).
     """
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
-    fr = forward_kinematics(robot, q)
+    fr = nominal_frames(robot, q)
     n = fr.o.shape[0]
     j = joint - 1
     w, a = fr.joint_axes, fr.joint_points  # (n, 6, 3)

@@ -32,9 +32,9 @@ import numpy as np
 
 from kpioed_drake.effects.basis_store import own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
-from kpioed_drake.effects.gravity import gravity_model, memoized, reference_poses, robot_key
+from kpioed_drake.effects.gravity import gravity_model, memoized, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, forward_kinematics, parent_frame, subtree_links
+from kpioed_drake.robot.kinematics import cross, parent_frame, subtree_links
 from kpioed_drake.robot.models import Robot
 
 FAMILY = "lateral_compliance_basis"
@@ -69,7 +69,7 @@ def _moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
     if robot.prismatic[joint - 1]:
         raise InputError(f"{FAMILY}:{joint}: joint {joint} of {robot.name} is prismatic, not a bearing")
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    fr = forward_kinematics(robot, q)
+    fr = nominal_frames(robot, q)
     g = gravity_model(robot).g
     n, nj, k = q.shape[0], fr.n_joints, joint
     C, a = fr.joint_points[:, k - 1], fr.joint_axes[:, k - 1]
@@ -149,7 +149,7 @@ def _varying(robot: Robot, q, joint: int) -> np.ndarray:
     tilts the joint's axis or the next frame as the joint rows' parameters do; those six pose
     functions are projected out."""
     X, _ = moment_regressor(robot, q, joint)
-    fr = forward_kinematics(robot, q)
+    fr = nominal_frames(robot, q)
     R0, R1 = fr.R[:, parent_frame(robot, joint)], fr.R[:, joint]
     Xf = np.einsum("nba,nbp->nap", R0, X)
     n = Xf.shape[0]

@@ -149,6 +149,23 @@ class ChainFrames:
     moved_by: np.ndarray  # (nj, 7) the frame whose moving joints move the element
 
 
+def _joint_columns(chain: Chain, i: int, errors_i: np.ndarray) -> np.ndarray:
+    """(3, 16) constants of joint ``i`` in its parent's frame: ``R_PA`` (3 columns), ``R_PB``'s y and
+    ``R_PC``'s z columns (the placement rotations ``rx``, ``ry`` applied), ``R_PJ``, ``R_PJ K`` and
+    ``R_PJ K^2`` (``K`` the axis's cross-product matrix; 3 columns each), the joint origin ``p_PJ``
+    and the axis in the parent's frame."""
+    _, px, py, pz, rx, ry, rz = errors_i
+    MA = chain.R_PJ[i]
+    MB = MA @ _basic(0, rx)
+    MC = MB @ _basic(1, ry)
+    MJ = MC @ _basic(2, rz)
+    a = chain.axis[i]
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    MK = MJ @ K
+    p = chain.p_PJ[i] + MA @ np.array([px, py, pz])
+    return np.column_stack([MA, MB[:, 1], MC[:, 2], MJ, MK, MK @ K, p, MJ @ a])
+
+
 def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames:
     """Forward kinematics of a chain with placement errors.
 
@@ -170,27 +187,27 @@ def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames
     axes = np.empty((n, nj, 3))
     pts = np.empty((n, nj, 3))
     for i in range(nj):
-        off, px, py, pz, rx, ry, rz = errors[i]
         f = parent[i] + 1
-        RA = R[:, f] @ chain.R_PJ[i]
-        oJ = o[:, f] + R[:, f] @ chain.p_PJ[i] + RA @ np.array([px, py, pz])
-        RB = RA @ _basic(0, rx)
-        RC = RB @ _basic(1, ry)
-        RJ = RC @ _basic(2, rz)
-        w = RJ @ chain.axis[i]
+        # every product of the parent's rotation with a constant: one (3 n, 3) @ (3, 16) product
+        G = (R[:, f].reshape(3 * n, 3) @ _joint_columns(chain, i, errors[i])).reshape(n, 3, 16)
+        oJ = o[:, f] + G[:, :, 14]
+        w = G[:, :, 15]
         pris = bool(chain.prismatic[i])
         rot[i, 0] = not pris
         eu[:, i, 0] = w
-        eu[:, i, 1], eu[:, i, 2], eu[:, i, 3] = RA[..., 0], RA[..., 1], RA[..., 2]
-        eu[:, i, 4], eu[:, i, 5], eu[:, i, 6] = RA[..., 0], RB[..., 1], RC[..., 2]
+        eu[:, i, 1:4] = np.swapaxes(G[:, :, 0:3], 1, 2)  # RA's columns
+        eu[:, i, 4:7] = np.swapaxes(G[:, :, 0:3], 1, 2)  # then RB's y and RC's z columns
+        eu[:, i, 5], eu[:, i, 6] = G[:, :, 3], G[:, :, 4]
         eo[:, i] = oJ[:, None, :]
         axes[:, i], pts[:, i] = w, oJ
-        s = q[:, i] + off
+        s = q[:, i] + errors[i, 0]
+        RJ = G[:, :, 5:8]
         if pris:
             R[:, i + 1] = RJ
             o[:, i + 1] = oJ + s[:, None] * w
-        else:
-            R[:, i + 1] = RJ @ rot_axis(chain.axis[i], s)
+        else:  # RJ @ rot_axis(axis, s) = RJ + sin(s) RJ K + (1 - cos(s)) RJ K^2
+            sn, cs = np.sin(s)[:, None, None], (1.0 - np.cos(s))[:, None, None]
+            R[:, i + 1] = RJ + sn * G[:, :, 8:11] + cs * G[:, :, 11:14]
             o[:, i + 1] = oJ
     return ChainFrames(R, o, eu, eo, rot, axes, pts, moved)
 
