@@ -10,7 +10,8 @@ cannot reject B at that level, the data cannot tell them apart; and B itself is 
 (``p(LR_B) < alpha``, uncorrected). The margin takes A's degrees of freedom: with one for every A,
 a true B beside a two-parameter cause would be dropped more often than ``alpha``. Only B
 whose score statistic (the linearised ``LR_B`` at ``f0``, cheap) comes within
-``c + max(c, 20 % of LR_A)`` of ``LR_A`` are refitted.
+``c + max(c, 20 % of LR_A)`` of ``LR_A`` are refitted, the best-scoring ``MAX_ALTERNATIVES +
+REFIT_MARGIN`` of them (and as many nested ones).
 
 The stepwise search adds causes one at a time, so with the other causes in the model a candidate
 may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > chi2.isf(alpha,
@@ -61,6 +62,9 @@ from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
 from kpioed_drake.robot.models import Robot
+
+REFIT_MARGIN = 2
+"""Candidates refitted beyond the alternatives a cause lists (:data:`MAX_ALTERNATIVES`), by score."""
 
 
 def _outside(Q: np.ndarray, C: np.ndarray) -> float:
@@ -119,7 +123,7 @@ def competing(
             beside.update({e.name: _outside(Qx, Cx) for e, Cx in zip(others, cols_x, strict=True)})
         return beside[b.name]
 
-    found = []
+    screened = []  # (score, b, C, U_b, nested) of the candidates worth a refit
     for b, C in zip(others, cols[1:], strict=True):
         U_b = projected_basis(Q, C)
         if U_b.shape[1] == 0:
@@ -133,6 +137,14 @@ def competing(
             nested = _nested(outside_causes(b), Q, C)
             if not nested:
                 continue
+        screened.append((score, b, C, U_b, nested))
+    # the refits: the best-scoring REFIT_MARGIN more than are listed, of each kind (the score is the
+    # linearised LR_B, close to the refitted one)
+    screened.sort(key=lambda t: -t[0])
+    keep = [t for t in screened if not t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
+    keep += [t for t in screened if t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
+    found = []
+    for _, b, C, U_b, nested in keep:
         f = prob.fit(list(f0.effects) + [b], start=f0)
         lr_b = max(f0.cost - f.cost, 0.0)
         p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))

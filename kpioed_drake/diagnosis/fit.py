@@ -12,8 +12,9 @@ The K-fold cross-validation predicts every pose from a fit that did not see it
 |e_after_i|^2`` [mm^2], summed over the rows of the pose (its targets). The candidate predicts better
 when the mean gain exceeds its uncertainty, ``mean(d) > c std(d) / sqrt(n)`` with ``c =``
 :data:`~kpioed_drake.diagnosis.common.GAIN_STANDARD_ERRORS` (2: the half-width of about a 95 %
-interval): the paired comparison of the same poses, so that the spread of the poses' errors, common to both models, does
-not hide a small but consistent gain, and a gain that a few poses make is not taken for one.
+interval): the paired comparison of the same poses, so that the spread of the poses' errors,
+common to both models, does not hide a small but consistent gain, and a gain that a few poses make
+is not taken for one.
 
 :func:`stop_reason` words why the selection stopped (:data:`STOPS`).
 """
