@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import scipy.stats
@@ -186,6 +188,8 @@ class DiagnosisReport:
                 f"{u['excess_rms_mm']:.4f} mm per coordinate beyond the noise; "
                 + (f"it follows {top}" if top else "it follows none of the data's variables")
             )
+            if u.get("advice"):
+                lines.append(f"  {u['advice']}")
         b, e = self.baseline, self.extended
         lines.append(
             f"held-out RMS {b['holdout_rms_mm']:.4f} -> {e['holdout_rms_mm']:.4f} mm "
@@ -358,6 +362,7 @@ def _variables(prob: FitProblem, fit: Fit) -> list[tuple[str, np.ndarray, str]]:
     for name, v in (("temperature_C", d.temperature_C), ("time_s", d.time_s), ("payload_kg", d.payload_kg)):
         if v is not None:
             out.append((name, np.asarray(v, dtype=float), "smooth"))
+    out += [(f"{UNUSED} {name}", np.asarray(v, dtype=float), "smooth") for name, v in d.extra]
     reach, height = np.hypot(p_W[:, 0], p_W[:, 1]), p_W[:, 2]
     out += [("reach", reach, "smooth"), ("height", height, "smooth")]
     out += [("reach tercile", reach, "terciles"), ("height tercile", height, "terciles")]
@@ -394,17 +399,28 @@ def structure(prob: FitProblem, fit: Fit) -> list[dict]:
     return sorted(out, key=lambda x: -x["strength"])
 
 
-def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float) -> dict | None:
+def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float, robot=None) -> dict | None:
     """None when ``fit`` explains the data to the noise level, else the rest and what it follows.
+
+    The data file's numeric columns that the model does not read (``Measurements.extra``) are among
+    the variables; those the rest follows at the level ``alpha`` over all of them (Bonferroni) are
+    listed in ``unused_columns`` with what to do (:func:`unused_advice`).
 
     Returns:
         ``{chi2_per_dof, p_value, alpha, excess_rms_mm, follows: [{variable, strength, p_value}],
-        variables: [all of them]}`` or None.
+        variables: [all of them], unused_columns: [{column, strength, p_value}], advice}`` or None.
     """
     p = float(scipy.stats.chi2.sf(fit.cost, fit.dof))
     if p >= alpha:
         return None
     allv = structure(prob, fit)
+    extra = [x for x in allv if x["variable"].startswith(UNUSED + " ")]
+    level = alpha / max(len(extra), 1)
+    unused = [
+        {"column": x["variable"][len(UNUSED) + 1 :], "strength": x["strength"], "p_value": x["p_value"]}
+        for x in extra
+        if x["p_value"] < level
+    ]
     return {
         "chi2_per_dof": fit.chi2_per_dof,
         "p_value": p,
@@ -412,4 +428,32 @@ def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float) -> dict | None
         "excess_rms_mm": prob.sigma * float(np.sqrt(max(fit.chi2_per_dof - 1.0, 0.0))),
         "follows": [x for x in allv if x["p_value"] < alpha][:MAX_FOLLOWS],
         "variables": allv,
+        "unused_columns": unused,
+        "advice": unused_advice([u["column"] for u in unused], robot) if unused else None,
     }
+
+
+UNUSED = "column"
+"""Prefix of a data file's column the model does not read, among the rest's variables."""
+
+
+def unused_advice(columns: list[str], robot=None) -> str:
+    """What to do when the rest follows data columns the model does not use: joints of the robot's
+    file off the measured chain (another branch's load acts on this one) -> describe the whole tree;
+    joint-like columns of a table robot -> the same; other columns -> make them a variable."""
+    off_chain = set()
+    if robot is not None and getattr(robot, "urdf", None) is not None:
+        names = {j.get("name") for j in ET.fromstring(robot.urdf.text).findall("joint")}
+        off_chain = names - set(robot.urdf.joints)
+    joints = [c for c in columns if c in off_chain or re.fullmatch(r"q\d+_(deg|mm)", c)]
+    text = f"the rest follows column(s) {', '.join(columns)}, which the model does not use"
+    if joints:
+        return (
+            text + f": {', '.join(joints)} look like joints of another branch, whose load acts on the "
+            "measured one; describe the whole tree (the robot file with every branch and a target on "
+            "each measured link, docs/data-formats.md) so that the model sees them"
+        )
+    return (
+        text + ": make it a variable the model reads (a temperature as temperature_C, a time as "
+        "time_s, a payload as payload_kg), or find what it measures"
+    )

@@ -207,7 +207,7 @@ def diagnose(
             "ext_holdout": sel.holdout,
             "candidates": cands,
         },
-        unexplained=rp.unexplained_rest(final, sel.fit, alpha=alpha),
+        unexplained=rp.unexplained_rest(final, sel.fit, alpha=alpha, robot=robot),
         joint_names=tuple(robot.joint_names),
         selection_stop=sel.stop,
     )

@@ -69,6 +69,9 @@ class Measurements:
         rows: (n,) row numbers as in :data:`ROW_CONVENTION` (default 2, 3, ...).
         frame: ``"tracker"`` or ``"base"``, the frame of ``eta`` (:data:`FRAMES`).
         target: (n,) 0-based target (reflector) of each row, or None (every row target 0).
+        extra: ``((name, (n,) values), ...)``: the file's numeric columns that no part of the model
+            reads (another branch's joints, a temperature under another name), kept so that the
+            diagnosis can test the unexplained rest against them and nothing in the file is lost.
     """
 
     q: np.ndarray
@@ -80,6 +83,7 @@ class Measurements:
     rows: np.ndarray | None = None
     frame: str = "tracker"
     target: np.ndarray | None = None
+    extra: tuple[tuple[str, np.ndarray], ...] = ()
 
     def __post_init__(self):
         if self.rows is None:
@@ -113,10 +117,12 @@ class Measurements:
         rows=None,
         frame: str = "tracker",
         target=None,
+        extra=(),
     ) -> Measurements:
         """Validated measurements from arrays in internal units (q [rad], eta [mm]).
 
-        ``target``: (n,) 0-based target index of each row (None: all target 0).
+        ``target``: (n,) 0-based target index of each row (None: all target 0). ``extra``:
+        ``{name: (n,)}`` or pairs, numeric columns the model does not read.
 
         Raises:
             InputError: shapes other than (n, 6), (n, 3) and (n,), a non-finite value, a
@@ -137,6 +143,7 @@ class Measurements:
             rows=None if rows is None else np.asarray(rows),
             frame=frame,
             target=None if target is None else np.asarray(target),
+            extra=tuple((str(k), np.asarray(v, dtype=float)) for k, v in dict(extra).items()),
         )
         data.check()
         if data.target is not None:
@@ -165,7 +172,16 @@ class Measurements:
         if TARGET_COLUMN in table:
             rows = np.arange(2, len(q_deg) + 2)
             target = parse_targets(source, np.asarray(table[TARGET_COLUMN], dtype=float), rows, robot=robot)
-        return cls.from_arrays(q_from_file(robot, q_deg), eta, source=source, target=target, **opt)
+        known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN}
+        extra = {}
+        for c in table.columns:
+            if str(c) not in known:
+                v = pd.to_numeric(table[c], errors="coerce").to_numpy(dtype=float)
+                if np.all(np.isfinite(v)):
+                    extra[str(c)] = v
+        return cls.from_arrays(
+            q_from_file(robot, q_deg), eta, source=source, target=target, extra=extra, **opt
+        )
 
     def check(self) -> None:
         """Shapes and finiteness.
@@ -184,6 +200,9 @@ class Measurements:
                 raise InputError(f"{self.source}: column {name} must have one value per pose")
             if v is not None and not np.all(np.isfinite(v)):
                 raise InputError(f"{self.source}: column {name} has a non-finite value")
+        for name, v in self.extra:
+            if v.shape != (n,) or not np.all(np.isfinite(v)):
+                raise InputError(f"{self.source}: column {name}: expected one finite number per row")
         t = self.target
         if t is not None:
             ok = t.shape == (n,) and np.all(np.isfinite(t)) and np.all(t == np.round(t)) and np.all(t >= 0)
@@ -205,6 +224,7 @@ class Measurements:
             payload_kg=pick(self.payload_kg),
             rows=self.rows[idx],
             target=pick(self.target),
+            extra=tuple((k, v[idx]) for k, v in self.extra),
         )
 
     def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
@@ -217,6 +237,7 @@ class Measurements:
                 cols[c] = getattr(self, c)
         if self.target is not None:
             cols[TARGET_COLUMN] = self.target + 1
+        cols.update({k: v for k, v in self.extra if k not in cols})
         return pd.DataFrame(cols)
 
 
@@ -341,7 +362,17 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
         raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")
     check_joint_angles(path, q_deg, robot, rows=rows)
     check_pose_count(path, len(data), robot)
-    return Measurements.from_arrays(q_from_file(robot, q_deg), eta, source=str(path), rows=rows, **opt)
+    known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN}
+    extra = {}
+    for c in header:
+        if c not in known:
+            try:  # a numeric column the model does not read is kept; a text column is not data
+                extra[c] = parse_float_column(path, header, data, c)
+            except InputError:
+                continue
+    return Measurements.from_arrays(
+        q_from_file(robot, q_deg), eta, source=str(path), rows=rows, extra=extra, **opt
+    )
 
 
 def as_measurements(data, robot: Robot) -> Measurements:
