@@ -54,13 +54,14 @@ def test_every_shipped_robot_has_all_its_parameters_identifiable():
     """27 for every robot of the paper (93); the UR5 and UR10 hold theta5 and alpha5 too (their target
     lies on joint 6's axis), and without that extra gauge they are not identifiable."""
     names = list_robots()
-    assert len(names) == 102 and {
+    assert len(names) == 103 and {
         "ur5",
         "ur10",
         "lift7",
         "humanoid11",
         "humanoid18",
         "column8",
+        "column_tree",
         "fanuc6",
     } <= set(
         names

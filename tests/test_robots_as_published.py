@@ -52,7 +52,36 @@ def test_column8_as_published_loads_from_a_two_line_sidecar():
     assert_allclose(q[0, :2], [200.0, 100.0])  # lift2 follows lift with multiplier 0.5
 
 
-@pytest.mark.parametrize("name, n", [("column8", 60), ("fanuc6", 40)])
+def test_column_tree_mimics_follow_a_commanded_joint_off_the_chain():
+    """The column as some makers ship it: the commanded prismatic joint drives a pseudo-tip link, the
+    chain's two stages mimic it (multiplier 0.5, offsets -0.706 and -0.736 m); a two-line sidecar."""
+    assert (ROBOTS / "column_tree.kpioed.yaml").read_text().count("\n") == 2
+    robot = load_robot("column_tree")
+    assert robot.joint_names[:2] == ("column_lower_joint", "column_middle_joint")
+    assert robot.joint_map.axes == ("column_prismatic_joint", "A1", "A2", "A3", "A4", "A5", "A6")
+    q = robot.joint_map.to_model(np.array([[1800.0, 0, 0, 0, 0, 0, 0]]))
+    assert_allclose(q[0, :2], [0.5 * 1800 - 706, 0.5 * 1800 - 736], rtol=0, atol=1e-9)
+
+
+def test_a_mimic_of_a_missing_joint_is_refused_naming_it(tmp_path, capsys):
+    text = (
+        (ROBOTS / "column_tree.urdf")
+        .read_text()
+        .replace(
+            'mimic joint="column_prismatic_joint" multiplier="0.5" offset="-0.736"',
+            'mimic joint="column_prism_joint" multiplier="0.5" offset="-0.736"',
+        )
+    )
+    (tmp_path / "c.urdf").write_text(text)
+    (tmp_path / "c.kpioed.yaml").write_text("name: c\ntip_link: prism\n")
+    assert main(["info", "--robot", str(tmp_path / "c.urdf")]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "c.urdf" in err and "'column_middle_joint' mimic element specifies joint 'column_prism_joint'" in err
+    )
+
+
+@pytest.mark.parametrize("name, n", [("column8", 60), ("fanuc6", 40), ("column_tree", 60)])
 def test_simulated_data_recover_the_parameters_within_3_sigma(name, n):
     robot = load_robot(name)
     q = _commandable(robot, n, 0)
@@ -61,8 +90,8 @@ def test_simulated_data_recover_the_parameters_within_3_sigma(name, n):
     rep = calibration.calibrate(robot, data, calibration.CalibrationOptions(sigma_mm=0.02))
     assert rep.result.converged and 0.7 < rep.chi2 / rep.dof < 1.3
     z = _z_scores(rep, truth["model"])
-    # measured max |z| 2.47 (column8, 30 parameters) and 2.25 (fanuc6, 27); pose seeds 1-3 give
-    # 3.26, 2.51, 2.19 and 1.39, 1.78, 2.75 (the largest of 27-30 normal scores)
+    # measured max |z| 2.47 (column8, 30 parameters), 2.25 (fanuc6, 27) and column_tree (31); pose
+    # seeds 1-3 give 3.26, 2.51, 2.19 and 1.39, 1.78, 2.75 (the largest of 27-30 normal scores)
     assert np.max(np.abs(z)) < 3.0, z
 
 

@@ -245,30 +245,50 @@ def joint_map_spec(joint_map: JointMap | None) -> JointMapSpec | None:
     )
 
 
-def mimic_joint_map(names: list[str], mimics: dict, units: list[float], where: str) -> JointMapSpec | None:
+def mimic_joint_map(
+    names: list[str], mimics: dict, units: list[float], where: str, *, off_chain: dict | None = None
+) -> JointMapSpec | None:
     """The joint map of a URDF chain's ``<mimic>`` joints: each follows its leader (multiplier times
     its value plus offset), the controller commands the others; None without mimic joints.
+
+    A leader off the chain (a commanded joint that drives another branch, e.g. a lifting column's
+    prismatic joint moving a pseudo-tip link while the chain's column stages mimic it) becomes a
+    controller axis of the robot, placed where its first mimic sits on the chain.
 
     Args:
         names: the chain's joint names; mimics: name -> (leader, multiplier, offset);
         units: per joint, the URDF unit of an offset in the file's (1 for rad; ``MM`` for m, so
             ``offset / unit`` is mm).
+        off_chain: the URDF's movable joints off the chain, name -> prismatic (a leader there must
+            be of the same kind as its mimics, so that the multiplier has no unit).
     """
     if not mimics:
         return None
-    joints, offsets = {}, {}
-    for name, (leader, multiplier, offset) in mimics.items():
-        if leader not in names or leader in mimics:
+    off_chain = off_chain or {}
+    joints, offsets, axes = {}, {}, []
+    for name in names:
+        if name not in mimics:
+            axes.append(name)
+            continue
+        leader, multiplier, offset = mimics[name]
+        on_chain = leader in names and leader not in mimics
+        if not on_chain and leader not in off_chain:
             raise InputError(
-                f"{where}: joint {name!r}: <mimic joint={leader!r}> must name a commanded joint of the chain"
+                f"{where}: joint {name!r}: <mimic joint={leader!r}> must name a commanded (not mimic) "
+                "movable joint of the URDF"
             )
+        if not on_chain and off_chain[leader] != (units[names.index(name)] != 1.0):
+            raise InputError(
+                f"{where}: joint {name!r}: <mimic joint={leader!r}>: a leader off the chain must be of the "
+                "same kind (prismatic or revolute) as the joints that mimic it"
+            )
+        if not on_chain and leader not in axes:
+            axes.append(leader)
         joints[name] = {leader: float(multiplier)}
         if offset:
             unit = units[names.index(name)]
             offsets[name] = offset / unit if unit != 1.0 else float(np.rad2deg(offset))
-    return JointMapSpec(
-        controller_axes=[n for n in names if n not in mimics], joints=joints, offsets_deg=offsets
-    )
+    return JointMapSpec(controller_axes=axes, joints=joints, offsets_deg=offsets)
 
 
 def commandable_projection(robot, q: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
-from kpioed_drake.robot.urdf.tree import chain_joints, measured_links, mimics
+from kpioed_drake.robot.urdf.tree import MOVABLE, chain_joints, measured_links, mimics
 
 MM = 1e-3
 _GENERIC_REFLECTOR = np.array([80.0, -60.0, 150.0])
@@ -194,8 +194,13 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     q_work = _q_work(side, pris, lo, up, sw)
     X_WT = _tracker_pose(side, sw)
     pairs = _link_pairs(side, parents, sw)
+    off_chain = {
+        j.get("name"): j.get("type") == "prismatic"
+        for j in xml.iter("joint")
+        if j.get("type") in MOVABLE and j.get("name") not in names
+    }
     jmap = side.joint_map or mimic_joint_map(
-        list(names), mimics(chain_xml), [MM if p else 1.0 for p in pris], sw
+        list(names), mimics(chain_xml), [MM if p else 1.0 for p in pris], sw, off_chain=off_chain
     )
     joint_map = joint_map_from_spec(jmap, sw, joint_names=names, prismatic=pris)
     refl = p_FQ if targets is None else targets
