@@ -59,6 +59,7 @@ def test_info(work):
     assert _plain(out) == _plain(api.info("kr16"))
 
 
+@pytest.mark.slow
 def test_evaluate(work):
     _cli(
         "evaluate",
@@ -76,6 +77,7 @@ def test_evaluate(work):
     assert _plain((work / "e.json").read_text()) == _plain(direct)
 
 
+@pytest.mark.slow
 def test_design(work):
     """Without the certificate (a search of its own for seed 3; the certificate's fields from both
     sides: test_evaluate): every other field and the CSV byte for byte."""
@@ -111,6 +113,7 @@ def test_diagnose(work):
     assert [c["effect"] for c in direct.causes] == ["joint_elasticity"]
 
 
+@pytest.mark.slow
 def test_study(work):
     argv = ["--robots", "kr16", "--n", "20", "--heuristic-draws", "1", "--jobs", "1", "--no-progress"]
     _cli("study", *argv, "--out", work / "st1", cwd=work)

@@ -140,6 +140,7 @@ def test_request_check_sees_network_loads(tmp_path):
     assert set(requested) == {"http://192.0.2.1/x.png", "https://192.0.2.2/y.json"}
 
 
+@pytest.mark.slow
 def test_animation_steps_to_another_pose(kr16_poses, tmp_path):
     """The page opens paused at the pose with the smallest clearance (pose 3 here); with the
     animation set to play once, the browser ends on the last frame: pose 2 of a two-pose page."""

@@ -156,6 +156,7 @@ def test_chi2_per_dof_near_one_on_clean_data(robot, design):
     assert "a-posteriori" in rep2.summary()
 
 
+@pytest.mark.slow
 def test_monte_carlo_kpi_coverage(robot, design):
     """Coverage of the reported 95 % KPI ellipsoid over 200 seeds (new truth and noise each).
 

@@ -50,6 +50,7 @@ def test_plant_forward_kinematics_matches_numpy(name):
             assert_allclose(X.rotation().matrix(), fr.R[0, i], rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_every_shipped_robot_has_all_its_parameters_identifiable():
     """27 for every robot of the paper (93); the UR5 and UR10 hold theta5 and alpha5 too (their target
     lies on joint 6's axis), and without that extra gauge they are not identifiable."""

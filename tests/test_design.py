@@ -222,6 +222,7 @@ def test_pose_blocks_compute_all_rows_once_and_never_reuse_rows_of_other_angles(
     assert calls == [n, 10]
 
 
+@pytest.mark.slow
 def test_active_rows_and_all_rows_reach_feasible_designs_of_similar_value(kr16):
     kw = dict(criterion="kpi", n=20, seed=1, allow_infeasible=True)
     few = optimize_design(kr16, active_rows=4, **kw)
@@ -386,7 +387,14 @@ def _assert_study_ordering(results: dict) -> None:
     assert p_param <= p_kpi, (p_param, p_kpi)
 
 
-@pytest.mark.parametrize("robot", ["kr16", "kr300", "notional-850-800"])
+@pytest.mark.parametrize(
+    "robot",
+    [
+        pytest.param("kr16", marks=pytest.mark.slow),
+        pytest.param("kr300", marks=pytest.mark.slow),
+        "notional-850-800",
+    ],
+)
 def test_reduced_study(robot):
     _assert_study_ordering(_study(robot, n=30))
 
@@ -397,6 +405,7 @@ def test_reduced_study_slow(robot):
     _assert_study_ordering(_study(robot, n=30))
 
 
+@pytest.mark.slow
 def test_design_without_collision_avoidance_reports_collisions(kr16):
     res = optimize_design(kr16, criterion="kpi", n=30, collision=False, seed=0)
     assert res.success and res.feasible  # joint limits and incidence hold
@@ -425,6 +434,7 @@ def test_fixed_information_equals_the_design_with_those_poses_added(kr16):
         assert_allclose(gb, g[:8], rtol=1e-9, atol=1e-12 * np.abs(g).max(), err_msg=crit)
 
 
+@pytest.mark.slow
 def test_block_sweeps_keep_the_design_feasible_and_reach_a_value_like_one_solve(kr16):
     kw = dict(criterion="kpi", n=24, seed=2, allow_infeasible=True, start="heuristic")  # a poor start
     swept = optimize_design(kr16, max_block=12, sweep_block=8, **kw)

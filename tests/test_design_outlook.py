@@ -45,6 +45,7 @@ def path(kr16):
 # ----------------------------------------------------------------------------------------------
 # Several KPIs
 # ----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_one_working_pose_in_the_several_kpi_form_is_exactly_the_single_kpi(kr16):
     one = make_problem("kr16", sigma_mm=1.0, q_work=kr16.q_work[None, :], kpi_weights=[3.0])
     assert one.n_kpis == 1 and one.Js().shape == (3, 27)
@@ -116,6 +117,7 @@ def test_worst_case_of_two_equal_working_poses_reaches_the_single_kpi_optimum(kr
     assert_allclose(worst.kpi_avg_var_mm2, single.kpi_avg_var_mm2, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_worst_case_design_of_a_path_balances_its_variances(kr16, path):
     mean_p = make_problem("kr16", sigma_mm=1.0, q_work=path)
     worst_p = make_problem("kr16", sigma_mm=1.0, q_work=path, kpi_aggregate="max")
@@ -147,6 +149,7 @@ def test_bad_working_poses_and_weights_are_input_errors(kr16, path):
 # ----------------------------------------------------------------------------------------------
 # Sequential design: poses already measured held fixed
 # ----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_given_poses_equal_the_design_with_their_information_fixed(kr16):
     given = heuristic_design(kr16, n=30, seed=0)
     res = optimize_design(kr16, n=10, seed=1, given=given, start="heuristic")
@@ -178,6 +181,7 @@ def test_given_poses_equal_the_design_with_their_information_fixed(kr16):
         optimize_design(kr16, n=5, given=given[:3])
 
 
+@pytest.mark.slow
 def test_given_poses_with_block_sweeps_keep_their_information_fixed(kr16):
     given = heuristic_design(kr16, n=20, seed=5)
     res = optimize_design(kr16, n=16, seed=2, given=given, max_block=8, sweep_block=8)
@@ -197,6 +201,7 @@ def test_remove_poses_drops_the_pose_that_raises_the_kpi_least(kr16):
     assert remove_poses(kr16, q, 10).shape == (10, 6)
 
 
+@pytest.mark.slow
 def test_target_var_returns_the_smallest_n_that_reaches_it(kr16):
     V = 0.1
     res = design_for_target(kr16, V, bound=False)
@@ -259,6 +264,7 @@ def test_target_var_reports_the_certificate_bound_or_why_it_is_missing(kr16, mon
 # ----------------------------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_cli_several_working_poses_from_a_file_and_repeated(
     tmp_path, capsys, kr16, path, quick_certificate, quick_start
 ):
@@ -294,6 +300,7 @@ def test_cli_several_working_poses_from_a_file_and_repeated(
     assert main(base.split() + args + ["--kpi-weights", "1,2,3"]) == 2
 
 
+@pytest.mark.slow
 def test_cli_given_and_target_var(tmp_path, capsys, kr16):
     given = tmp_path / "given.csv"
     write_design(given, heuristic_design(kr16, n=30, seed=0))

@@ -30,6 +30,7 @@ def _run(capsys, *argv):
     return code, out.out, out.err
 
 
+@pytest.mark.slow
 def test_approximate_start_is_feasible_and_no_worse_than_the_heuristic_start(kr16):
     n = 30
     heuristic = optimize_design(kr16, n=n, seed=0, start="heuristic")
@@ -93,6 +94,7 @@ def test_bad_start_on_the_command_line(capsys, tmp_path):
     assert not (tmp_path / "d.csv").exists()
 
 
+@pytest.mark.slow
 def test_design_and_evaluate_certify(capsys, tmp_path, quick_certificate):
     out, js = tmp_path / "d.csv", tmp_path / "d.json"
     code, text, _ = _run(
@@ -134,6 +136,7 @@ def cache(monkeypatch, tmp_path):
     return folder
 
 
+@pytest.mark.slow
 def test_every_design_record_has_its_bound_and_efficiency(
     capsys, tmp_path, quick_certificate, quick_start, cache
 ):
@@ -160,6 +163,7 @@ def test_every_design_record_has_its_bound_and_efficiency(
     assert rec["bound_mm2"] is None and rec["efficiency"] is None and rec["certificate"] is None
 
 
+@pytest.mark.slow
 def test_design_with_given_poses_has_the_bound_of_the_combined_design(
     tmp_path, kr16, quick_certificate, cache
 ):

@@ -177,6 +177,7 @@ def _write_first(problem, path, n=40, seed=0):
     return q1, cond1
 
 
+@pytest.mark.slow
 def test_cli_writes_the_planned_conditions_and_the_api_agrees(kr16, tmp_path, capsys):
     first = tmp_path / "first.csv"  # a measurement CSV: its temperature_C and time_s are the first data's
     q1, cond1 = _write_first(kr16, first, n=30)
@@ -277,6 +278,7 @@ def _named(report) -> set[str]:
     return {c["name"] for c in report.causes} | {a["name"] for c in report.causes for a in c["alternatives"]}
 
 
+@pytest.mark.slow
 def test_first_data_cannot_separate_temperature_effects_and_the_plan_does(kr16, tmp_path):
     """Reduced case (30 first poses within 0.3 K, 12 planned poses): the air's -0.93 ppm/K."""
     rec, first, both = _case(kr16, tmp_path, TEMP_PAIR, "tracker_scale=-0.93", n_first=30, n=12)

@@ -124,6 +124,7 @@ def test_required_payload_gives_the_target_power(kr16):
     assert_allclose(ex.power(lam[0], 1), ex.TARGET_POWER, rtol=1e-4)  # the elasticity sets the payload
 
 
+@pytest.mark.slow
 def test_cli_payload_plan_and_simulate_adds_the_payload(tmp_path, capsys):
     out, rec = tmp_path / "plan.csv", tmp_path / "plan.json"
     argv = ["design", "--robot", "kr16", "--discriminate", PAIR, "--n", "10", "--condition-span", "10kg"]
@@ -164,6 +165,7 @@ def test_cli_payload_plan_and_simulate_adds_the_payload(tmp_path, capsys):
     assert "Traceback" not in err and not (tmp_path / "c.csv").exists()
 
 
+@pytest.mark.slow
 def test_first_data_cannot_separate_elasticity_from_scale_and_the_payload_plan_does(kr16, tmp_path):
     """20 first poses: a joint-2 elasticity (0.1 mm at the tool) and a joint-2 gear-ratio error look
     alike (diagnose lists the latter as an alternative); 10 poses measured without and with 10 kg
@@ -193,6 +195,7 @@ def test_first_data_cannot_separate_elasticity_from_scale_and_the_payload_plan_d
     assert both.causes[0]["alternatives"] == []
 
 
+@pytest.mark.slow
 def test_poses_only_design_says_what_payload_would_reach_the_power(kr16, capsys):
     """A poses-only design of a torque pair carries the payload advice; a plan with that payload
     reaches the target power (half the default elasticity: the poses alone do not)."""

@@ -55,6 +55,7 @@ def test_extend_rejects_effects_that_need_per_pose_inputs():
         make_problem("kr16", extend=["joint_elasticity:2", "joint_elasticity:2"])
 
 
+@pytest.mark.slow
 def test_design_cli_with_extension(tmp_path, capsys):
     """design and evaluate take --extend (28 parameters); the certificate is tests/test_design_start.py's."""
     out, js = tmp_path / "d.csv", tmp_path / "d.json"

@@ -61,6 +61,7 @@ def test_the_identity_behind_the_bound(setup):
         assert 2 * np.sum(K * Y) - np.sum(Y * (M @ Y)) <= value
 
 
+@pytest.mark.slow
 def test_the_bound_holds_for_designs_and_beats_the_bound_without_the_measured_poses(setup):
     problem, given, approx, gd = setup
     K = kpi_factor(problem)
@@ -78,6 +79,7 @@ def test_the_bound_holds_for_designs_and_beats_the_bound_without_the_measured_po
     assert loose < cert["bound_mm2"] <= best.kpi_avg_var_mm2
 
 
+@pytest.mark.slow
 def test_a_design_with_given_poses_solves_from_both_roundings(setup):
     problem, given, _, _ = setup
     res = optimize_design(problem, criterion="kpi", n=N_NEW, seed=0, given=given)
@@ -86,6 +88,7 @@ def test_a_design_with_given_poses_solves_from_both_roundings(setup):
     assert len(more.start_values) == 3  # the further start is heuristic
 
 
+@pytest.mark.slow
 def test_fewer_poses_than_certified_cannot_reach_the_target(setup):
     problem, given, _, gd = setup
     K = kpi_factor(problem)
@@ -109,6 +112,7 @@ def measured(tmp_path_factory):
     return work
 
 
+@pytest.mark.slow
 def test_next_plans_whole_batches_and_carries_its_plan(measured):
     """The plan is whole batches of at least the certified fewest poses; written to ``--plan``;
     the next step, started from it, ends no worse than the rest of it."""
@@ -140,6 +144,7 @@ def test_next_plans_whole_batches_and_carries_its_plan(measured):
     assert done["done"] and not plan_file.exists() and not (measured / "next3.csv").exists()
 
 
+@pytest.mark.slow
 def test_start_bound_is_below_the_design_after_the_loops_start():
     """The study's bound on any continuation of a loop's start holds for the optimised one."""
     robot = load_robot("kr16")

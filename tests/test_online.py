@@ -137,6 +137,7 @@ def test_cli_writes_the_json_record_and_nothing_when_done(measured, tmp_path):
     assert d["done"] and d["next_q_deg"] == [] and not out.exists()
 
 
+@pytest.mark.slow
 def test_a_reduced_closed_loop_stops_at_the_target(kr16):
     """kr16, sigma 1 mm, V = 0.1 mm^2 (the paper's setting), 10 heuristic poses then 5 per round."""
     r = closed_loop(kr16, seed=0, target_var_mm2=0.1, sigma_mm=1.0)

@@ -77,6 +77,7 @@ def test_options_from_replaces_fields_and_names_an_unknown_one():
         options_from(DesignOptions, CalibrationOptions())
 
 
+@pytest.mark.slow
 def test_a_design_from_a_record_equals_the_design_from_keywords(tmp_path):
     kw = dict(criterion="kpi", n=12, seed=1, certify=False)
     by_keywords = api.design("kr16", out=tmp_path / "a.csv", **kw)

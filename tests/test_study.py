@@ -151,6 +151,7 @@ def _check_efficiency(d, df, t6, t7, t8, robots):
     assert "## Efficiency" in (d / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_study_machinery_fake(tmp_path):
     res = study.run_study(
         tmp_path, robots=ROBOTS, n=30, heuristic_draws=2, jobs=1, progress=False, design_api=FAKE
@@ -219,6 +220,7 @@ def test_study_resume_after_interrupt_gives_same_tables(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_study_process_pool_same_numbers(tmp_path):
     kw = dict(n=30, heuristic_draws=2, progress=False, design_api=FAKE, figures=False, robots=["kr16"])
     a = study.run_study(tmp_path / "a", jobs=2, **kw)
@@ -327,6 +329,7 @@ def _assert_findings(res):
     return msgs
 
 
+@pytest.mark.slow
 def test_study_reduced_paper_findings(tmp_path):
     t0 = time.perf_counter()
     res = study.run_study(

@@ -314,6 +314,7 @@ def test_simulate_too_many_targets_and_bad_model_file(tmp_path, design, capsys):
 
 
 # --- design -------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_design_two_targets_feasible_per_target(kr16):
     """A pose measures both targets: 6 rows per pose in F1 (their derivative checked by finite
     differences), one incidence row per target, and the design passes the independent checker."""
@@ -356,6 +357,7 @@ def test_diagnose_three_targets_finds_the_effect(kr16):
     assert report.cause_names == {"joint_elasticity:2"}, report.summary()
 
 
+@pytest.mark.slow
 def test_design_and_evaluate_cli_with_two_targets(tmp_path, capsys, quick_certificate):
     """The commands take a several-target model: the approximate start (its cones hold a pose's 6
     rows) and the certificate (the smaller search: still rigorous), whose bound is below the
@@ -466,6 +468,7 @@ def test_blocked_second_beam_is_infeasible_for_optimiser_and_checker(kr16):
     assert not any(f["check"] in ("beam", "collision") for f in alone.failures)
 
 
+@pytest.mark.slow
 def test_two_target_design_clears_every_beam(kr16):
     """An optimised two-target design (collision rows on) passes the checker, which tests the
     beam of each target (rows beam1 .. and beam2 ..) of every pose."""

@@ -180,6 +180,7 @@ def test_two_arms_in_one_calibration_recover_the_truth_and_validate(twin, tmp_pa
     assert err.mean() < 2.0 * 0.05 * np.sqrt(3)
 
 
+@pytest.mark.slow
 def test_design_gradients_of_two_hands_match_finite_differences(twin):
     """The KPI objective and every constraint row (both hands' incidence and beams, clearances) of a
     tree robot against central differences."""
@@ -214,6 +215,7 @@ def test_the_approximate_designs_candidates_follow_the_coupled_torso(twin):
     assert not search.feasible(problem, off, collision=False).any()
 
 
+@pytest.mark.slow
 def test_a_diagnosis_of_the_twin_names_each_arms_elastic_shoulder(tmp_path):
     """The twin without masses, its truth with link masses and an elastic shoulder on each arm
     (joints 5 and 12): ``diagnose --out`` names both (each arm's basis carrying only its own

@@ -70,6 +70,7 @@ def test_lift7_recovers_the_true_parameters():
     assert np.max(np.abs(z)) < 3.0, z  # measured 2.08 (seeds 1-4: 2.26, 2.27, 1.93, 1.57)
 
 
+@pytest.mark.slow
 def test_lift7_cli_design_simulate_calibrate(tmp_path, capsys):
     d, m, c, t = (str(tmp_path / n) for n in ("d.csv", "m.csv", "c.json", "t.json"))
     # the certificate (a search of its own for lift7) is tests/test_design_start.py's

@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from kpioed_drake.design.approximate import certificate
-from kpioed_drake.design.approximate.design import approximate_start
+from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_start, start_approximation
 from kpioed_drake.design.approximate.given import given_design
 from kpioed_drake.design.approximate.sequential import given_start
 from kpioed_drake.design.common import (
@@ -47,6 +47,7 @@ from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, polish_design
 from kpioed_drake.design.result import DesignError, DesignResult
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -108,19 +109,23 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
 
 
 def _start_poses(
-    problem: Problem, start: str, *, n: int, seed: int, collision: bool, given=None
-) -> np.ndarray:
-    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``; with ``given`` poses
-    the approximate start is the certified approximate design's candidates chosen with their
-    information (:func:`~kpioed_drake.design.approximate.sequential.given_start`)."""
+    problem: Problem, start: str, *, n: int, seed: int, collision: bool, given=None, approx=None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``, and the candidate
+    poses (m, 6) [rad] of the approximate design behind them (None for the heuristic); with
+    ``given`` poses the approximate start is the certified approximate design's candidates chosen
+    with their information (:func:`~kpioed_drake.design.approximate.sequential.given_start`).
+    ``approx``: the approximate design to round (None: :func:`start_approximation`)."""
     if start in ("approximate", "given") and given is not None:
         approx = certificate.certified_design(problem, collision=collision, seed=seed)
         if start == "given":
             approx = given_design(problem, approx, given=given, n=n, collision=collision)
-        return given_start(problem, approx, n=n, given=given)
+        return given_start(problem, approx, n=n, given=given), approx.q
     if start == "approximate":
-        return approximate_start(problem, n=n, collision=collision, seed=seed)
-    return heuristic_design(problem, n=n, seed=seed, collision=collision)
+        if approx is None:
+            approx = start_approximation(problem, collision=collision, seed=seed)
+        return approximate_start(problem, n=n, collision=collision, seed=seed, approx=approx), approx.q
+    return heuristic_design(problem, n=n, seed=seed, collision=collision), None
 
 
 def _start_methods(start: str, starts: int, *, given, q0) -> list[str]:
@@ -220,6 +225,8 @@ def optimize_design(
     sweep_block: int = SWEEP_BLOCK_POSES,
     given: np.ndarray | None = None,
     start: str | None = None,
+    polish: int = POLISH_ROUNDS,
+    approx: ApproximateDesign | None = None,
 ) -> DesignResult:
     """Optimum experimental design (paper eq. 24) or, for ``criterion="heuristic"``, the heuristic.
 
@@ -257,6 +264,14 @@ def optimize_design(
             :func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses:
             the approximate design of their weighted mean); None: :func:`resolve_start`.
             Recorded in the result's ``start`` (``q0`` when the caller's ``q0`` was kept).
+        approx: the approximate design the first approximate start is rounded from (without
+            ``given``), e.g. the certificate's
+            :func:`~kpioed_drake.design.approximate.certificate.certified_design` of the same
+            problem and ``collision``, whose rounding starts the optimiser nearer the optimum than
+            the cheaper default (:func:`~kpioed_drake.design.approximate.design.start_approximation`).
+        polish: most rounds of the final exchange on the exact criterion after the optimiser
+            (``kpi`` criterion with an approximate start, one solve over all poses;
+            :func:`~kpioed_drake.design.polish.polish_design`); 0: none.
 
     Returns:
         :class:`~kpioed_drake.design.result.DesignResult` of the ``n`` new poses; its criteria
@@ -302,16 +317,27 @@ def optimize_design(
     solves: list[SolveOutcome] = []
     checks: list[DesignCheck] = []
     initial: list[float] = []
+    pools: list[np.ndarray | None] = []
     start_s = 0.0
     methods = _start_methods(start, starts, given=given, q0=q0)
     for k, method in enumerate(methods):
+        pool_q = None
         if method == "q0":
             q_start = q0
         else:
             t_start = time.perf_counter()
             s = seed if method == "given" else seed + k  # the certified design of ``seed``
-            q_start = _start_poses(problem, method, n=n, seed=s, collision=collision, given=given)
+            q_start, pool_q = _start_poses(
+                problem,
+                method,
+                n=n,
+                seed=s,
+                collision=collision,
+                given=given,
+                approx=approx if k == 0 else None,
+            )
             start_s += time.perf_counter() - t_start
+        pools.append(pool_q)
         try:
             initial.append(float(obj.value(q_start)))
         except np.linalg.LinAlgError:
@@ -328,8 +354,14 @@ def optimize_design(
     good = [k for k, s in enumerate(solves) if s.success and checks[k].n_infeasible == 0]
     pool = good or [k for k, s in enumerate(solves) if np.isfinite(s.value)] or [0]
     best = min(pool, key=lambda k: solves[k].value if np.isfinite(solves[k].value) else np.inf)
-    sol = solves[best]
-    reports, n_bad, n_col = checks[best]
+    sol, check, polished = solves[best], checks[best], None
+    one_solve = max_block is None or n <= max_block
+    if polish and criterion == "kpi" and one_solve and pools[best] is not None:
+        polished = polish_design(
+            setup, sol, check, pool_q=pools[best], rounds=int(polish), fixed_information=M_given
+        )
+        sol, check = polished.sol, polished.check
+    reports, n_bad, n_col = check
     crit = _criteria(problem, sol.q, given)
     res = DesignResult(
         q=sol.q,
@@ -337,8 +369,8 @@ def optimize_design(
         solver=solver,
         status=sol.status,
         success=sol.success,
-        solve_s=float(sum(s.solve_s for s in solves)),
-        n_evals=int(sum(s.n_evals for s in solves)),
+        solve_s=float(sum(s.solve_s for s in solves)) + (polished.solve_s if polished else 0.0),
+        n_evals=int(sum(s.n_evals for s in solves)) + (polished.n_evals if polished else 0),
         constraint_evals=int(sum(s.constraint_evals for s in solves)),
         feasible=n_bad == 0,
         n_infeasible_poses=n_bad,
@@ -351,10 +383,16 @@ def optimize_design(
         sweeps=sol.sweeps,
         start="q0" if (best == 0 and q0 is not None) else start,
         start_s=start_s,
+        polish=None if polished is None else _polish_record(polished),
         **crit,
         **base,
     )
     return _finish(res, allow_infeasible)
+
+
+def _polish_record(p) -> dict:
+    """The ``polish`` field of :class:`DesignResult`."""
+    return {"rounds": p.rounds, "value_before": p.value_before, "solve_s": p.solve_s, "n_evals": p.n_evals}
 
 
 def _finish(res: DesignResult, allow_infeasible: bool) -> DesignResult:

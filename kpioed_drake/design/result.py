@@ -87,6 +87,10 @@ class DesignResult:
     start_s: float = 0.0
     """Wall time of making the starts [s] (not in ``solve_s``; for ``approximate`` the column
     generation and the rounding; in the printed summary, not in the JSON record)."""
+    polish: dict | None = None
+    """The final exchange on the exact criterion (:func:`~kpioed_drake.design.polish.polish_design`):
+    ``rounds`` kept, ``value_before`` tr(Cs)/3 [mm^2] of the optimiser's result before it, ``solve_s``
+    and ``n_evals`` of its solves (included in the result's). None: not run."""
     certificate: dict | None = None
     """The optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`): a lower
     bound ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how
@@ -129,6 +133,7 @@ class DesignResult:
             "start": self.start,
             "starts": len(self.start_values) if self.start_values else 1,
             "best_start": self.best_start,
+            "polish": self.polish,
             "start_values": self.start_values,
             "initial_values": self.initial_values,
             "feasible": self.feasible,
@@ -209,6 +214,12 @@ def format_summary(res: DesignResult) -> str:
         )
         if res.start == "approximate":
             lines.append(f"  approximate start (column generation, rounding, exchange): {res.start_s:.2f} s")
+        if res.polish and res.polish["rounds"]:
+            p = res.polish
+            lines.append(
+                f"  final exchange: {p['rounds']} round(s), {p['value_before']:.6g} -> {res.value:.6g} "
+                f"({p['solve_s']:.2f} s)"
+            )
         if res.all_rows_retries:
             lines.append("  (solved again with all clearance rows after the reduced rows failed)")
     if res.certificate is not None:

@@ -21,7 +21,7 @@ from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.common import method_label
 from kpioed_drake.design.discriminate.conditions import read_given_conditions
 from kpioed_drake.design.discriminate.plan import plan_design
-from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.optimize import optimize_design, resolve_start
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
@@ -166,6 +166,10 @@ def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult
             allow_infeasible=opts.allow_infeasible,
             **common,
         )
+    if opts.certified and q_given is None and opts.criterion == "kpi" and not problem.worst_case:
+        if resolve_start(opts.start, opts.criterion) == "approximate":  # the certificate's search, paid
+            # once for the bound as well, starts the optimiser nearer the optimum (docs/design.md)
+            common["approx"] = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
     if opts.target_var_mm2 is None:
         res = optimize_design(
             problem,

@@ -234,7 +234,7 @@ def next_poses(
         predicted_kpi_avg_var_mm2=predicted,
         n_planned=len(q_plan),
         q_plan=q_plan,
-        min_more_poses=fewest,
+        min_more_poses=max(1, fewest),  # not done yet: the measured poses alone do not reach it
         certificate=cert,
         **base,
     )

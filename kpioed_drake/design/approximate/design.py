@@ -427,6 +427,21 @@ def replicate_poses(problem: Problem, q: np.ndarray, counts: np.ndarray) -> np.n
     return np.array(out, dtype=float).reshape(-1, nj)
 
 
+def start_approximation(problem: Problem, *, collision: bool = True, seed: int = 0) -> ApproximateDesign:
+    """The cheaper approximate design behind the optimiser's start: :data:`START_POOL` poses,
+    :data:`START_ROUNDS` rounds and :data:`START_SEARCHES` local searches per round."""
+    return approximate_design(
+        problem,
+        collision=collision,
+        seed=seed,
+        max_rounds=START_ROUNDS,
+        pool=START_POOL,
+        starts=START_SEARCHES,
+        random_starts=START_RANDOM,
+        cone_tol=START_CONE_TOL,
+    )
+
+
 def approximate_start(
     problem: Problem,
     *,
@@ -440,24 +455,14 @@ def approximate_start(
     Args:
         problem: robot, cell, model, ``q_work`` and noise; n: number of poses.
         collision, seed: those of :func:`approximate_design`.
-        approx: an approximate design of the same problem and ``collision``; None: the cheaper
-            :func:`approximate_design` of :data:`START_POOL` poses, :data:`START_ROUNDS` rounds and
-            :data:`START_SEARCHES` local searches per round.
+        approx: an approximate design of the same problem and ``collision``; None:
+            :func:`start_approximation`.
 
     Returns:
         q0: (n, 6) [rad], every pose a candidate (feasible); not an n-pose optimum (rounding loses).
     """
     if approx is None:
-        approx = approximate_design(
-            problem,
-            collision=collision,
-            seed=seed,
-            max_rounds=START_ROUNDS,
-            pool=START_POOL,
-            starts=START_SEARCHES,
-            random_starts=START_RANDOM,
-            cone_tol=START_CONE_TOL,
-        )
+        approx = start_approximation(problem, collision=collision, seed=seed)
     counts = efficient_rounding(approx.w, n)
     try:
         counts = exchange_counts(approx.F, kpi_factor(problem), counts)
