@@ -91,7 +91,7 @@ def test_every_block_is_classified():
 
 
 def _fresh_copy(tmp_path: Path) -> Path:
-    """The repository's files (tracked and new, not ignored) in tmp_path/repo, set up as after `make setup`."""
+    """The repository's files (tracked and new, not ignored) in tmp_path/repo, as after `make setup`."""
     listed = subprocess.run(
         ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
         cwd=ROOT,
