@@ -110,9 +110,9 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
 
 def _start_poses(
     problem: Problem, start: str, *, n: int, seed: int, collision: bool, given=None, approx=None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``, and the candidate
-    poses (m, 6) [rad] of the approximate design behind them (None for the heuristic); with
+) -> tuple[np.ndarray, object]:
+    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``, and the approximate
+    design behind them (its candidates ``q`` and rows ``F``; None for the heuristic); with
     ``given`` poses the approximate start is the certified approximate design's candidates chosen
     with their information (:func:`~kpioed_drake.design.approximate.sequential.given_start`).
     ``approx``: the approximate design to round (None: :func:`start_approximation`)."""
@@ -120,11 +120,11 @@ def _start_poses(
         approx = certificate.certified_design(problem, collision=collision, seed=seed)
         if start == "given":
             approx = given_design(problem, approx, given=given, n=n, collision=collision)
-        return given_start(problem, approx, n=n, given=given), approx.q
+        return given_start(problem, approx, n=n, given=given), approx
     if start == "approximate":
         if approx is None:
             approx = start_approximation(problem, collision=collision, seed=seed)
-        return approximate_start(problem, n=n, collision=collision, seed=seed, approx=approx), approx.q
+        return approximate_start(problem, n=n, collision=collision, seed=seed, approx=approx), approx
     return heuristic_design(problem, n=n, seed=seed, collision=collision), None
 
 
@@ -317,17 +317,17 @@ def optimize_design(
     solves: list[SolveOutcome] = []
     checks: list[DesignCheck] = []
     initial: list[float] = []
-    pools: list[np.ndarray | None] = []
+    pools: list = []  # the approximate design behind each start (None: heuristic or q0)
     start_s = 0.0
     methods = _start_methods(start, starts, given=given, q0=q0)
     for k, method in enumerate(methods):
-        pool_q = None
+        pool = None
         if method == "q0":
             q_start = q0
         else:
             t_start = time.perf_counter()
             s = seed if method == "given" else seed + k  # the certified design of ``seed``
-            q_start, pool_q = _start_poses(
+            q_start, pool = _start_poses(
                 problem,
                 method,
                 n=n,
@@ -337,7 +337,7 @@ def optimize_design(
                 approx=approx if k == 0 else None,
             )
             start_s += time.perf_counter() - t_start
-        pools.append(pool_q)
+        pools.append(pool)
         try:
             initial.append(float(obj.value(q_start)))
         except np.linalg.LinAlgError:
@@ -358,7 +358,13 @@ def optimize_design(
     one_solve = max_block is None or n <= max_block
     if polish and criterion == "kpi" and one_solve and pools[best] is not None:
         polished = polish_design(
-            setup, sol, check, pool_q=pools[best], rounds=int(polish), fixed_information=M_given
+            setup,
+            sol,
+            check,
+            pool_q=pools[best].q,
+            pool_F=pools[best].F,
+            rounds=int(polish),
+            fixed_information=M_given,
         )
         sol, check = polished.sol, polished.check
     reports, n_bad, n_col = check

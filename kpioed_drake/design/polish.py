@@ -53,14 +53,12 @@ class Polished:
 
 
 def exchanged(
-    problem, q: np.ndarray, pool_q: np.ndarray, *, pool_F: np.ndarray | None = None, M0=None
+    problem, q: np.ndarray, pool_q: np.ndarray, pool_F: np.ndarray, *, M0=None
 ) -> np.ndarray | None:
-    """The design ``q`` (n, nj) [rad] after an exchange over ``q`` and ``pool_q`` (m, nj) [rad], or
-    None if the exchange keeps every pose. ``pool_F``: (m, 3, k) rows of the pool if known;
-    ``M0``: (k, k) information held fixed (given poses)."""
-    F_q = pose_rows(problem, q)
-    F_pool = pose_rows(problem, pool_q) if pool_F is None else pool_F
-    F = np.concatenate([F_q, F_pool])
+    """The design ``q`` (n, nj) [rad] after an exchange over ``q`` and ``pool_q`` (m, nj) [rad] with
+    rows ``pool_F`` (m, 3, k), or None if the exchange keeps every pose. ``M0``: (k, k) information
+    held fixed (given poses)."""
+    F = np.concatenate([pose_rows(problem, q), pool_F])
     counts = np.concatenate([np.ones(len(q), dtype=int), np.zeros(len(pool_q), dtype=int)])
     try:
         new = exchange_counts(F, kpi_factor(problem), counts, M0=M0)
@@ -87,7 +85,7 @@ def polish_design(
         setup: the solve setup of the design (criterion ``kpi``).
         sol, check: the optimiser's result and its check (kept if no round helps).
         pool_q: (m, nj) [rad] feasible candidate poses (the approximate design's).
-        pool_F: (m, 3, k) their rows if known.
+        pool_F: (m, 3, k) their rows (computed once if None).
         rounds: most rounds.
         fixed_information: (k, k) information held fixed (given poses), or None.
     """
@@ -95,8 +93,10 @@ def polish_design(
     n_vars = sol.q.size
     if not len(pool_q) or n_vars > POLISH_MAX_VARIABLES or not (sol.success and check.n_infeasible == 0):
         return out
+    if pool_F is None:
+        pool_F = pose_rows(setup.problem, pool_q)
     for _ in range(rounds):
-        q_start = exchanged(setup.problem, out.sol.q, pool_q, pool_F=pool_F, M0=fixed_information)
+        q_start = exchanged(setup.problem, out.sol.q, pool_q, pool_F, M0=fixed_information)
         if q_start is None:
             break
         new, new_check = solve_checked(setup, q_start, fixed_information=fixed_information)
