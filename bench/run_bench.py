@@ -26,10 +26,13 @@ Wall times depend on the machine and on its load; CPU time of this process is re
 5. Compensation of 1000 program rows with a calibrated kr16 model (``bench/compensate_bench.py``).
 6. Diagnosis of 400 and 1000 poses of the 11-joint elastic humanoid stand-in whose model file has
    no masses (``bench/humanoid.py``): wall and CPU time, the causes named, their ratio.
+7. One online step (``kpioed next``) at 100 measured kr16 poses (``bench/online_bench.py``).
+8. The 18-joint two-arm twin: its 40-pose KPI design (cold and warm certificate cache, and without
+   the certificate), a warm online step, two diagnoses of 400 poses (``bench/twin_bench.py``).
 
 Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``;
-``--only fits`` (``--only compensate``) runs section 4 (5) alone and replaces only that section of
-the existing ``--out`` file.
+``--only fits|compensate|humanoid|online|twin`` runs section 4, 5, 6, 7 or 8 alone and replaces only
+that section of the existing ``--out`` file.
 """
 
 from __future__ import annotations
@@ -51,7 +54,8 @@ import compensate_bench  # noqa: E402
 import humanoid  # noqa: E402
 import numpy as np  # noqa: E402
 import online_bench  # noqa: E402
-from fits_bench import bench_fits, section_lines, targets_lines, update_results  # noqa: E402
+import twin_bench  # noqa: E402
+from fits_bench import bench_fits, replace_section, section_lines, targets_lines, update_results  # noqa: E402
 
 from kpioed_drake import design  # noqa: E402
 from kpioed_drake.estimation.problem import Problem, make_problem  # noqa: E402
@@ -412,16 +416,22 @@ def bench_breakdown(
     return rows
 
 
+ONLY = {"humanoid": humanoid, "online": online_bench, "twin": twin_bench}
+"""Sections ``--only`` runs alone, replacing them in the results file."""
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds for SNOPT vs IPOPT (default 5)")
     ap.add_argument("--sizes", default="15,30,60,120,240", help="numbers of poses for the growth study")
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results.md"))
-    skips = "derivatives,solvers,breakdown,sizes,fits,compensate,humanoid,online"
+    skips = "derivatives,solvers,breakdown,sizes,fits,compensate,humanoid,online,twin"
     ap.add_argument("--skip", default="", help=f"sections to skip: {skips}")
     ap.add_argument(
-        "--only", choices=["fits", "compensate"], help="run only this section and replace it in --out"
+        "--only",
+        choices=["fits", "compensate", *ONLY],
+        help="run only this section and replace it in --out",
     )
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
@@ -430,6 +440,14 @@ def main(argv=None) -> int:
         return 0
     if args.only == "compensate":
         print("\n".join(compensate_bench.update_results(args.out)))
+        return 0
+    if args.only in ONLY:
+        module = ONLY[args.only]
+        rows, summary = module.bench_section()
+        section = module.section_lines(rows, summary)
+        path = Path(args.out)
+        atomic_write_text(path, replace_section(path.read_text(), section, module.SECTION))
+        print("\n".join(section))
         return 0
     from importlib.metadata import version
 
@@ -485,6 +503,10 @@ def main(argv=None) -> int:
         print("online ...", file=sys.stderr, flush=True)
         rows, summary["online"] = online_bench.bench_section()
         sections += online_bench.section_lines(rows, summary["online"])
+    if "twin" not in skip:
+        print("twin ...", file=sys.stderr, flush=True)
+        rows, summary["twin"] = twin_bench.bench_section()
+        sections += twin_bench.section_lines(rows, summary["twin"])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:
@@ -511,6 +533,8 @@ def main(argv=None) -> int:
         targets += compensate_bench.targets_lines(summary["compensate"])
     if "humanoid" in summary:
         targets += humanoid.targets_lines(summary["humanoid"])
+    if "twin" in summary:
+        targets += twin_bench.targets_lines(summary["twin"])
     foot = [
         "",
         f"Total benchmark time {time.perf_counter() - t0:.0f} s; load average at end: {load1[0]:.2f} "

@@ -4,6 +4,7 @@ rejects; bad inputs exit 2 and write nothing; a reduced closed loop stops with t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -170,3 +171,18 @@ def test_a_solver_failure_is_retried_from_heuristic_poses(kr16, measured, monkey
     monkeypatch.setattr(step, "optimize_design", always)
     with pytest.raises(DesignError):
         next_poses(kr16, data, NextOptions(target_var_mm2=target, sigma_mm=SIGMA, certify=False))
+
+
+def test_poses_measured_a_rounding_beyond_a_joint_limit_are_taken(kr16, measured):
+    """A pose designed at a joint limit comes back from the file in degrees up to a rounding beyond
+    it: the measured poses enter only through their information, so the step designs on."""
+    q = read_design(measured / "given.csv", kr16)
+    q[0, 1], q[1, 2] = kr16.upper[1], kr16.lower[2]
+    table, _ = simulate(kr16, q, SimulationOptions(sigma_mm=0.0, geometric_errors=False))
+    data = Measurements.from_table(table, kr16)
+    q[0, 1], q[1, 2] = kr16.upper[1] + 5e-12, kr16.lower[2] - 5e-12
+    beyond = dataclasses.replace(data, q=q)
+    opts = NextOptions(target_var_mm2=0.9 * _now(kr16, measured), sigma_mm=SIGMA, certify=False)
+    res = next_poses(kr16, beyond, opts)
+    assert res.q_next.shape == (5, 6)
+    assert np.all(res.q_next >= kr16.lower) and np.all(res.q_next <= kr16.upper)

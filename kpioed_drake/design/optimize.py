@@ -140,8 +140,10 @@ def _start_methods(start: str, starts: int, *, given, q0) -> list[str]:
     return two + ["heuristic"] * (starts - 1)
 
 
-def _checked_poses(problem: Problem, q, n: int | None, name: str) -> np.ndarray:
-    """``q`` as a finite (n, 6) array within the joint limits (any n >= 1 if ``n`` is None)."""
+def _checked_poses(problem: Problem, q, n: int | None, name: str, *, limits: bool = True) -> np.ndarray:
+    """``q`` as a finite (n, 6) array (any n >= 1 if ``n`` is None), within the joint limits if
+    ``limits`` (not for measured poses: they enter only through their information, and a pose
+    measured at a limit comes back from a file in degrees a rounding beyond it)."""
     q = np.asarray(q, dtype=float)
     nj = problem.robot.n_joints
     shape = f"({'m' if n is None else n}, {nj})"
@@ -149,7 +151,7 @@ def _checked_poses(problem: Problem, q, n: int | None, name: str) -> np.ndarray:
         raise InputError(f"{name} must be a finite {shape} array of joint angles [rad], got {q.shape}")
     if not np.all(np.isfinite(q)):
         raise InputError(f"{name} must be a finite {shape} array of joint angles [rad]")
-    if np.any(q < problem.robot.lower) or np.any(q > problem.robot.upper):
+    if limits and (np.any(q < problem.robot.lower) or np.any(q > problem.robot.upper)):
         raise InputError(f"{name}: a joint angle is outside the robot's joint limits")
     return q
 
@@ -283,7 +285,7 @@ def optimize_design(
         DesignError: the solver failed or the design is infeasible (unless ``allow_infeasible``).
     """
     if given is not None:
-        given = _checked_poses(problem, given, None, "given")
+        given = _checked_poses(problem, given, None, "given", limits=False)
     _validate(
         problem, criterion, n, solver, starts, max_block, sweep_block, 0 if given is None else len(given)
     )

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 
 import numpy as np
 import scipy.linalg
@@ -166,6 +167,30 @@ def _joint_columns(chain: Chain, i: int, errors_i: np.ndarray) -> np.ndarray:
     return np.column_stack([MA, MB[:, 1], MC[:, 2], MJ, MK, MK @ K, p, MJ @ a])
 
 
+COLUMNS_CACHED = 16
+"""Chains and error sets whose joint constants :func:`joint_constants` keeps (a design or a fit
+evaluates the same errors thousands of times; a fit's steps change them)."""
+_LOCAL = threading.local()  # the cache, per thread
+
+
+def joint_constants(chain: Chain, errors: np.ndarray) -> np.ndarray:
+    """(nj, 3, 16) :func:`_joint_columns` of every joint of ``chain`` with ``errors`` (nj, 7),
+    kept for the last :data:`COLUMNS_CACHED` chains and error sets (keyed by the chain object and
+    the errors' bytes, per thread; read-only)."""
+    errors = np.ascontiguousarray(errors, dtype=float)
+    key = (id(chain), errors.tobytes())
+    cache = _LOCAL.__dict__.setdefault("constants", {})
+    hit = cache.get(key)
+    if hit is not None and hit[0] is chain:
+        return hit[1]
+    G = np.stack([_joint_columns(chain, i, errors[i]) for i in range(chain.n_joints)])
+    G.setflags(write=False)
+    if len(cache) >= COLUMNS_CACHED:
+        cache.pop(next(iter(cache)))
+    cache[key] = (chain, G)
+    return G
+
+
 def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames:
     """Forward kinematics of a chain with placement errors.
 
@@ -186,10 +211,11 @@ def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames
     moved[:, 0] = np.arange(1, nj + 1)  # the offset: as the joint's own link
     axes = np.empty((n, nj, 3))
     pts = np.empty((n, nj, 3))
+    constants = joint_constants(chain, errors)
     for i in range(nj):
         f = parent[i] + 1
         # every product of the parent's rotation with a constant: one (3 n, 3) @ (3, 16) product
-        G = (R[:, f].reshape(3 * n, 3) @ _joint_columns(chain, i, errors[i])).reshape(n, 3, 16)
+        G = (R[:, f].reshape(3 * n, 3) @ constants[i]).reshape(n, 3, 16)
         oJ = o[:, f] + G[:, :, 14]
         w = G[:, :, 15]
         pris = bool(chain.prismatic[i])

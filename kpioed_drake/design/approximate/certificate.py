@@ -78,6 +78,11 @@ DESIGN_REFINEMENTS = 2
 the design with ``g`` above the search's maximum, each followed by :func:`verify_search`. Without
 it, a design that reaches poses beyond the search gets a valid but loose bound, lowered by that
 factor (docs/certificate.md)."""
+REFINE_ABOVE = 0.01
+""":func:`certify` refines only when the design reaches poses more than this fraction beyond the
+search (``design_beyond_search > 1 + REFINE_ABOVE``): below it the bound given up is under 1 %, and
+a refinement (a continued column generation and a broader search) costs more than the design on a
+many-joint robot (docs/certificate.md)."""
 PERTURB_RAD = 0.25
 """Standard deviation of those random moves per joint [rad]."""
 VERIFY_STARTS = 48
@@ -311,7 +316,8 @@ def certify(
     :data:`DESIGN_STARTS` of them with largest ``g`` (the optimiser may have found feasible poses
     beyond the search), so the bound is rigorous for ``q`` and efficiency <= 1. Feasible poses
     found there with ``g`` above the search's maximum join the candidates, the column generation
-    and :func:`verify_search` continue (at most ``refinements`` times; the cached design of
+    and :func:`verify_search` continue (while the design reaches more than :data:`REFINE_ABOVE`
+    beyond the search, at most ``refinements`` times; the cached design of
     :func:`certified_design` is not changed) and the design's poses are searched again.
 
     Args:
@@ -349,7 +355,7 @@ def certify(
     n = q.shape[0]
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
     refined = 0
-    while len(found) and refined < refinements:
+    while len(found) and refined < refinements and g_near > approx.g_max * (1.0 + REFINE_ABOVE):
         warm = _with_candidates(problem, approx, found)
         try:
             more_rounds = approximate_design(

@@ -29,6 +29,7 @@ from kpioed_drake.design.common import (
 )
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.jointmap import commandable_motions
 from kpioed_drake.robot.kinematics import Frames, cross, flange_point, forward_kinematics
 from kpioed_drake.tracker.feasibility import TOL_DEG
 
@@ -229,21 +230,24 @@ def restore_incidence(problem: Problem, q) -> np.ndarray:
     check's tolerance (:data:`~kpioed_drake.tracker.feasibility.TOL_DEG`) but at most
     :data:`RESTORE_MAX_DEG` moved back to the optimiser's bound (the limit minus
     :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG`) by Gauss-Newton steps along the
-    incidence row's gradient, inside the joint box. Every other pose is returned unchanged, so a
+    incidence row's gradient (projected on the motions the joint map's couplings allow), inside the
+    joint box. Every other pose is returned unchanged, so a
     design that passes the check is not touched; one that is further out stays as it is."""
     q = np.array(as_poses(q, problem.robot.n_joints), dtype=float)
     mi = problem.cell.max_incidence
     lb = incidence_row_beyond(mi, -INCIDENCE_MARGIN_DEG)  # the optimiser's bound (lower_bounds)
     fails, worst = incidence_row_beyond(mi, TOL_DEG), incidence_row_beyond(mi, RESTORE_MAX_DEG)
     targets = [None] if problem.n_targets == 1 else list(range(problem.n_targets))
+    P = commandable_motions(problem.robot)
     for t in targets:
         c, jac = incidence_rows(problem, q, target=t)
         fix = (c < fails) & (c >= worst)
         for _ in range(5):
             if not np.any(fix):
                 break
-            step = (lb - c[fix]) / np.maximum(np.sum(jac[fix] ** 2, axis=1), 1e-300)
-            q[fix] = np.clip(q[fix] + step[:, None] * jac[fix], problem.robot.lower, problem.robot.upper)
+            g = jac[fix] @ P  # along motions the controller can command (the couplings kept)
+            step = (lb - c[fix]) / np.maximum(np.sum(g**2, axis=1), 1e-300)
+            q[fix] = np.clip(q[fix] + step[:, None] * g, problem.robot.lower, problem.robot.upper)
             c, jac = incidence_rows(problem, q, target=t)
             fix &= c < lb
     return q

@@ -23,6 +23,7 @@ from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.errors import InputError, raise_if_interrupted
 from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.models import N_JOINTS
 
 SNOPT_INFO = {
@@ -194,6 +195,9 @@ def solve_once(
     dt = time.perf_counter() - t0
     raise_if_interrupted()  # the solver may also turn a Ctrl-C in our callbacks into a failed solve
     q = np.asarray(result.GetSolution(dp.x), dtype=float).reshape(n, problem.robot.n_joints)
+    # The controller commands only coupled poses: back onto the joint map's coupling equations
+    # (SNOPT keeps linear equalities to its feasibility tolerance, 1e-6 rad)
+    q = commandable_projection(problem.robot, q)
     # Bounds are hard in the check: clip round-off outside the joint box (SNOPT/IPOPT may leave
     # 1e-9 rad outside); the change is far below every tolerance.
     q = np.clip(q, problem.robot.lower, problem.robot.upper)
