@@ -231,8 +231,8 @@ def restore_incidence(problem: Problem, q) -> np.ndarray:
     :data:`RESTORE_MAX_DEG` moved back to the optimiser's bound (the limit minus
     :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG`) by Gauss-Newton steps along the
     incidence row's gradient (projected on the motions the joint map's couplings allow), inside the
-    joint box. Every other pose is returned unchanged, so a
-    design that passes the check is not touched; one that is further out stays as it is."""
+    joint box. Every other pose is returned unchanged, so a design that passes the check is not
+    touched; one that is further out stays as it is."""
     q = np.array(as_poses(q, problem.robot.n_joints), dtype=float)
     mi = problem.cell.max_incidence
     lb = incidence_row_beyond(mi, -INCIDENCE_MARGIN_DEG)  # the optimiser's bound (lower_bounds)
