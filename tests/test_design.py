@@ -310,11 +310,20 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
 # ----------------------------------------------------------------------------------------------
 # Optimised designs
 # ----------------------------------------------------------------------------------------------
+def test_snopt_stops_looser_only_beyond_a_six_joint_solve():
+    def tol(n, nj):
+        return design_solve.solver_options("snopt", n, n_joints=nj)["Major optimality tolerance"]
+
+    assert tol(60, 6) == 1e-5 and tol(30, 6) == 1e-5  # six joints: one solve, sweep blocks
+    assert tol(40, 18) == 3e-5  # the 18-joint twin's 40 poses: 720 variables
+    assert design_solve.solver_options("snopt", 40, n_joints=18)["Superbasics limit"] >= 18 * 40
+
+
 def test_solver_failure_raises_design_error_and_cli_exits_3(kr16, tmp_path, monkeypatch, capsys):
     orig = design_solve.solver_options
 
-    def one_iteration(solver, n):
-        opts = orig(solver, n)
+    def one_iteration(solver, n, **kw):
+        opts = orig(solver, n, **kw)
         opts["Major iterations limit"] = 1
         return opts
 

@@ -49,6 +49,14 @@ def cross(a, b) -> np.ndarray:
     return out
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices ``[v]x`` (``[v]x b = v x b``) of vectors ``v`` (..., 3)."""
+    S = np.zeros((*v.shape, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
 def _rot_z(c, s):
     R = np.zeros((*np.shape(c), 3, 3))
     R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
@@ -296,19 +304,17 @@ def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
     dP = frames.joint_motion(p)  # (n,nj,3): dp/dq_j
     if on is not None:
         dP = dP * on[:, :, None]
-    dJ = np.zeros((n, nj, 3, g + 3))
-    # element moved by joint j: revolute w_j x col, prismatic 0
-    full = cross(w[:, :, None, None, :], cols[:, None, :, :, :])  # (n,j,i,P,3)
-    if pris:
-        full = np.where(frames.prismatic[None, :, None, None, None], 0.0, full)
-    # element upstream of joint j: rotation: u x dP_j; translation: 0
-    part = cross(u[:, None, :, :, :], dP[:, :, None, None, :])  # (n,j,i,P,3)
-    part = np.where(rot[None, None, :, :, None], part, 0.0)
-    mask = frames.path[frames.moved_by].transpose(2, 0, 1)  # (j,i,P): joint j moves element (i, p)
-    d = np.where(mask[None, :, :, :, None], full, part)  # (n,j,i,P,3)
+    dJ = np.empty((n, nj, 3, g + 3))
+    # element moved by joint j: revolute w_j x col, prismatic 0 (as batched products [w_j]x @ cols)
+    Wx = _skew(np.where(frames.prismatic[None, :, None], 0.0, w) if pris else w)  # (n,j,3,3)
+    full = Wx @ J[:, None, :, :g]  # (n,j,3,g)
+    # element upstream of joint j: rotation: u x dP_j = -[dP_j]x u; translation: 0
+    uT = (u * rot[None, :, :, None]).reshape(n, g, 3).transpose(0, 2, 1)  # (n,3,g)
     if on is not None:  # elements off the point's path (another arm) stay zero
-        d = d * on[:, None, :, None, None]
-    dJ[:, :, :, :g] = d.reshape(n, nj, g, 3).transpose(0, 1, 3, 2)
+        uT = uT * np.repeat(on, P, axis=1)[:, None, :]
+    part = -_skew(dP) @ uT[:, None]  # (n,j,3,g)
+    mask = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, g)  # joint j moves element c
+    dJ[:, :, :, :g] = np.where(mask[None, :, None, :], full, part)
     dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
     dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF) if pris else dRF
     if on is not None:

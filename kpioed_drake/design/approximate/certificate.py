@@ -83,6 +83,10 @@ REFINE_ABOVE = 0.01
 search (``design_beyond_search > 1 + REFINE_ABOVE``): below it the bound given up is under 1 %, and
 a refinement (a continued column generation and a broader search) costs more than the design on a
 many-joint robot (docs/certificate.md)."""
+REFINE_BELOW_EFFICIENCY = 0.97
+""":func:`certify` refines only while the design's certified efficiency is below this: a bound
+already within 3 % of the design's value leaves the user nothing to act on, and on the 18-joint twin
+one refinement costs more than two minutes, several times the design (docs/certificate.md)."""
 PERTURB_RAD = 0.25
 """Standard deviation of those random moves per joint [rad]."""
 VERIFY_STARTS = 48
@@ -317,7 +321,8 @@ def certify(
     beyond the search), so the bound is rigorous for ``q`` and efficiency <= 1. Feasible poses
     found there with ``g`` above the search's maximum join the candidates, the column generation
     and :func:`verify_search` continue (while the design reaches more than :data:`REFINE_ABOVE`
-    beyond the search, at most ``refinements`` times; the cached design of
+    beyond the search and its efficiency is below :data:`REFINE_BELOW_EFFICIENCY`, at most
+    ``refinements`` times; the cached design of
     :func:`certified_design` is not changed) and the design's poses are searched again.
 
     Args:
@@ -353,9 +358,23 @@ def certify(
     if approx.collision != collision:
         raise ValueError(f"the approximate design has collision={approx.collision}, not {collision}")
     n = q.shape[0]
+    value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
+
+    def dual_bound(approx, g_near) -> float:
+        fixed = 0.0
+        if given is not None:
+            GY = pose_rows(problem, given) @ approx.Y
+            fixed = float(np.sum(GY * GY))
+        return approx.dual / (max(approx.g_max, g_near) * n + fixed)
+
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
     refined = 0
-    while len(found) and refined < refinements and g_near > approx.g_max * (1.0 + REFINE_ABOVE):
+    while (
+        len(found)
+        and refined < refinements
+        and g_near > approx.g_max * (1.0 + REFINE_ABOVE)
+        and dual_bound(approx, g_near) < REFINE_BELOW_EFFICIENCY * value
+    ):
         warm = _with_candidates(problem, approx, found)
         try:
             more_rounds = approximate_design(
@@ -367,14 +386,9 @@ def certify(
         refined += 1
         g_near, found, more = _near_design(problem, q, approx, collision=collision)
         n_starts += more
-    fixed = 0.0
-    if given is not None:
-        GY = pose_rows(problem, given) @ approx.Y
-        fixed = float(np.sum(GY * GY))
-    bound = approx.dual / (max(approx.g_max, g_near) * n + fixed)
+    bound = dual_bound(approx, g_near)
     if given is not None:  # both bounds are valid: keep the larger
         bound = max(bound, given_bound(problem, q, approx, given=given, collision=collision))
-    value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
     return {
         "bound_mm2": bound,
         "efficiency": bound / value,

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
-from kpioed_drake.design.common import MAX_SWEEPS, SWEEP_RTOL
+from kpioed_drake.design.common import MAX_BLOCK_POSES, MAX_SWEEPS, SWEEP_RTOL
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.design.exact.objective import DesignObjective
@@ -25,6 +25,12 @@ from kpioed_drake.errors import InputError, raise_if_interrupted
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.models import N_JOINTS
+
+LARGE_SOLVE_VARIABLES = MAX_BLOCK_POSES * N_JOINTS
+"""Joint variables (poses x joints) above which SNOPT stops at a looser optimality tolerance (360:
+the most a six-joint solve varies, :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES`); on the 40-pose
+design of the 18-joint twin (720 variables) 3e-5 took half the evaluations of 1e-5 for a
+criterion 0.04 % higher (docs/design.md)."""
 
 SNOPT_INFO = {
     1: "optimality conditions satisfied",
@@ -48,14 +54,15 @@ SNOPT_INFO = {
 """SNOPT's exit conditions by ``info`` code (as in the SNOPT user's guide)."""
 
 
-def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
-    """Options passed to the solver for an ``n``-pose design (six joints; :func:`solve_once` raises
-    SNOPT's superbasics limit for more)."""
+def solver_options(solver: str, n: int, *, n_joints: int = N_JOINTS) -> dict[str, float | int | str]:
+    """Options passed to the solver for an ``n``-pose design of a robot of ``n_joints`` joints."""
     if solver == "snopt":
+        large = n * n_joints > LARGE_SOLVE_VARIABLES
         return {
             # 1e-5 (SNOPT's default 1e-6): about 30 % fewer evaluations for a criterion about 0.1 %
-            # higher on average (docs/design.md).
-            "Major optimality tolerance": 1e-5,
+            # higher on average; 3e-5 above LARGE_SOLVE_VARIABLES, where SNOPT's work per major
+            # iteration (about n nS^2) makes its long tail the larger part of a solve (docs/design.md).
+            "Major optimality tolerance": 3e-5 if large else 1e-5,
             # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
             # smallest clearances in the QP, a long first step can go deep into collision, where
             # SNOPT stops (info 41).
@@ -69,7 +76,7 @@ def solver_options(solver: str, n: int) -> dict[str, float | int | str]:
             # the param criterion has a long flat tail (over 1000 major iterations, docs/design.md)
             "Major iterations limit": 3000,
             "Iterations limit": 200000,
-            "Superbasics limit": max(500, N_JOINTS * n + 50),
+            "Superbasics limit": max(500, n_joints * n + 50),
         }
     # IPOPT's tol is on its scaled NLP error (not comparable one to one with SNOPT's); 1e-5 reaches
     # SNOPT-quality optima. The constraint-violation tolerances are tight so that
@@ -181,9 +188,7 @@ def solve_once(
     )
     s = make_solver(solver)
     opts = SolverOptions()
-    options = solver_options(solver, n)
-    if "Superbasics limit" in options:  # one per joint variable (a robot of more than six joints)
-        options["Superbasics limit"] = max(options["Superbasics limit"], problem.robot.n_joints * n + 50)
+    options = solver_options(solver, n, n_joints=problem.robot.n_joints)
     for key, val in options.items():
         opts.SetOption(s.solver_id(), key, val)
     t0 = time.perf_counter()
