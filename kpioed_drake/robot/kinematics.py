@@ -315,8 +315,7 @@ def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
     part = -_skew(dP) @ uT[:, None]  # (n,j,3,g)
     mask = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, g)  # joint j moves element c
     dJ[:, :, :, :g] = np.where(mask[None, :, None, :], full, part)
-    dRF = cross(w[:, :, None, :], RF.transpose(0, 2, 1)[:, None, :, :]).transpose(0, 1, 3, 2)
-    dJ[:, :, :, g:] = np.where(frames.prismatic[None, :, None, None], 0.0, dRF) if pris else dRF
+    dJ[:, :, :, g:] = Wx @ RF[:, None]  # columns w_j x (flange axes); prismatic joints 0
     if on is not None:
         dJ[:, :, :, g:] *= on[:, :, None, None]
     return p, J, dJ

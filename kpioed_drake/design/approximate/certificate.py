@@ -360,11 +360,10 @@ def certify(
     n = q.shape[0]
     value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
 
+    G0 = None if given is None else pose_rows(problem, given)
+
     def dual_bound(approx, g_near) -> float:
-        fixed = 0.0
-        if given is not None:
-            GY = pose_rows(problem, given) @ approx.Y
-            fixed = float(np.sum(GY * GY))
+        fixed = 0.0 if G0 is None else float(np.sum((G0 @ approx.Y) ** 2))
         return approx.dual / (max(approx.g_max, g_near) * n + fixed)
 
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
