@@ -336,6 +336,12 @@ def test_certified_design_is_read_back_from_the_disk_cache(kr16, small_search_ca
     fresh = make_problem("kr16")  # another problem object: not in the memory cache
     again = certified_design(fresh, seed=9)
     assert again is not first and again.bound == first.bound and np.array_equal(again.Y, first.Y)
+    # the same memory layout as a loaded design: later sums (a refinement) give the same bits
+    for f in dataclasses.fields(first):
+        x, y = getattr(first, f.name), getattr(again, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.flags["C_CONTIGUOUS"] and y.flags["C_CONTIGUOUS"], f.name
+            np.testing.assert_array_equal(x, y)
 
 
 def test_the_search_of_another_noise_is_the_unit_noise_search_scaled(small_search_cached_in):

@@ -220,11 +220,24 @@ def certified_design(
         if approx is None:
             approx = _search(unit, collision=collision, seed=seed, warm=None)
             certcache.store(disk_key, approx)
+            approx = _c_order(approx)  # as a stored design loads: the same bits for every later use
         approx = with_noise(approx, problem.sigma)
     if len(cache) > 8:
         cache.clear()
     cache[key] = (problem, approx)
     return approx
+
+
+def _c_order(approx: ApproximateDesign) -> ApproximateDesign:
+    """``approx`` with its arrays in C order, as :func:`certcache.load` returns them: the sums of
+    later steps (a refinement's cone program) depend on memory layout in their last bits, and a
+    design must not change when it comes from the disk cache instead of a fresh search."""
+    arrays = {
+        f.name: np.ascontiguousarray(getattr(approx, f.name))
+        for f in dataclasses.fields(approx)
+        if isinstance(getattr(approx, f.name), np.ndarray)
+    }
+    return dataclasses.replace(approx, **arrays)
 
 
 def with_noise(approx: ApproximateDesign, sigma: float) -> ApproximateDesign:
