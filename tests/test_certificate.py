@@ -227,6 +227,23 @@ def test_certify_continues_the_search_with_poses_found_near_the_design(kr16, sma
     assert weak.g_max == 1.0 and len(weak.q) == len(small_approx.q)  # the caller's design is unchanged
 
 
+def test_a_large_design_is_refined_only_below_the_efficiency_gate(kr16, small_approx, monkeypatch):
+    for name, value in (("VERIFY_POOL", 300), ("VERIFY_STARTS", 8), ("CERTIFY_ROUNDS", 2)):
+        monkeypatch.setattr(certificate, name, value)
+    q0 = approximate_start(kr16, n=40, approx=small_approx)
+    weak = dataclasses.replace(small_approx, g_max=1.0)  # the design's poses reach beyond it
+    plain = certify(kr16, q0, approx=weak, refinements=0)
+    monkeypatch.setattr(certificate, "REFINE_BELOW_EFFICIENCY", 0.5 * plain["efficiency"])
+    # a six-joint 40-pose design (240 joint variables) is small: refined whatever its efficiency
+    assert certify(kr16, q0, approx=weak)["refinements"] >= 1
+    # counted as large (as the 18-joint twin's 720 variables are), its bound is kept
+    monkeypatch.setattr(certificate, "LARGE_SOLVE_VARIABLES", 100)
+    large = certify(kr16, q0, approx=weak)
+    assert large["refinements"] == 0 and large["bound_mm2"] == plain["bound_mm2"]
+    monkeypatch.setattr(certificate, "REFINE_BELOW_EFFICIENCY", 2.0 * plain["efficiency"])
+    assert certify(kr16, q0, approx=weak)["refinements"] >= 1
+
+
 @pytest.mark.parametrize("robot", ["kr16", "notional-850-800"])
 def test_bound_with_given_poses_is_below_the_combined_design_value(robot):
     # tr(K^T (M0 + M)^-1 K) >= tr(K^T Y)^2 / (n max_i ||F_i Y||^2 + ||F0 Y||^2) for every Y

@@ -56,6 +56,7 @@ from kpioed_drake.design.approximate.search import (
     perturbed_poses,
     pose_rows,
 )
+from kpioed_drake.design.common import LARGE_SOLVE_VARIABLES
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -84,9 +85,11 @@ search (``design_beyond_search > 1 + REFINE_ABOVE``): below it the bound given u
 a refinement (a continued column generation and a broader search) costs more than the design on a
 many-joint robot (docs/certificate.md)."""
 REFINE_BELOW_EFFICIENCY = 0.97
-""":func:`certify` refines only while the design's certified efficiency is below this: a bound
-already within 3 % of the design's value leaves the user nothing to act on, and on the 18-joint twin
-one refinement costs more than two minutes, several times the design (docs/certificate.md)."""
+"""On a large design (more than :data:`~kpioed_drake.design.common.LARGE_SOLVE_VARIABLES` joint
+variables) :func:`certify` refines only while the design's certified efficiency is below this: on
+the 18-joint twin one refinement costs more than two minutes, several times the design, for about
+1 % of bound. A six-joint design's refinement costs seconds and refines whenever the search missed
+poses (docs/certificate.md)."""
 PERTURB_RAD = 0.25
 """Standard deviation of those random moves per joint [rad]."""
 VERIFY_STARTS = 48
@@ -334,8 +337,8 @@ def certify(
     beyond the search), so the bound is rigorous for ``q`` and efficiency <= 1. Feasible poses
     found there with ``g`` above the search's maximum join the candidates, the column generation
     and :func:`verify_search` continue (while the design reaches more than :data:`REFINE_ABOVE`
-    beyond the search and its efficiency is below :data:`REFINE_BELOW_EFFICIENCY`, at most
-    ``refinements`` times; the cached design of
+    beyond the search and, on a large design, its efficiency is below
+    :data:`REFINE_BELOW_EFFICIENCY`; at most ``refinements`` times; the cached design of
     :func:`certified_design` is not changed) and the design's poses are searched again.
 
     Args:
@@ -380,12 +383,13 @@ def certify(
         return approx.dual / (max(approx.g_max, g_near) * n + fixed)
 
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
+    small = n * problem.robot.n_joints <= LARGE_SOLVE_VARIABLES
     refined = 0
     while (
         len(found)
         and refined < refinements
         and g_near > approx.g_max * (1.0 + REFINE_ABOVE)
-        and dual_bound(approx, g_near) < REFINE_BELOW_EFFICIENCY * value
+        and (small or dual_bound(approx, g_near) < REFINE_BELOW_EFFICIENCY * value)
     ):
         warm = _with_candidates(problem, approx, found)
         try:

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
-from kpioed_drake.design.common import MAX_BLOCK_POSES, MAX_SWEEPS, SWEEP_RTOL
+from kpioed_drake.design.common import LARGE_SOLVE_VARIABLES, MAX_SWEEPS, SWEEP_RTOL
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.design.exact.objective import DesignObjective
@@ -26,11 +26,14 @@ from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.models import N_JOINTS
 
-LARGE_SOLVE_VARIABLES = MAX_BLOCK_POSES * N_JOINTS
-"""Joint variables (poses x joints) above which SNOPT stops at a looser optimality tolerance (360:
-the most a six-joint solve varies, :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES`); on the 40-pose
-design of the 18-joint twin (720 variables) 3e-5 took half the evaluations of 1e-5 for a
-criterion 0.04 % higher (docs/design.md)."""
+OPTIMALITY_TOLERANCE = 1e-5
+"""SNOPT's major optimality tolerance (its default 1e-6): about 30 % fewer evaluations for a
+criterion about 0.1 % higher on average (docs/design.md)."""
+LARGE_OPTIMALITY_TOLERANCE = 1e-4
+"""The tolerance above :data:`~kpioed_drake.design.common.LARGE_SOLVE_VARIABLES` joint variables,
+where SNOPT's work per major iteration (about n nS^2) makes its long flat tail the larger part of a
+solve: on the 40-pose design of the 18-joint twin it took a third of the evaluations of 3e-5 for a
+criterion 0.04-0.07 % higher (docs/design.md)."""
 
 SNOPT_INFO = {
     1: "optimality conditions satisfied",
@@ -59,10 +62,7 @@ def solver_options(solver: str, n: int, *, n_joints: int = N_JOINTS) -> dict[str
     if solver == "snopt":
         large = n * n_joints > LARGE_SOLVE_VARIABLES
         return {
-            # 1e-5 (SNOPT's default 1e-6): about 30 % fewer evaluations for a criterion about 0.1 %
-            # higher on average; 3e-5 above LARGE_SOLVE_VARIABLES, where SNOPT's work per major
-            # iteration (about n nS^2) makes its long tail the larger part of a solve (docs/design.md).
-            "Major optimality tolerance": 3e-5 if large else 1e-5,
+            "Major optimality tolerance": LARGE_OPTIMALITY_TOLERANCE if large else OPTIMALITY_TOLERANCE,
             # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
             # smallest clearances in the QP, a long first step can go deep into collision, where
             # SNOPT stops (info 41).
