@@ -50,8 +50,8 @@ constraints hold pose by pose, so a block problem is the full problem restricted
 Above 60 poses sweeps are faster than one solve and end as low or lower; at 60 they are slower
 (docs/design.md)."""
 LARGE_SOLVE_VARIABLES = MAX_BLOCK_POSES * N_JOINTS
-"""Joint variables (poses x joints) of a design above which it counts as large (360: the most a
-six-joint solve varies, e.g. the 18-joint twin's 40 poses: 720). Above it SNOPT stops at a looser
+"""Joint variables (poses x joints) of a design above which it counts as large (360, the most a
+six-joint solve varies; the 18-joint twin's 40 poses are 720). Above it SNOPT stops at a looser
 optimality tolerance and the certificate refines its bound only below efficiency 0.97
 (docs/design.md, docs/certificate.md)."""
 SWEEP_BLOCK_POSES = 30
