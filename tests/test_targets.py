@@ -345,6 +345,27 @@ def test_design_two_targets_feasible_per_target(kr16):
     assert np.allclose([r.incidence_deg for r in reports], inc.max(axis=1))
 
 
+def test_rows_of_several_targets_reuse_the_poses_forward_kinematics(kr16):
+    """With T targets F1 measures each pose T times; it repeats the poses' frames
+    (:meth:`Frames.repeated`) instead of a forward kinematics of the repeated poses: the same rows,
+    whether the caller passes the frames or not."""
+    robot = with_targets(kr16, THREE)
+    pb = make_problem(robot, sigma_mm=SIGMA)
+    q = robot.q_work + np.random.default_rng(5).uniform(-0.4, 0.4, size=(4, 6))
+    frames = forward_kinematics(robot, q, pb.model.geometry)
+    again = forward_kinematics(robot, np.repeat(q, 3, axis=0), pb.model.geometry)
+    for name in ("R", "o", "elem_u", "elem_o", "joint_axes", "joint_points"):
+        assert_allclose(getattr(frames.repeated(3), name), getattr(again, name), rtol=0, atol=1e-12)
+    assert frames.repeated(1) is frames
+    target = np.tile(np.arange(3), 4)
+    H = measurement.measurement_jacobian(pb.model, np.repeat(q, 3, axis=0), target=target)[1]
+    F, dF = pb.F1(q, with_dq=True)
+    assert_allclose(F, (H[:, :, pb.free] / SIGMA).reshape(F.shape), rtol=0, atol=1e-9 * np.abs(F).max())
+    F_given, dF_given = pb.F1(q, with_dq=True, frames=frames)
+    assert_allclose(F_given, F, rtol=0, atol=0)
+    assert_allclose(dF_given, dF, rtol=0, atol=0)
+
+
 def test_diagnose_three_targets_finds_the_effect(kr16):
     """The diagnosis fits the shared geometry, the three target offsets and the effects."""
     robot = with_targets(kr16, THREE)

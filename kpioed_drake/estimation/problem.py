@@ -162,7 +162,7 @@ class Problem:
         pose has 3T rows (its targets' rows stacked): (3Tn, k) and (n, 6, 3T, k).
         """
         if self.n_targets > 1:
-            return self._F1_targets(np.atleast_2d(q), with_dq)
+            return self._F1_targets(np.atleast_2d(q), with_dq, frames)
         out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
@@ -177,13 +177,14 @@ class Problem:
             return H.reshape(3 * n, -1)
         return H.reshape(3 * n, -1), dH
 
-    def _F1_targets(self, q: np.ndarray, with_dq: bool):
+    def _F1_targets(self, q: np.ndarray, with_dq: bool, frames=None):
         """:meth:`F1` of T > 1 targets: every pose measured at each target (with the extensions'
-        columns of each target's rows)."""
+        columns of each target's rows); one forward kinematics of the n poses, repeated."""
         n, T, nj = q.shape[0], self.n_targets, self.model.layout.n_joints
         target = np.tile(np.arange(T), n)
         qq = np.repeat(q, T, axis=0)
-        out = measurement_jacobian(self.model, qq, with_dq=with_dq, target=target)
+        frames = (self.model.frames(q) if frames is None else frames).repeated(T)
+        out = measurement_jacobian(self.model, qq, with_dq=with_dq, frames=frames, target=target)
         H = out[1][:, :, self.free] / self.sigma  # (nT, 3, k)
         dH = out[2][..., self.free] / self.sigma if with_dq else None  # (nT, 6, 3, k)
         if self.extensions:

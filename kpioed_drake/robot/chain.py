@@ -194,47 +194,51 @@ def joint_constants(chain: Chain, errors: np.ndarray) -> np.ndarray:
 def chain_frames(chain: Chain, q: np.ndarray, errors: np.ndarray) -> ChainFrames:
     """Forward kinematics of a chain with placement errors.
 
+    The loop over the joints does only what the next joint needs (one ``(3 n, 3) @ (3, 16)``
+    product of the parent's rotation with the joint's constants, and the joint's frame); the
+    elements are filled from all joints' products at once after it.
+
     Args:
         chain: nominal joint frames.
         q: (n, nj) joint variables [rad or mm].
         errors: (nj, 7) parameters ``off, px, py, pz, rx, ry, rz`` per joint [rad, mm].
     """
     n, nj = q.shape
-    R = np.empty((n, nj + 1, 3, 3))
-    o = np.empty((n, nj + 1, 3))
-    R[:, 0], o[:, 0] = np.eye(3), 0.0
-    eu = np.empty((n, nj, PER_JOINT, 3))
-    eo = np.empty((n, nj, PER_JOINT, 3))
-    rot = np.tile(np.array([True, False, False, False, True, True, True]), (nj, 1))
     parent = chain.parents
-    moved = np.tile(parent[:, None] + 1, (1, PER_JOINT))  # placement: moved as the parent link
-    moved[:, 0] = np.arange(1, nj + 1)  # the offset: as the joint's own link
-    axes = np.empty((n, nj, 3))
-    pts = np.empty((n, nj, 3))
     constants = joint_constants(chain, errors)
+    s = q + errors[:, 0]
+    sn = np.sin(s).T[:, :, None, None]  # (nj, n, 1, 1)
+    cs = (1.0 - np.cos(s)).T[:, :, None, None]
+    R = np.empty((nj + 1, n, 3, 3))  # joint-major while the loop runs: each slice contiguous
+    o = np.empty((nj + 1, n, 3))
+    R[0], o[0] = np.eye(3), 0.0
+    G = np.empty((nj, n, 3, 16))  # every product of the parent's rotation with a constant
     for i in range(nj):
         f = parent[i] + 1
-        # every product of the parent's rotation with a constant: one (3 n, 3) @ (3, 16) product
-        G = (R[:, f].reshape(3 * n, 3) @ constants[i]).reshape(n, 3, 16)
-        oJ = o[:, f] + G[:, :, 14]
-        w = G[:, :, 15]
-        pris = bool(chain.prismatic[i])
-        rot[i, 0] = not pris
-        eu[:, i, 0] = w
-        eu[:, i, 1:4] = np.swapaxes(G[:, :, 0:3], 1, 2)  # RA's columns
-        eu[:, i, 4:7] = np.swapaxes(G[:, :, 0:3], 1, 2)  # then RB's y and RC's z columns
-        eu[:, i, 5], eu[:, i, 6] = G[:, :, 3], G[:, :, 4]
-        eo[:, i] = oJ[:, None, :]
-        axes[:, i], pts[:, i] = w, oJ
-        s = q[:, i] + errors[i, 0]
-        RJ = G[:, :, 5:8]
-        if pris:
-            R[:, i + 1] = RJ
-            o[:, i + 1] = oJ + s[:, None] * w
+        np.matmul(R[f].reshape(3 * n, 3), constants[i], out=G[i].reshape(3 * n, 16))
+        Gi = G[i]
+        oJ = o[f] + Gi[:, :, 14]
+        if chain.prismatic[i]:
+            R[i + 1] = Gi[:, :, 5:8]
+            o[i + 1] = oJ + s[:, i, None] * Gi[:, :, 15]
         else:  # RJ @ rot_axis(axis, s) = RJ + sin(s) RJ K + (1 - cos(s)) RJ K^2
-            sn, cs = np.sin(s)[:, None, None], (1.0 - np.cos(s))[:, None, None]
-            R[:, i + 1] = RJ + sn * G[:, :, 8:11] + cs * G[:, :, 11:14]
-            o[:, i + 1] = oJ
+            R[i + 1] = Gi[:, :, 5:8] + sn[i] * Gi[:, :, 8:11] + cs[i] * Gi[:, :, 11:14]
+            o[i + 1] = oJ
+    G = G.transpose(1, 0, 2, 3)  # (n, nj, 3, 16)
+    axes = np.ascontiguousarray(G[..., 15])
+    pts = np.ascontiguousarray(o[parent + 1].transpose(1, 0, 2) + G[..., 14])
+    eu = np.empty((n, nj, PER_JOINT, 3))
+    eu[:, :, 0] = axes
+    eu[:, :, 1:4] = np.swapaxes(G[..., 0:3], -1, -2)  # RA's columns
+    eu[:, :, 4] = eu[:, :, 1]  # then RA's x, RB's y and RC's z columns
+    eu[:, :, 5], eu[:, :, 6] = G[..., 3], G[..., 4]
+    eo = np.ascontiguousarray(np.broadcast_to(pts[:, :, None, :], (n, nj, PER_JOINT, 3)))
+    rot = np.tile(np.array([True, False, False, False, True, True, True]), (nj, 1))
+    rot[:, 0] = ~np.asarray(chain.prismatic, dtype=bool)
+    moved = np.tile(parent[:, None] + 1, (1, PER_JOINT))  # placement: moved as the parent link
+    moved[:, 0] = np.arange(1, nj + 1)  # the offset: as the joint's own link
+    R = np.ascontiguousarray(R.transpose(1, 0, 2, 3))
+    o = np.ascontiguousarray(o.transpose(1, 0, 2))
     return ChainFrames(R, o, eu, eo, rot, axes, pts, moved)
 
 

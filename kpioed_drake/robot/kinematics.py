@@ -119,6 +119,14 @@ class Frames:
     def n_joints(self) -> int:
         return int(self.prismatic.size)
 
+    def repeated(self, times: int) -> Frames:
+        """The frames of every pose ``times`` times in a row (poses ``0, 0, .., 1, 1, ..``): those
+        of ``np.repeat(q, times, axis=0)`` without a second forward kinematics."""
+        if times == 1:
+            return self
+        per_pose = ("R", "o", "elem_u", "elem_o", "joint_axes", "joint_points")
+        return dataclasses.replace(self, **{f: np.repeat(getattr(self, f), times, axis=0) for f in per_pose})
+
     def point_path(self, link=None) -> np.ndarray | None:
         """(n, nj) ``path[link]``: the joints that move points on ``link`` (scalar or (n,) one per
         pose; None: the tip); None when every joint does (the serial flange: no mask needed)."""
