@@ -54,6 +54,8 @@ LARGE_SOLVE_VARIABLES = MAX_BLOCK_POSES * N_JOINTS
 six-joint solve varies; the 18-joint twin's 40 poses are 720). Above it SNOPT stops at a looser
 optimality tolerance and the certificate refines its bound only below efficiency 0.97
 (docs/design.md, docs/certificate.md)."""
+
+
 SWEEP_BLOCK_POSES = 30
 """Poses per block in sweeps: faster than blocks of 60 and ending lower (docs/design.md)."""
 SWEEP_RTOL = 1e-3
@@ -78,3 +80,9 @@ def as_poses(q, n_joints: int = N_JOINTS) -> np.ndarray:
 def method_label(method: str) -> str:
     """Name of a design method for tables and printed summaries (``heuristic``, ``KPI``, ...)."""
     return "heuristic" if method == "heuristic" else TABLE[method].label
+
+
+def is_large(n: int, n_joints: int) -> bool:
+    """Whether a design of ``n`` poses of a ``n_joints``-joint robot has more than
+    :data:`LARGE_SOLVE_VARIABLES` joint variables (the one rule of the solver and the certificate)."""
+    return n * n_joints > LARGE_SOLVE_VARIABLES

@@ -56,7 +56,7 @@ from kpioed_drake.design.approximate.search import (
     perturbed_poses,
     pose_rows,
 )
-from kpioed_drake.design.common import LARGE_SOLVE_VARIABLES
+from kpioed_drake.design.common import is_large
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -383,7 +383,7 @@ def certify(
         return approx.dual / (max(approx.g_max, g_near) * n + fixed)
 
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
-    small = n * problem.robot.n_joints <= LARGE_SOLVE_VARIABLES
+    small = not is_large(n, problem.robot.n_joints)
     refined = 0
     while (
         len(found)

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
-from kpioed_drake.design.common import LARGE_SOLVE_VARIABLES, MAX_SWEEPS, SWEEP_RTOL
+from kpioed_drake.design.common import MAX_SWEEPS, SWEEP_RTOL, is_large
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.design.exact.objective import DesignObjective
@@ -60,7 +60,7 @@ SNOPT_INFO = {
 def solver_options(solver: str, n: int, *, n_joints: int = N_JOINTS) -> dict[str, float | int | str]:
     """Options passed to the solver for an ``n``-pose design of a robot of ``n_joints`` joints."""
     if solver == "snopt":
-        large = n * n_joints > LARGE_SOLVE_VARIABLES
+        large = is_large(n, n_joints)
         return {
             "Major optimality tolerance": LARGE_OPTIMALITY_TOLERANCE if large else OPTIMALITY_TOLERANCE,
             # At most 0.2 (1 + |x|) per major step (SNOPT's default 2): with only each pose's
