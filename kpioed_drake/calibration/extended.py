@@ -60,6 +60,7 @@ def resolve_extension(
     lateral = [e.joint for e in given if e.family == lateral_basis.FAMILY and e.values is None]
     if lateral:
         robot = lateral_basis.size_on_poses(robot, data.q, lateral)[0]
+    robot = dataclasses.replace(robot, payload_point=nominal.p_FP)  # fixed for the fit and its file
     nominal = dataclasses.replace(nominal, robot=robot)
     resolved = resolve_all(
         [
@@ -71,7 +72,7 @@ def resolve_extension(
         nominal,
         data.payload_kg,
     )
-    conditions = data_conditions(robot, data, p_FP=nominal.p_FQ)
+    conditions = data_conditions(robot, data, p_FP=nominal.p_FP)
     _check_conditions(resolved, data, conditions.tau)
     return resolved, conditions, nominal
 

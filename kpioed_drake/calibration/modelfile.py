@@ -22,6 +22,7 @@ from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import effect_specs
 from kpioed_drake.robot.jointmap import joint_map_spec
 from kpioed_drake.robot.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
+from kpioed_drake.robot.reference import file_rows
 from kpioed_drake.robot.urdf.write import calibrated_sidecar, calibrated_urdf
 
 
@@ -109,6 +110,8 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
     spec.tracker_position_mm = report.model.p_WT.tolist()
     spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
     spec.effects = _effects(report)
+    spec.estimated_errors = _estimated_errors(report)
+    spec.payload_point_mm = _payload_point(report)
     cal_note = _note(report) + (
         " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm "
         "(targets_mm: every target) and "
@@ -123,6 +126,18 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
 def _effects(report: CalibrationReport) -> list:
     """The model-file entries of the report's effects (display units, a-priori std)."""
     return effect_specs(report.effects, report.effect_std()[0], robot=report.robot)
+
+
+def _estimated_errors(report: CalibrationReport) -> list[list[float]]:
+    """The estimated rows' errors against the robot the fit started from (file units), with which
+    a reader rebuilds the geometry the effects were evaluated on (:mod:`kpioed_drake.robot.reference`)."""
+    return file_rows(report.robot, report.model.geometry - report.robot.geometry)
+
+
+def _payload_point(report: CalibrationReport) -> list[float]:
+    """The payload point the fit's effects used (:attr:`TrackerModel.p_FP`), for a model with effects."""
+    point = report.robot.payload_point
+    return [] if point is None or not report.effects else np.asarray(point, dtype=float).tolist()
 
 
 def _note(report: CalibrationReport) -> str:
@@ -151,5 +166,7 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
         targets=targets,
         note=note,
         effects=_effects(report),
+        estimated_errors=_estimated_errors(report),
+        payload_point=_payload_point(report),
     )
     return urdf, side

@@ -72,7 +72,7 @@ class FitProblem:
         if self.nominal is None:
             object.__setattr__(self, "nominal", nominal_model(self.robot, self.cell))
         if self.conditions is None:
-            conditions = estimator.data_conditions(self.robot, self.data, p_FP=self.nominal.p_FQ)
+            conditions = estimator.data_conditions(self.robot, self.data, p_FP=self.nominal.p_FP)
             object.__setattr__(self, "conditions", conditions)
 
     def with_nominal(self, nominal: TrackerModel) -> FitProblem:

@@ -184,7 +184,8 @@ def nominal_frames(robot: Robot, q) -> Frames:
 
 def robot_key(robot: Robot) -> tuple:
     """What the caches of a robot's gravity quantities are keyed by: its name, file, joint types,
-    nominal geometry, masses and centres of mass."""
+    nominal geometry (a chain's joint placements too), masses and centres of mass."""
+    chain = robot.chain
     return (
         robot.name,
         robot.conventions,
@@ -192,6 +193,7 @@ def robot_key(robot: Robot) -> tuple:
         robot.geometry.tobytes(),
         robot.masses.tobytes(),
         robot.coms.tobytes(),
+        b"" if chain is None else chain.R_PJ.tobytes() + chain.p_PJ.tobytes(),
     )
 
 

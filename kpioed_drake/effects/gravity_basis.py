@@ -424,14 +424,14 @@ def basis_factors(model: TrackerModel, q, effect, *, tau=None, payload_kg=None, 
     if tau is not None:
         tp = tau[:, j] - Y @ jb.beta_file
     elif pay:
-        tp = gm.payload_torques(q, payload_kg, model.p_FQ)[:, j]
+        tp = gm.payload_torques(q, payload_kg, model.p_FP)[:, j]
     else:
         tp = np.zeros(Y.shape[0])
     f = np.concatenate([Y, tp[:, None]], axis=1)
     if not with_dq:
         return f
     dtp = (
-        gm.payload_torques(q, payload_kg, model.p_FQ, with_dq=True)[1][:, j]
+        gm.payload_torques(q, payload_kg, model.p_FP, with_dq=True)[1][:, j]
         if pay
         else np.zeros(dY.shape[:2])
     )

@@ -54,7 +54,7 @@ def joint_deltas(
     need_tau = "joint_elasticity" in fams or ("backlash" in fams and side is None)
     dtau = None
     if (need_tau and tau is None) or need_dtau:
-        out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FQ, with_dq=need_dtau)
+        out = gravity_torques(model.robot, q, payload_kg=payload_kg, p_FP=model.p_FP, with_dq=need_dtau)
         tau_g, dtau = out if need_dtau else (out, None)
         tau = tau_g if tau is None else tau
     nj = model.robot.n_joints
@@ -130,14 +130,14 @@ def effect_rotations(
     model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False, target=None
 ) -> dict:
     """{index in effects: [:class:`~.compliance.Rotation` per parameter]} of the effects that turn
-    what they carry: the compliances (payload at p_FQ) and the lateral basis. On a tree robot a
+    what they carry: the compliances (payload at ``model.p_FP``) and the lateral basis. On a tree robot a
     row's point turns only if the joint carries its target's link (``target`` (n,); None: the
     flange)."""
     out = {}
     for i, e in enumerate(effects):
         if e.family in cp.FAMILIES:
             rot = cp.rotation(
-                model.robot, e.family, e.joint, q, p_FP=model.p_FQ, payload_kg=payload_kg, with_dq=with_dq
+                model.robot, e.family, e.joint, q, p_FP=model.p_FP, payload_kg=payload_kg, with_dq=with_dq
             )
             out[i] = [rot]
         elif e.family == lb.FAMILY:

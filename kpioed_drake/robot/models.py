@@ -12,13 +12,14 @@ Conventions (SPEC): classic Denavit-Hartenberg
 """
 
 import dataclasses
-from pathlib import Path
+import functools
 
 import numpy as np
 from pydrake.math import RollPitchYaw
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot import chain as chainmod
+from kpioed_drake.robot.cell import Cell, Obstacle, cell_from_spec, load_cell, vec3  # noqa: F401 (re-exported)
 from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec
 from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and locations, re-exported)
     MODELS_DIR,
@@ -36,6 +37,7 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     robot_path,
     spec_joint_names,
 )
+from kpioed_drake.robot.reference import Reference, estimated_errors, reference_of
 from kpioed_drake.robot.urdf import read_urdf_robot
 
 N_JOINTS = 6
@@ -103,6 +105,10 @@ class Robot:
         effects_where: the file holding ``effects`` (for messages).
         gravity_bases: ``((effect name, D, V), ...)`` mass-free gravity bases sized on a data set's
             poses (:func:`kpioed_drake.effects.gravity_basis.size_on_poses`), else the reference one.
+        estimated_errors: (n_joints, per_joint) a calibrated file's errors of its rows against the
+            model its calibration started from [rad, mm], or None (:mod:`kpioed_drake.robot.reference`).
+        payload_point: (3,) where a payload acts in the flange frame [mm] for the effects' gravity
+            torques (``payload_point_mm``), or None: at the reflector.
     """
 
     name: str
@@ -133,6 +139,14 @@ class Robot:
     effects_where: str = ""
     gravity_bases: tuple = ()
     target_links: np.ndarray | None = None
+    estimated_errors: np.ndarray | None = None
+    payload_point: np.ndarray | None = None
+
+    @functools.cached_property
+    def reference(self) -> Reference | None:
+        """The geometry an extended model's effects are evaluated on, the model its calibration
+        started from (:func:`kpioed_drake.robot.reference.reference_of`); None: this robot's own."""
+        return reference_of(self)
 
     @property
     def n_targets(self) -> int:
@@ -188,55 +202,9 @@ class Robot:
         return float(abs(a[0]) + abs(a[1]) + np.hypot(d4, a[2]))
 
 
-@dataclasses.dataclass(frozen=True)
-class Obstacle:
-    """A world-fixed obstacle capsule [mm]."""
-
-    name: str
-    radius: float
-    a: np.ndarray
-    b: np.ndarray
-    moves_with_car: bool = False
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    """The measuring cell (internal units: mm, rad).
-
-    Attributes:
-        p_WT: (3,) laser tracker position in W [mm].
-        R_WT: (3, 3) nominal tracker orientation.
-        p_FQ: (3,) reflector (SMR) position in the flange frame [mm].
-        max_incidence: largest admitted incidence angle [rad] (paper eq. 4).
-        sigma: measurement noise standard deviation per coordinate [mm].
-        beam_radius: radius of the laser-beam capsule [mm].
-        floor_z, wall_x: floor height and wall position [mm].
-        obstacles: fixed capsules (mount, car body, car cabin).
-    """
-
-    p_WT: np.ndarray
-    R_WT: np.ndarray
-    p_FQ: np.ndarray
-    max_incidence: float
-    sigma: float
-    beam_radius: float
-    floor_z: float
-    wall_x: float
-    obstacles: tuple[Obstacle, ...]
-    work_height_above_cabin: float = 100.0
-    work_cabin_obstacle: str = "car_cabin"
-
-
 # ----------------------------------------------------------------------------------------------
 # Loading
 # ----------------------------------------------------------------------------------------------
-def _vec3(values, where: str) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(f"{where}: expected 3 finite numbers, got {values!r}")
-    return arr
-
-
 def _joint_table(spec: RobotSpec, where: str):
     """The joint rows' conventions, geometry (6, 4) [rad, mm] and limits lower, upper (6,) [rad]."""
     if len(spec.joints) != N_JOINTS:
@@ -274,12 +242,12 @@ def _links(spec: RobotSpec, where: str):
         if not (np.isfinite(link.mass_kg) and link.mass_kg >= 0):
             raise InputError(f"{w}: mass_kg must be a finite number >= 0, got {link.mass_kg!r}")
         masses[link.index] = link.mass_kg
-        coms[link.index] = _vec3(link.com_mm, f"{w}.com_mm")
+        coms[link.index] = vec3(link.com_mm, f"{w}.com_mm")
         for c, cap in enumerate(link.capsules):
             wc = f"{w}.capsules[{c}]"
             if not (np.isfinite(cap.radius_mm) and cap.radius_mm > 0):
                 raise InputError(f"{wc}: radius_mm must be a finite number > 0, got {cap.radius_mm!r}")
-            a, b = _vec3(cap.a_mm, f"{wc}.a_mm"), _vec3(cap.b_mm, f"{wc}.b_mm")
+            a, b = vec3(cap.a_mm, f"{wc}.a_mm"), vec3(cap.b_mm, f"{wc}.b_mm")
             name = cap.name or f"link{link.index}_{c}"
             caps.append(Capsule(name, link.index, float(cap.radius_mm), a, b))
     return caps, masses, coms
@@ -327,7 +295,7 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
     if not np.isfinite(spec.car_shift_x_mm):
         raise InputError(f"{where}: car_shift_x_mm must be finite, got {spec.car_shift_x_mm!r}")
     p_FQ = (
-        _vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm")
+        vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm")
         if spec.reflector_position_mm
         else None
     )
@@ -337,9 +305,9 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
     if spec.tracker_position_mm or spec.tracker_rpy_deg:
         if not spec.tracker_position_mm:
             raise InputError(f"{where}: tracker_rpy_deg needs tracker_position_mm")
-        rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{where}: tracker_rpy_deg"))
+        rpy = np.deg2rad(vec3(spec.tracker_rpy_deg or [0.0, 0.0, 0.0], f"{where}: tracker_rpy_deg"))
         X_WT = (
-            _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm"),
+            vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm"),
             RollPitchYaw(rpy).ToRotationMatrix().matrix(),
         )
     bad = sorted(set(spec.extra_gauge) - set(joint_param_names(conv)))
@@ -369,6 +337,9 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
         effects=checked_effects(spec.effects, where),
         effects_where=where,
+        payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")
+        if spec.payload_point_mm
+        else None,
     )
 
 
@@ -381,7 +352,7 @@ def _targets(spec: RobotSpec, where: str, p_FQ: np.ndarray | None) -> np.ndarray
     """
     if not spec.targets_mm:
         return None
-    targets = np.array([_vec3(t, f"{where}: targets_mm[{k}]") for k, t in enumerate(spec.targets_mm)])
+    targets = np.array([vec3(t, f"{where}: targets_mm[{k}]") for k, t in enumerate(spec.targets_mm)])
     if p_FQ is not None and not np.allclose(p_FQ, targets[0], rtol=0.0, atol=1e-9):
         raise InputError(
             f"{where}: reflector_position_mm {p_FQ.tolist()} differs from targets_mm[0] "
@@ -401,7 +372,9 @@ def load_robot(name: str) -> Robot:
     if path.suffix == ".urdf":
         fields = read_urdf_robot(path, load_yaml=load_yaml_typed)
         caps = tuple(Capsule(*c) for c in fields.pop("capsules"))
-        return Robot(capsules=caps, **fields)
+        rows, where = fields.pop("estimated_errors"), fields["effects_where"]
+        robot = Robot(capsules=caps, **fields)
+        return dataclasses.replace(robot, estimated_errors=estimated_errors(robot, rows, where))
     if not path.is_file():
         known = ", ".join(n for n in list_robots() if not n.startswith("notional-"))
         raise InputError(
@@ -412,73 +385,6 @@ def load_robot(name: str) -> Robot:
     robot = robot_from_spec(spec, where=str(path))
     if not robot.name:
         robot = dataclasses.replace(robot, name=path.stem)
-    return robot
-
-
-def cell_from_spec(spec: CellSpec, where: str = "cell") -> Cell:
-    """Validate a :class:`CellSpec` and convert it to a :class:`Cell` (mm, rad)."""
-    p_WT = _vec3(spec.tracker_position_mm, f"{where}: tracker_position_mm")
-    rpy = np.deg2rad(_vec3(spec.tracker_rpy_deg, f"{where}: tracker_rpy_deg"))
-    R_WT = RollPitchYaw(rpy).ToRotationMatrix().matrix()
-    if not (np.isfinite(spec.noise_sigma_mm) and spec.noise_sigma_mm > 0):
-        raise InputError(f"{where}: noise_sigma_mm must be a finite number > 0, got {spec.noise_sigma_mm!r}")
-    if not (np.isfinite(spec.beam_radius_mm) and spec.beam_radius_mm >= 0):
-        raise InputError(f"{where}: beam_radius_mm must be a finite number >= 0, got {spec.beam_radius_mm!r}")
-    if not 0 < spec.max_incidence_deg < 90:
-        raise InputError(f"{where}: max_incidence_deg must be in (0, 90), got {spec.max_incidence_deg!r}")
-    for field in ("floor_z_mm", "wall_x_mm", "work_height_above_cabin_mm"):
-        if not np.isfinite(getattr(spec, field)):
-            raise InputError(f"{where}: {field} must be finite, got {getattr(spec, field)!r}")
-    for k, o in enumerate(spec.obstacles):
-        if not (np.isfinite(o.radius_mm) and o.radius_mm >= 0):
-            raise InputError(
-                f"{where}: obstacles[{k}].radius_mm must be a finite number >= 0, got {o.radius_mm!r}"
-            )
-    obstacles = tuple(
-        Obstacle(
-            o.name or f"obstacle{k}",
-            float(o.radius_mm),
-            _vec3(o.a_mm, f"{where}: obstacles[{k}].a_mm"),
-            _vec3(o.b_mm, f"{where}: obstacles[{k}].b_mm"),
-            bool(o.moves_with_car),
-        )
-        for k, o in enumerate(spec.obstacles)
+    return dataclasses.replace(
+        robot, estimated_errors=estimated_errors(robot, spec.estimated_errors, str(path))
     )
-    return Cell(
-        p_WT=p_WT,
-        R_WT=R_WT,
-        p_FQ=_vec3(spec.reflector_position_mm, f"{where}: reflector_position_mm"),
-        max_incidence=float(np.deg2rad(spec.max_incidence_deg)),
-        sigma=float(spec.noise_sigma_mm),
-        beam_radius=float(spec.beam_radius_mm),
-        floor_z=float(spec.floor_z_mm),
-        wall_x=float(spec.wall_x_mm),
-        obstacles=obstacles,
-        work_height_above_cabin=float(spec.work_height_above_cabin_mm),
-        work_cabin_obstacle=spec.work_cabin_obstacle,
-    )
-
-
-def load_cell(path: str | Path | None = None, *, robot: Robot | None = None) -> Cell:
-    """Load the measuring cell (default ``models/cell.yaml``).
-
-    If ``robot`` is given, the car obstacles are shifted along x by the robot's ``car_shift_x_mm``
-    (SPEC: move the car for a robot that cannot reach a feasible region in the default cell), and
-    the robot file's optional ``reflector_position_mm`` and tracker pose replace the cell's (a
-    robot- or data-specific target, or a calibrated model's tracker frame).
-    """
-    path = Path(path) if path is not None else MODELS_DIR / "cell.yaml"
-    spec = load_yaml_typed(path, CellSpec)
-    cell = cell_from_spec(spec, where=str(path))
-    if robot is not None and robot.car_shift_x:
-        shift = np.array([robot.car_shift_x, 0.0, 0.0])
-        obs = tuple(
-            dataclasses.replace(o, a=o.a + shift, b=o.b + shift) if o.moves_with_car else o
-            for o in cell.obstacles
-        )
-        cell = dataclasses.replace(cell, obstacles=obs)
-    if robot is not None and robot.p_FQ is not None:
-        cell = dataclasses.replace(cell, p_FQ=robot.p_FQ)
-    if robot is not None and robot.X_WT is not None:
-        cell = dataclasses.replace(cell, p_WT=robot.X_WT[0], R_WT=robot.X_WT[1])
-    return cell

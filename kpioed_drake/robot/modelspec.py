@@ -174,6 +174,15 @@ class RobotSpec:
     plan may not exceed it."""
     effects: list[EffectSpec] = dataclasses.field(default_factory=list)
     """Optional: the non-geometric effects of an extended model (``calibrate`` with ``extend``)."""
+    payload_point_mm: list[float] = dataclasses.field(default_factory=list)
+    """Optional: where a payload's weight acts in the flange frame, for the effects' gravity torques
+    (default: the reflector offset); a calibration with effects writes the point its fit used."""
+    estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
+    """Written by a calibration: the estimated errors of the joint rows against the model the
+    calibration started from, a row per joint (a table's four values in its own order [deg, mm]; a
+    URDF joint's seven: offset [deg; prismatic mm], x, y, z [mm], rx, ry, rz [deg]). An extended
+    model's effects (gravity torques, mass-free bases, pivots) are evaluated on that model's geometry,
+    this file's minus these errors, as the fit evaluated them: the file predicts what the fit did."""
 
 
 @dataclasses.dataclass
@@ -277,6 +286,10 @@ class SidecarSpec:
     """The payload the robot may carry [kg] (0: not given)."""
     effects: list[EffectSpec] = dataclasses.field(default_factory=list)
     """The non-geometric effects of an extended model, as in the YAML files."""
+    payload_point_mm: list[float] = dataclasses.field(default_factory=list)
+    """As in the YAML files: where a payload acts in the flange frame [mm] (default: the reflector)."""
+    estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
+    """As in the YAML files (:class:`RobotSpec`): a calibration's errors of the URDF's joints."""
     notes: str = ""
 
 

@@ -68,6 +68,15 @@ class TrackerModel:
         return self.p[self.layout.tracker_position]
 
     @property
+    def p_FP(self) -> np.ndarray:
+        """(3,) where a payload's weight acts in the flange frame [mm] for the effects' gravity
+        torques: the model file's ``payload_point_mm`` (a calibration with effects fixes it at its
+        start's reflector offset, so that the fit and the file it writes agree), else the reflector
+        offset."""
+        point = self.robot.payload_point
+        return self.p_FQ if point is None else point
+
+    @property
     def R_WT(self) -> np.ndarray:
         """(3, 3) tracker orientation: the reference times the small rotations."""
         return self.R_WT_ref @ small_rotation(self.p[self.layout.tracker_rotation])
@@ -123,10 +132,17 @@ def check_targets(layout: ParameterLayout, target) -> np.ndarray:
 
 def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
     """The nominal model: the robot's table, the cell's tracker pose and reflector offset (target
-    0), and the robot file's further targets (``targets_mm``)."""
+    0), and the robot file's further targets (``targets_mm``).
+
+    An extended model file with ``estimated_errors`` is the model its fit estimated: the robot of
+    its reference geometry (on which the effects are evaluated) with the file's rows as parameters
+    (:mod:`kpioed_drake.robot.reference`)."""
+    ref = robot.reference
+    geometry = robot.geometry if ref is None else ref.geometry
+    robot = robot if ref is None else ref.robot
     layout = parameter_layout(robot)
     p = np.zeros(layout.size)
-    p[layout.joints] = robot.geometry.ravel()
+    p[layout.joints] = geometry.ravel()
     p[layout.tracker_position] = cell.p_WT
     p[layout.target(0)] = cell.p_FQ
     for t in range(1, layout.n_targets):

@@ -51,6 +51,7 @@ class UrdfSource:
     root: str
     joints: tuple[str, ...]  # the movable joints, base to flange
     target_placements: tuple = ()  # per sidecar target: (R_OL (3, 3), p_OL (3,) [mm]) of its link
+    unfolded: np.ndarray | None = None  # (n, 7) errors folded out of the file's joints (a reference)
 
 
 def sidecar_path(path: Path) -> Path:
@@ -233,6 +234,10 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         effects=checked_effects(side.effects, sw),
         effects_where=sw,
         target_links=target_links,
+        estimated_errors=side.estimated_errors,
+        payload_point=_vec(side.payload_point_mm, f"{sw}: payload_point_mm")
+        if side.payload_point_mm
+        else None,
     )
 
 

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
-from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.chain import rot_axis
 from kpioed_drake.robot.models import Robot, load_yaml_typed
-from kpioed_drake.robot.urdf.read import MM, SidecarSpec, sidecar_path
+from kpioed_drake.robot.urdf.origins import moved_origins
+from kpioed_drake.robot.urdf.read import SidecarSpec, sidecar_path
 
 URDF_SUFFIX = ".urdf"
 
@@ -47,39 +47,33 @@ def check_out_path(robot: Robot, out) -> None:
         )
 
 
-def _fmt(v) -> str:
-    return " ".join(f"{(0.0 if abs(x) < 1e-15 else float(x)):.17g}" for x in v)
-
-
 def calibrated_urdf(robot: Robot, geometry: np.ndarray, note: str = "") -> str:
-    """URDF text of ``robot`` with the errors ``geometry`` (n_joints, 7) [rad, mm] in its joints."""
+    """URDF text of ``robot`` with the errors ``geometry`` (n_joints, 7) [rad, mm] in its joints.
+
+    A reference robot (:class:`~kpioed_drake.robot.models.Reference`: a calibrated file with its
+    errors folded out) gets its errors folded into the reference placements, not into the file's."""
     src = Path(robot.urdf.path)
     root = ET.fromstring(src.read_text(encoding="utf-8"))
-    joints = {j.get("name"): j for j in root.findall("joint")}
-    for i, name in enumerate(robot.urdf.joints):
-        el = joints[name]
-        o = el.find("origin")
-        if o is None:
-            o = ET.SubElement(el, "origin")
-        xyz = np.array([float(x) for x in o.get("xyz", "0 0 0").split()])
-        rpy = np.array([float(x) for x in o.get("rpy", "0 0 0").split()])
-        off, px, py, pz, rx, ry, rz = geometry[i]
-        R = RotationMatrix.MakeXRotation(rx) @ RotationMatrix.MakeYRotation(ry)
-        R = R @ RotationMatrix.MakeZRotation(rz)
-        X = RigidTransform(RollPitchYaw(rpy), xyz) @ RigidTransform(R, np.array([px, py, pz]) * MM)
-        axis = robot.chain.axis[i]
-        if robot.prismatic[i]:
-            X = X @ RigidTransform(axis * off * MM)
-        else:
-            X = X @ RigidTransform(RotationMatrix(rot_axis(axis, off)))
-        o.set("xyz", _fmt(X.translation()))
-        o.set("rpy", _fmt(RollPitchYaw(X.rotation()).vector()))
+    if robot.urdf.unfolded is not None:
+        moved_origins(root, robot.urdf.joints, robot.chain, robot.urdf.unfolded, out=True)
+    moved_origins(root, robot.urdf.joints, robot.chain, geometry, out=False)
     text = ET.tostring(root, encoding="unicode")
     comment = f"<!-- {note} -->\n" if note else ""
     return '<?xml version="1.0"?>\n' + comment + text + "\n"
 
 
-def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: str = "", effects=()) -> str:
+def calibrated_sidecar(
+    robot: Robot,
+    *,
+    p_FQ,
+    p_WT,
+    R_WT,
+    targets=None,
+    note: str = "",
+    effects=(),
+    estimated_errors=(),
+    payload_point=(),
+) -> str:
     """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, the
     estimated effects (``effects``: :class:`~kpioed_drake.robot.modelspec.EffectSpec` entries) and
     the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
@@ -103,6 +97,8 @@ def calibrated_sidecar(robot: Robot, *, p_FQ, p_WT, R_WT, targets=None, note: st
         targets_mm=[] if targets is None else np.asarray(targets, dtype=float).tolist(),
         notes=(side.notes + " " if side.notes else "") + note,
         effects=list(effects),
+        estimated_errors=list(estimated_errors),
+        payload_point_mm=list(payload_point),
     )
     header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"
     return header + yaml_dump_typed(side)
