@@ -44,6 +44,7 @@ RANK = {
     "design.exact": 5.1,
     "design.approximate": 5.2,
     "design.polish": 5.25,
+    "design.starts": 5.25,
     "design.result": 5.3,
     "design.optimize": 5.3,
     "design.discriminate": 5.4,

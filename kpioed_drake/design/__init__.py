@@ -36,6 +36,8 @@ Modules, in dependency order:
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
 - :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
+- :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
+  design; :func:`resolve_start`);
 - :mod:`~kpioed_drake.design.optimize`: :func:`optimize_design`, the entry point (also with poses
   already measured held fixed: ``given``, sequential re-identification);
 - :mod:`~kpioed_drake.design.target`: :func:`design_for_target`, the fewest poses reaching a target
@@ -94,10 +96,11 @@ from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.design.exact.solve import solver_options
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.optimize import min_new_poses, optimize_design, resolve_start
+from kpioed_drake.design.optimize import min_new_poses, optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
+from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
 from kpioed_drake.design.workflow import demo, read_working_poses, run_design
 from kpioed_drake.estimation.criteria import CRITERIA

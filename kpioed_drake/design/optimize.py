@@ -1,22 +1,12 @@
 """The design entry point: the optimum experimental design of paper eq. (24), or the heuristic.
 
-:func:`optimize_design` validates the request, makes one or more heuristic starts
-(:mod:`~kpioed_drake.design.heuristic`), solves each (:mod:`~kpioed_drake.design.exact.solve`: one solve
-up to :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES` poses, block sweeps above), checks every
-result independently (:func:`~kpioed_drake.design.exact.check.check_design`) and keeps the best feasible
-start. A failed or infeasible result raises :class:`~kpioed_drake.design.result.DesignError`
-unless ``allow_infeasible``.
-
-Starts (``start``, :data:`~kpioed_drake.design.common.START_METHODS`): the paper's heuristic, or for
-the ``kpi`` criterion the approximate design (column generation over the feasible poses, Clarabel)
-rounded to n poses (:func:`~kpioed_drake.design.approximate.design.approximate_start`); with poses
-held fixed, the certified approximate design's candidates chosen with their information
-(:func:`~kpioed_drake.design.approximate.sequential.given_start`), and as a second start the same
-rounding over the candidates of the approximate design made with their information
-(:func:`~kpioed_drake.design.approximate.given.given_design`): neither start wins on every set of
-measured poses (docs/online.md). The approximate design is the
-optimum of the KPI criterion over weights on poses; it is not defined for the other criteria's
-objectives, so ``start="approximate"`` is an input error there.
+:func:`optimize_design` checks the request, then solves from each start in turn (the start methods
+and poses: :mod:`~kpioed_drake.design.starts`): one solve up to
+:data:`~kpioed_drake.design.common.MAX_BLOCK_POSES` poses, block sweeps above
+(:mod:`~kpioed_drake.design.exact.solve`), each result checked independently
+(:func:`~kpioed_drake.design.exact.check.check_design`); it keeps the best feasible start, polishes it
+on the exact criterion (:mod:`~kpioed_drake.design.polish`) and records it. A failed or infeasible
+result raises :class:`~kpioed_drake.design.result.DesignError` unless ``allow_infeasible``.
 
 Sequential re-identification (paper, section 3.1 and Outlook): with ``given`` poses already
 measured, their information ``F1^T F1`` is held fixed and only the new poses are optimised, the
@@ -25,30 +15,27 @@ same as the block solves of a sweep; the result's criteria are those of the comb
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
-from kpioed_drake.design.approximate import certificate
-from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_start, start_approximation
-from kpioed_drake.design.approximate.given import given_design
-from kpioed_drake.design.approximate.sequential import given_start
+from kpioed_drake.design.approximate.design import ApproximateDesign
 from kpioed_drake.design.common import (
     ACTIVE_ROWS_PER_POSE,
-    DEFAULT_START,
     DESIGN_METHODS,
     MAX_BLOCK_POSES,
     POSE_BLOCK,
     SOLVERS,
-    START_METHODS,
     SWEEP_BLOCK_POSES,
 )
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.polish import POLISH_ROUNDS, polish_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
 from kpioed_drake.design.result import DesignError, DesignResult
+from kpioed_drake.design.starts import checked_poses, resolve_start, start_methods, start_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
@@ -85,75 +72,6 @@ def _validate(
         raise InputError(f"max_block must be a positive integer or None, got {max_block!r}")
     if not _positive_int(sweep_block):
         raise InputError(f"sweep_block must be a positive integer, got {sweep_block!r}")
-
-
-def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: bool = False) -> str:
-    """The start method of :func:`optimize_design`: ``start``, or for None
-    :data:`~kpioed_drake.design.common.DEFAULT_START` where it applies (``kpi`` criterion, not the
-    worst case of several working poses, whose approximate design would be that of their mean)
-    and else ``heuristic``.
-
-    Raises:
-        InputError: an unknown start, or ``approximate`` for another criterion than ``kpi``.
-    """
-    if start is None:
-        applies = criterion == "kpi" and not worst_case
-        return DEFAULT_START if applies else "heuristic"
-    if start not in START_METHODS:
-        raise InputError(f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}")
-    if start == "approximate" and criterion != "kpi":
-        raise InputError(
-            f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}"
-        )
-    return start
-
-
-def _start_poses(
-    problem: Problem, start: str, *, n: int, seed: int, collision: bool, given=None, approx=None
-) -> tuple[np.ndarray, object]:
-    """(n, 6) [rad] starting poses of the method ``start`` with seed ``seed``, and the approximate
-    design behind them (its candidates ``q`` and rows ``F``; None for the heuristic); with
-    ``given`` poses the approximate start is the certified approximate design's candidates chosen
-    with their information (:func:`~kpioed_drake.design.approximate.sequential.given_start`).
-    ``approx``: the approximate design to round (None: :func:`start_approximation`)."""
-    if start in ("approximate", "given") and given is not None:
-        approx = certificate.certified_design(problem, collision=collision, seed=seed)
-        if start == "given":
-            approx = given_design(problem, approx, given=given, n=n, collision=collision)
-        return given_start(problem, approx, n=n, given=given), approx
-    if start == "approximate":
-        if approx is None:
-            approx = start_approximation(problem, collision=collision, seed=seed)
-        return approximate_start(problem, n=n, collision=collision, seed=seed, approx=approx), approx
-    return heuristic_design(problem, n=n, seed=seed, collision=collision), None
-
-
-def _start_methods(start: str, starts: int, *, given, q0) -> list[str]:
-    """The start method of each solve: ``q0`` first if given; with ``given`` poses and the
-    approximate start, its two roundings (``approximate``: the certified design's candidates;
-    ``given``: those of the approximate design with the measured information) count as one start,
-    and further starts are heuristic (one certified design); else ``start`` each time."""
-    first = "q0" if q0 is not None else start
-    if given is None:
-        return [first] + [start] * (starts - 1)
-    two = [first, "given"] if first == "approximate" else [first]
-    return two + ["heuristic"] * (starts - 1)
-
-
-def _checked_poses(problem: Problem, q, n: int | None, name: str, *, limits: bool = True) -> np.ndarray:
-    """``q`` as a finite (n, 6) array (any n >= 1 if ``n`` is None), within the joint limits if
-    ``limits`` (not for measured poses: they enter only through their information, and a pose
-    measured at a limit comes back from a file in degrees a rounding beyond it)."""
-    q = np.asarray(q, dtype=float)
-    nj = problem.robot.n_joints
-    shape = f"({'m' if n is None else n}, {nj})"
-    if q.ndim != 2 or q.shape[1] != nj or q.shape[0] != (n or q.shape[0]) or not q.size:
-        raise InputError(f"{name} must be a finite {shape} array of joint angles [rad], got {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise InputError(f"{name} must be a finite {shape} array of joint angles [rad]")
-    if limits and (np.any(q < problem.robot.lower) or np.any(q > problem.robot.upper)):
-        raise InputError(f"{name}: a joint angle is outside the robot's joint limits")
-    return q
 
 
 def _criteria(problem: Problem, q: np.ndarray, given: np.ndarray | None, *, strict: bool = False) -> dict:
@@ -285,7 +203,7 @@ def optimize_design(
         DesignError: the solver failed or the design is infeasible (unless ``allow_infeasible``).
     """
     if given is not None:
-        given = _checked_poses(problem, given, None, "given", limits=False)
+        given = checked_poses(problem, given, None, "given", limits=False)
     _validate(
         problem, criterion, n, solver, starts, max_block, sweep_block, 0 if given is None else len(given)
     )
@@ -302,7 +220,7 @@ def optimize_design(
         res = _heuristic_result(problem, n=n, seed=seed, collision=collision, given=given, base=base)
         return _finish(res, allow_infeasible)
     if q0 is not None:
-        q0 = _checked_poses(problem, q0, n, "q0")
+        q0 = checked_poses(problem, q0, n, "q0")
     M_given = None
     if given is not None:
         F_given = problem.F1(given)
@@ -315,87 +233,128 @@ def optimize_design(
         pose_block=pose_block,
         active_rows=active_rows,
     )
-    obj = DesignObjective(problem, criterion, fixed_information=M_given)
-    solves: list[SolveOutcome] = []
-    checks: list[DesignCheck] = []
-    initial: list[float] = []
-    pools: list = []  # the approximate design behind each start (None: heuristic or q0)
-    start_s = 0.0
-    methods = _start_methods(start, starts, given=given, q0=q0)
-    for k, method in enumerate(methods):
-        pool = None
-        if method == "q0":
-            q_start = q0
-        else:
-            t_start = time.perf_counter()
-            s = seed if method == "given" else seed + k  # the certified design of ``seed``
-            q_start, pool = _start_poses(
-                problem,
-                method,
-                n=n,
-                seed=s,
-                collision=collision,
-                given=given,
-                approx=approx if k == 0 else None,
-            )
-            start_s += time.perf_counter() - t_start
-        pools.append(pool)
-        try:
-            initial.append(float(obj.value(q_start)))
-        except np.linalg.LinAlgError:
-            initial.append(float("nan"))
-        if max_block is not None and n > max_block:
-            sol = solve_blocks(
-                setup, q_start, block=int(sweep_block), seed=seed + k, fixed_information=M_given
-            )
-            check = check_design(problem, sol.q, collision=collision)
-        else:
-            sol, check = solve_checked(setup, q_start, fixed_information=M_given)
-        solves.append(sol)
-        checks.append(check)
-    good = [k for k, s in enumerate(solves) if s.success and checks[k].n_infeasible == 0]
-    pool = good or [k for k, s in enumerate(solves) if np.isfinite(s.value)] or [0]
-    best = min(pool, key=lambda k: solves[k].value if np.isfinite(solves[k].value) else np.inf)
-    sol, check, polished = solves[best], checks[best], None
-    one_solve = max_block is None or n <= max_block
-    if polish and criterion == "kpi" and one_solve and pools[best] is not None:
-        polished = polish_design(
-            setup,
-            sol,
-            check,
-            pool_q=pools[best].q,
-            pool_F=pools[best].F,
-            rounds=int(polish),
-            fixed_information=M_given,
+    run = _Run(
+        setup=setup,
+        objective=DesignObjective(problem, criterion, fixed_information=M_given),
+        n=n,
+        seed=int(seed),
+        given=given,
+        M_given=M_given,
+        blocks=None if max_block is None or n <= max_block else int(sweep_block),
+    )
+    methods = start_methods(start, starts, given=given, q0=q0)
+    runs = [_solve_from(run, k, m, q0=q0, approx=approx if k == 0 else None) for k, m in enumerate(methods)]
+    best = _best(runs)
+    polished = None
+    if polish and criterion == "kpi" and run.blocks is None and runs[best].pool is not None:
+        polished = _polish(run, runs[best], int(polish))
+    res = _result(
+        run, runs, best, polished, start="q0" if (best == 0 and q0 is not None) else start, base=base
+    )
+    return _finish(res, allow_infeasible)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """What every start of one :func:`optimize_design` call shares."""
+
+    setup: SolveSetup
+    objective: DesignObjective
+    n: int
+    seed: int
+    given: np.ndarray | None
+    M_given: np.ndarray | None  # the given poses' information F^T F
+    blocks: int | None  # poses per block of the sweeps; None: one solve over all poses
+
+
+@dataclasses.dataclass(frozen=True)
+class _Start:
+    """One start's solve: its outcome, the independent check, the criterion at its starting poses,
+    the approximate design its poses were rounded from (None: heuristic or q0) and its start time."""
+
+    sol: SolveOutcome
+    check: DesignCheck
+    initial: float
+    pool: ApproximateDesign | None
+    start_s: float
+
+
+def _solve_from(run: _Run, k: int, method: str, *, q0, approx) -> _Start:
+    """Start ``k`` (method ``method``): its poses, their criterion, the solve and the check."""
+    problem, pool, start_s = run.setup.problem, None, 0.0
+    if method == "q0":
+        q_start = q0
+    else:
+        t_start = time.perf_counter()
+        seed = run.seed if method == "given" else run.seed + k  # the certified design of ``seed``
+        q_start, pool = start_poses(
+            problem, method, n=run.n, seed=seed, collision=run.setup.collision, given=run.given, approx=approx
         )
-        sol, check = polished.sol, polished.check
+        start_s = time.perf_counter() - t_start
+    try:
+        initial = float(run.objective.value(q_start))
+    except np.linalg.LinAlgError:
+        initial = float("nan")
+    if run.blocks is not None:
+        sol = solve_blocks(
+            run.setup, q_start, block=run.blocks, seed=run.seed + k, fixed_information=run.M_given
+        )
+        check = check_design(problem, sol.q, collision=run.setup.collision)
+    else:
+        sol, check = solve_checked(run.setup, q_start, fixed_information=run.M_given)
+    return _Start(sol, check, initial, pool, start_s)
+
+
+def _best(runs: list[_Start]) -> int:
+    """The best start: the lowest value of the successful feasible ones, else of the finite ones."""
+    good = [k for k, r in enumerate(runs) if r.sol.success and r.check.n_infeasible == 0]
+    pool = good or [k for k, r in enumerate(runs) if np.isfinite(r.sol.value)] or [0]
+    return min(pool, key=lambda k: runs[k].sol.value if np.isfinite(runs[k].sol.value) else np.inf)
+
+
+def _polish(run: _Run, best: _Start, rounds: int) -> Polished:
+    """The final exchange on the exact criterion (:func:`~kpioed_drake.design.polish.polish_design`)
+    over the candidates of the best start's approximate design."""
+    return polish_design(
+        run.setup,
+        best.sol,
+        best.check,
+        pool_q=best.pool.q,
+        pool_F=best.pool.F,
+        rounds=rounds,
+        fixed_information=run.M_given,
+    )
+
+
+def _result(run: _Run, runs: list[_Start], best: int, polished: Polished | None, *, start: str, base: dict):
+    """The :class:`DesignResult` of the best start (polished where it was)."""
+    sol, check = (runs[best].sol, runs[best].check) if polished is None else (polished.sol, polished.check)
     reports, n_bad, n_col = check
-    crit = _criteria(problem, sol.q, given)
-    res = DesignResult(
+    crit = _criteria(run.setup.problem, sol.q, run.given)
+    return DesignResult(
         q=sol.q,
         value=sol.value,
-        solver=solver,
+        solver=run.setup.solver,
         status=sol.status,
         success=sol.success,
-        solve_s=float(sum(s.solve_s for s in solves)) + (polished.solve_s if polished else 0.0),
-        n_evals=int(sum(s.n_evals for s in solves)) + (polished.n_evals if polished else 0),
-        constraint_evals=int(sum(s.constraint_evals for s in solves)),
+        solve_s=float(sum(r.sol.solve_s for r in runs)) + (polished.solve_s if polished else 0.0),
+        n_evals=int(sum(r.sol.n_evals for r in runs)) + (polished.n_evals if polished else 0),
+        constraint_evals=int(sum(r.sol.constraint_evals for r in runs)),
         feasible=n_bad == 0,
         n_infeasible_poses=n_bad,
         n_colliding_poses=n_col,
         reports=[r.as_dict() for r in reports],
-        start_values=[s.value if s.success else float("nan") for s in solves],
-        initial_values=initial,
+        start_values=[r.sol.value if r.sol.success else float("nan") for r in runs],
+        initial_values=[r.initial for r in runs],
         best_start=best,
-        all_rows_retries=sum(s.all_rows_retries for s in solves),
+        all_rows_retries=sum(r.sol.all_rows_retries for r in runs),
         sweeps=sol.sweeps,
-        start="q0" if (best == 0 and q0 is not None) else start,
-        start_s=start_s,
+        start=start,
+        start_s=sum(r.start_s for r in runs),
         polish=None if polished is None else _polish_record(polished),
         **crit,
         **base,
     )
-    return _finish(res, allow_infeasible)
 
 
 def _polish_record(p) -> dict:
