@@ -149,42 +149,68 @@ def run_design(
     return res
 
 
-def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult, object]:
-    """The design of ``opts`` (a discrimination plan, a target-variance or a fixed-size design) and
-    its problem (a plan's, with the conditions it adds)."""
+def _common(problem, opts: DesignOptions, q_given) -> dict:
+    """The settings every mode passes on; for a certified fixed-size or target KPI design from the
+    approximate start, the certified approximate design to start from (the certificate's search,
+    paid once for the bound as well, starts the optimiser nearer the optimum: docs/design.md)."""
     common = dict(
         collision=opts.collision, solver=opts.solver, seed=opts.seed, starts=opts.starts, start=opts.start
     )
-    if opts.discriminate is not None:
-        conds = read_given_conditions(given, len(q_given)) if given is not None else None
-        return plan_design(
-            problem,
-            opts.discriminate,
-            n=opts.n,
-            given=q_given,
-            given_conditions=conds,
-            condition_span=opts.condition_span,
-            allow_infeasible=opts.allow_infeasible,
-            **common,
-        )
-    if opts.certified and q_given is None and opts.criterion == "kpi" and not problem.worst_case:
-        if resolve_start(opts.start, opts.criterion) == "approximate":  # the certificate's search, paid
-            # once for the bound as well, starts the optimiser nearer the optimum (docs/design.md)
+    if opts.discriminate is None and opts.certified and q_given is None and opts.criterion == "kpi":
+        if not problem.worst_case and resolve_start(opts.start, opts.criterion) == "approximate":
             common["approx"] = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
-    if opts.target_var_mm2 is None:
-        res = optimize_design(
-            problem,
-            n=opts.n,
-            allow_infeasible=opts.allow_infeasible,
-            given=q_given,
-            criterion=opts.criterion,
-            **common,
-        )
-    else:
-        res = design_for_target(
-            problem, opts.target_var_mm2, given=q_given, criterion=opts.criterion, **common
-        )
+    return common
+
+
+def _plan(problem, opts: DesignOptions, q_given, given, common: dict):
+    """A discrimination plan (poses and conditions that tell two explanations apart)."""
+    conds = read_given_conditions(given, len(q_given)) if given is not None else None
+    return plan_design(
+        problem,
+        opts.discriminate,
+        n=opts.n,
+        given=q_given,
+        given_conditions=conds,
+        condition_span=opts.condition_span,
+        allow_infeasible=opts.allow_infeasible,
+        **common,
+    )
+
+
+def _target(problem, opts: DesignOptions, q_given, given, common: dict):
+    """The fewest poses reaching the target tr(Cs)/3."""
+    res = design_for_target(problem, opts.target_var_mm2, given=q_given, criterion=opts.criterion, **common)
     return res, problem
+
+
+def _fixed(problem, opts: DesignOptions, q_given, given, common: dict):
+    """A design of ``opts.n`` poses."""
+    res = optimize_design(
+        problem,
+        n=opts.n,
+        allow_infeasible=opts.allow_infeasible,
+        given=q_given,
+        criterion=opts.criterion,
+        **common,
+    )
+    return res, problem
+
+
+MODES = {"discriminate": _plan, "target": _target, "fixed": _fixed}
+"""The modes of :func:`run_design`: a discrimination plan, the fewest poses for a target, n poses."""
+
+
+def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult, object]:
+    """The design of ``opts`` by its mode (:data:`MODES`) and its problem (a plan's, with the
+    conditions it adds)."""
+    mode = (
+        "discriminate"
+        if opts.discriminate is not None
+        else "fixed"
+        if opts.target_var_mm2 is None
+        else "target"
+    )
+    return MODES[mode](problem, opts, q_given, given, _common(problem, opts, q_given))
 
 
 def _write(res: DesignResult, problem, *, out, json_path, plot, html) -> None:
