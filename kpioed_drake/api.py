@@ -9,7 +9,7 @@
 | ``kpioed calibrate`` | :func:`calibrate` | :func:`kpioed_drake.calibration.calibrate_file` |
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
-| ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.run_study` |
+| ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.workflow.run_study` |
 | ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.next_file` |
 | ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.calibration.programs.compensate_file` |
 
