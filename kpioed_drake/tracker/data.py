@@ -401,3 +401,15 @@ def counted(data: Measurements) -> str:
     """``"30 poses"``, or ``"30 poses (90 rows, 3 targets)"`` with several targets per pose."""
     poses = n_poses(data)
     return f"{poses} poses" if poses == data.n else f"{poses} poses ({data.n} rows, {data.n_targets} targets)"
+
+
+def poses_and_rows(n_poses: int, n_rows: int) -> str:
+    """``"30 poses"``, or ``"30 poses (90 rows)"`` when the poses have several rows (their targets):
+    how every message counts measurements, so that rows are never called poses."""
+    return f"{n_poses} poses" if n_poses == n_rows else f"{n_poses} poses ({n_rows} rows)"
+
+
+def counted_rows(q) -> str:
+    """:func:`poses_and_rows` of the rows ``q`` (n, n_joints) (rows with equal values are one pose's)."""
+    q = np.asarray(q)
+    return poses_and_rows(int(len(np.unique(q, axis=0))) if len(q) else 0, len(q))
