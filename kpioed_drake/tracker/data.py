@@ -317,18 +317,18 @@ def _check_header(path: Path, header: list[str]) -> None:
 
 
 def check_pose_count(path, n: int, robot: Robot) -> None:
-    """Enough poses for the robot's estimated parameters (27 parameters: 9 poses).
+    """Enough rows (poses x targets) for the robot's estimated parameters (27 parameters: 9 rows).
 
     Raises:
-        InputError: naming the file, the poses and the parameters.
+        InputError: naming the file, the rows and the parameters.
     """
     n_free = parameter_layout(robot).n_free
     need = int(np.ceil(n_free / 3))
     if n < need:
         raise InputError(
-            f"{path}: {n} poses (data rows 2..{n + 1}) are too few: the {n_free} estimated "
-            f"parameters need at least {need} poses (3 coordinates each), and more than {need} for a "
-            "goodness-of-fit test; about 60 are usual"
+            f"{path}: {n} rows (data rows 2..{n + 1}) are too few: the {n_free} estimated "
+            f"parameters need at least {need} rows (poses x targets, 3 coordinates each), and more than "
+            f"{need} for a goodness-of-fit test; about 60 poses are usual"
         )
 
 
