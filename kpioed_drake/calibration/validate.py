@@ -413,7 +413,7 @@ def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:
     ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=title)
     ax1.legend()
     ax2.hist(e, bins=min(30, max(5, len(e) // 5)))
-    ax2.set(xlabel="3-D error [mm]", ylabel="poses")
+    ax2.set(xlabel="3-D error [mm]", ylabel="rows")
     fig.tight_layout()
     path = folder / "validation_errors.png"
     fig.savefig(path, dpi=110)
