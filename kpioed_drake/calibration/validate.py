@@ -214,7 +214,7 @@ class ValidationResult:
 
 
 def choose_method(robot: Robot, data: Measurements, tracker_frame: str | None) -> tuple[str, list[str]]:
-    """The tracker frame of a validation: ``tracker``, or by default ``kept`` where the model has a
+    """The tracker frame of a validation: ``tracker_frame``, or by default ``kept`` where the model has a
     tracker pose (or the data are in the base frame) and ``cross`` otherwise; and a note saying why
     when it was not given.
 
