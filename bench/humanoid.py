@@ -226,8 +226,9 @@ def measure(
     twin: bool = False,
 ) -> dict:
     """The stand-in's experiment: geometric calibration against ``diagnose --out``, both validated
-    on the held-out poses (``kpioed validate``, tracker re-registered); files in ``folder``. The
-    ``twin``: both hands at every pose, one calibration and one diagnosis of the 18 joints.
+    on the held-out poses (``kpioed validate``, tracker frame kept: the same simulated set-up);
+    files in ``folder``. The ``twin``: both hands at every pose, one calibration and one diagnosis
+    of the 18 joints.
 
     Returns:
         ``geometric_mm`` / ``extended_mm`` (held-out mean 3-D error; per hand for the twin:

@@ -24,6 +24,9 @@ Example::
     plan = api.design("kr16", discriminate="thermal_expansion|tracker_scale", given="first.csv", n=20,
                       condition_span="3K")                    # poses and their temperature
     print(plan.discrimination["plan"]["spans"], plan.plan_columns["temperature_offset_K"])
+    val = api.validate("kr16-cal.yaml", "fresh.csv")           # the calibration's tracker frame kept
+    moved = api.validate("kr16-cal.yaml", "other-day.csv", tracker_frame="cross")  # tracker moved
+    print(val.figures().mean_error_mm, moved.to_dict()["tracker"]["method"])
     comp = api.compensate("kr16-cal.yaml", program="program.csv", out="compensated.csv")
     print(comp.summary())                                     # rows reached, largest correction
 

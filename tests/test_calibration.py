@@ -347,7 +347,7 @@ def _bad_cases(robot, design):
         ),
         "too_few_rows": (
             _edit(good, lambda L: L.__delitem__(slice(9, None))),
-            ["8 poses", "at least 9 poses"],
+            ["8 rows", "at least 9 rows"],
         ),
         "empty_file": ("", ["empty"]),
         "header_only": (good.splitlines()[0] + "\n", ["no data rows"]),

@@ -231,7 +231,9 @@ def test_cli_round_trip_calibrate_out_validate_per_target(tmp_path, design, caps
     v = json.loads(val.read_text())
     assert v["n_poses"] == 30 and v["n_rows"] == 90 and [t["n_rows"] for t in v["targets"]] == [30, 30, 30]
     assert max(t["rms_mm"] for t in v["targets"]) < 2 * SIGMA
-    assert "target 3: 30 rows" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "held-out on 30 poses (90 rows), tracker frame kept" in out and "  target 3 (30 rows): RMS" in out
+    assert v["figures"]["n_poses"] == 30 and v["figures"]["n_rows"] == 90
 
 
 # --- bad input ----------------------------------------------------------------------------
@@ -505,9 +507,13 @@ def test_two_target_design_clears_every_beam(kr16):
 
 
 def test_calibration_summary_counts_rows_and_poses(three):
-    """Several targets: the summary says rows and poses (40 poses x 3 targets = 120 rows)."""
+    """Several targets: the summary and the JSON say poses and rows (40 poses x 3 targets = 120 rows)."""
     text = three[3].summary()
-    assert "120 rows (40 poses, 3 targets), 120 used" in text.splitlines()[0], text
+    assert "40 poses (120 rows, 3 targets), 120 rows used" in text.splitlines()[0], text
+    assert "fit on 40 poses (120 rows), tracker frame estimated in the fit:" in text, text
+    d = three[3].to_dict()
+    assert (d["n_poses"], d["n_rows"], d["n_used"]) == (40, 120, 120)
+    assert [t["n_rows"] for t in d["figures"]["fit"]["targets"]] == [40, 40, 40]
 
 
 def test_a_pose_whose_targets_agree_is_kept_one_whose_targets_disagree_is_removed(kr16, design):

@@ -35,7 +35,19 @@ def models(tmp_path_factory):
 def test_the_diagnosed_model_is_never_worse_than_the_geometric_one(models, held_out):
     geo, ext, report = models
     assert report.discrepancy  # 0.27 mm of non-geometric rest against 0.01 mm of noise
-    mean_geo = api.validate(str(geo), DATA / held_out).to_dict()["mean_error_mm"]
-    mean_ext = api.validate(str(ext), DATA / held_out).to_dict()["mean_error_mm"]
+    # the same session keeps the calibration's tracker frame; another session's is cross-registered
+    frame = {"test.csv": "kept", "test_b.csv": "cross"}[held_out]
+    mean_geo = api.validate(str(geo), DATA / held_out, tracker_frame=frame).to_dict()["mean_error_mm"]
+    mean_ext = api.validate(str(ext), DATA / held_out, tracker_frame=frame).to_dict()["mean_error_mm"]
     assert mean_ext <= mean_geo + 1e-6
     assert mean_geo < {"test.csv": 0.5, "test_b.csv": 0.9}[held_out]  # the data set's 0.44 and 0.85 mm
+
+
+def test_another_session_with_the_tracker_kept_is_flagged(models):
+    """test_b.csv is another session: kept, the calibration's tracker frame predicts 1.6 mm against
+    0.85 mm cross-registered, and the report says the tracker probably moved; test.csv (the same
+    session) is not flagged."""
+    geo = str(models[0])
+    other = api.validate(geo, DATA / "test_b.csv")
+    assert other.method == "kept" and any("the tracker has probably moved" in w for w in other.warnings)
+    assert not any("moved" in w for w in api.validate(geo, DATA / "test.csv").warnings)

@@ -1,5 +1,6 @@
-"""The effects of an extended calibration: parsed and sized for the robot and the data, and refused
-where the data do not vary what identifies them.
+"""The effects of an extended calibration: parsed and sized for the robot and the data, refused
+where the data do not vary what identifies them, and dropped (with a warning naming them and what
+they trade against) where the fit's Jacobian cannot tell them from the geometry or from each other.
 
 :func:`resolve_extension` is what :func:`kpioed_drake.calibration.fit.calibrate` runs on its
 ``effects``: texts (joints 1..n_joints of the robot) or effects, each resolved for the nominal
@@ -19,6 +20,7 @@ from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_all, size_on_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import Conditions, data_conditions
+from kpioed_drake.estimation.identifiability import trades_against, undetermined_parameters
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel
 
@@ -103,3 +105,65 @@ def _check_conditions(effects, data: Measurements, tau: np.ndarray) -> None:
             raise InputError(
                 f"{data.source}: {e.name} cannot be estimated: the time_s column is missing or constant"
             )
+
+
+@dataclasses.dataclass(frozen=True)
+class UndeterminedEffect:
+    """An effect the poses cannot determine beside the geometry and the effects kept before it.
+
+    Attributes:
+        effect: the effect.
+        partners: what it trades against (geometric parameters or effects, strongest first).
+        share: the share of its signature within their span (1: a combination of them).
+        silent: its columns are zero at these poses (it changes no measurement).
+    """
+
+    effect: fx.Effect
+    partners: tuple[str, ...]
+    share: float
+    silent: bool = False
+
+    def text(self) -> str:
+        if self.silent:
+            return f"{self.effect.name} (it changes no measurement at these poses)"
+        within = f"{100 * self.share:.1f} % of its signature lies within " if self.share < 0.9995 else ""
+        what = ", ".join(self.partners) or "its own columns (they do not separate from each other)"
+        return f"{self.effect.name} (it trades against {within}{what})"
+
+
+def undetermined_effects(J: np.ndarray, free_names, held, effects) -> list[UndeterminedEffect]:
+    """The effects a fit's weighted Jacobian does not determine beside the geometry.
+
+    The effects are taken in their order: each is tested (:func:`undetermined_parameters`, the
+    geometric parameters' test) with the geometric parameters not in ``held`` and the effects kept
+    before it; one that leaves any column undetermined is not determined: the geometry is the base
+    model, an effect it cannot tell from the geometry (or from an effect before it) adds nothing.
+
+    Args:
+        J: (3m, n_free + k) the fit's weighted Jacobian (geometric columns, then the effects').
+        free_names: (n_free,) the geometric parameters' names.
+        held: geometric names the geometric test holds (left out of the comparison).
+        effects: the fit's effects, in the order of their columns.
+
+    Returns:
+        One :class:`UndeterminedEffect` per effect not determined (empty: all determined).
+    """
+    n_free = len(free_names)
+    keep = [i for i, name in enumerate(free_names) if name not in set(held)]
+    owners = [free_names[i] for i in keep]
+    out, c = [], n_free
+    for e in effects:
+        cols = list(range(c, c + e.n_params))
+        c += e.n_params
+        norms = np.linalg.norm(J[:, cols], axis=0)
+        if np.all(norms <= 1e-9 * max(float(np.linalg.norm(J, axis=0).max(initial=0.0)), 1e-300)):
+            out.append(UndeterminedEffect(e, (), 1.0, silent=True))
+            continue
+        names = [*owners, *e.param_names]
+        if undetermined_parameters(J[:, keep + cols], names).names:
+            partners, share = trades_against(J[:, keep], owners, J[:, cols])
+            out.append(UndeterminedEffect(e, tuple(partners), share))
+            continue
+        keep += cols
+        owners += [e.name] * e.n_params
+    return out

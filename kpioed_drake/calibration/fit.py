@@ -22,7 +22,11 @@ column-scaled Jacobian and correlations above 0.999); the parameters these poses
 are held at nominal, with a warning naming them (``strict``: refused). After the fit the same test
 runs on the Jacobian at the estimated parameters (:func:`hold_at_solution`): what the nominal check
 missed (e.g. a reflector the data place on joint 6's axis, away from the nominal offset) is held at
-nominal the same way and the fit repeated.
+nominal the same way and the fit repeated. An extended fit's effects are tested there too, each
+beside the determined geometry and the effects before it
+(:func:`kpioed_drake.calibration.extended.undetermined_effects`): an effect the poses cannot tell from
+them is dropped from the model, with a warning naming it and what it trades against (``strict``:
+refused).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.calibration.common import CalibrationOptions, kpi_and_covariance, working_pose
-from kpioed_drake.calibration.extended import resolve_extension
+from kpioed_drake.calibration.extended import resolve_extension, undetermined_effects
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import (
     MIN_POSES_FOR_OUTLIER_TEST,
@@ -51,7 +55,7 @@ from kpioed_drake.estimation.plausibility import check_data, check_fitted
 from kpioed_drake.estimation.residuals import normalized_residuals
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.robot.parameters import parameter_layout
-from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.data import Measurements, counted_rows
 from kpioed_drake.tracker.measurement import (
     TrackerModel,
     hold_unused_targets,
@@ -93,12 +97,12 @@ def hold_undetermined(
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
         warnings.append(
-            f"these {data.n} poses barely separate "
+            f"these {counted_rows(data.q)} barely separate "
             + "; ".join(c.text() for c in loose)
             + ": estimated with the others rather than held at the tracker registration (which the "
             "robot's own errors bias)"
         )
-    return _hold(nominal, found, f"these {data.n} poses do not determine", data, strict, warnings)
+    return _hold(nominal, found, f"these {counted_rows(data.q)} do not determine", data, strict, warnings)
 
 
 def _hold(
@@ -158,7 +162,7 @@ def hold_at_solution(
     found = undetermined_parameters(res.J[:, : lay.n_free], lay.free_names)
     if not found.names:
         return None, ()
-    what = f"at the estimated parameters these {res.n_used} poses do not determine"
+    what = f"at the estimated parameters these {counted_rows(data.q[res.mask])} do not determine"
     model = _hold(res.model, found, what, data, strict, warnings, at_estimate=lay.tracker_names)
     idx = [lay.names.index(n) for n in found.names if n not in lay.tracker_names]
     p = model.p.copy()
@@ -240,7 +244,8 @@ def calibrate(
             ) from None
 
     res = fit(nominal, np.ones(n, dtype=bool), register=True, singular_ok=True)
-    res, at_solution = _determined_at_solution(res, nominal, data, strict, warnings, fit)
+    dropped: list[str] = []
+    res, at_solution = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
     screen = screen_outliers(
         res,
         data,
@@ -252,7 +257,7 @@ def calibrate(
     )
     res, outliers, normalized = screen.result, screen.outliers, screen.normalized
     if outliers:  # the final solution is tested too
-        res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit)
+        res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
         if more:
             at_solution += more
             normalized = normalized_residuals(res)
@@ -278,7 +283,11 @@ def calibrate(
         kpi_nominal=kpi_nom,
         warnings=warnings,
         robust=screen.to_dict(),
-        identifiability={"at_nominal": at_nominal, "at_solution": list(at_solution)},
+        identifiability={
+            "at_nominal": at_nominal,
+            "at_solution": list(at_solution),
+            "effects_dropped": dropped,
+        },
     )
     p = report.p_value
     if p is not None and p < 1e-3:
@@ -299,12 +308,22 @@ def calibrate(
     return report
 
 
-def _determined_at_solution(res, nominal, data, strict, warnings, fit):
-    """``res``, refitted (same poses) with what :func:`hold_at_solution` finds held, and the names.
+def _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped: list[str]):
+    """``res``, refitted (same rows) without the effects the poses do not determine beside the
+    geometry (:func:`~kpioed_drake.calibration.extended.undetermined_effects`, their names appended
+    to ``dropped``) and with what :func:`hold_at_solution` finds held; and the names held.
 
     Raises:
-        InputError: the information matrix is singular at the solution and nothing can be held.
+        InputError: with ``strict``, an effect or parameter not determined; the information matrix
+            is singular at the solution and nothing can be held.
     """
+    if res.effects:
+        lay = res.model.layout
+        geometric = undetermined_parameters(res.J[:, : lay.n_free], lay.free_names)
+        lost = undetermined_effects(res.J, lay.free_names, geometric.names, res.effects)
+        if lost:
+            res = _drop_effects(res, lost, data, strict, warnings, fit)
+            dropped += [u.effect.name for u in lost]
     model, names = hold_at_solution(res, nominal, data, strict, warnings)
     if model is not None:
         return fit(model, res.mask, start=res.effects), names
@@ -312,7 +331,26 @@ def _determined_at_solution(res, nominal, data, strict, warnings, fit):
         covariance(res.J)
     except np.linalg.LinAlgError:
         raise InputError(
-            f"{data.path}: the {res.n_used} poses do not determine the {res.n_params} parameters "
-            "(information matrix singular); use more or more varied poses"
+            f"{data.path}: the {counted_rows(data.q[res.mask])} do not determine the {res.n_params} "
+            "parameters (information matrix singular); use more or more varied poses"
         ) from None
     return res, ()
+
+
+def _drop_effects(res, lost, data, strict, warnings, fit):
+    """``res`` refitted without the effects ``lost``, with a warning naming each and what it trades
+    against; InputError with ``strict``."""
+    s = "s" if len(lost) > 1 else ""
+    what = f"these {counted_rows(data.q[res.mask])} do not determine the effect{s} " + "; ".join(
+        u.text() for u in lost
+    )
+    if strict:
+        raise InputError(
+            f"{data.path}: {what}; use poses that vary what the effect{s} depend{'' if s else 's'} on, "
+            "or leave it out; without strict undetermined effects are dropped from the model",
+            fields=("strict",),
+        )
+    warnings.append(f"{what}: dropped from the model (not estimated, not written to the model file)")
+    gone = {u.effect.name for u in lost}
+    kept = tuple(e for e in res.effects if e.name not in gone)
+    return fit(res.model, res.mask, start=kept, singular_ok=True)

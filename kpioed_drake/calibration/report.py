@@ -14,11 +14,12 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from scipy.stats import chi2 as chi2_dist
 
+from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import parameter_joint, parameter_layout
 from kpioed_drake.tracker.csvio import q_to_file
-from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements
+from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel
 
 N_CORRELATIONS = 10
@@ -99,6 +100,14 @@ class CalibrationReport:
     @property
     def max_residual_mm(self) -> float:
         return float(np.max(np.linalg.norm(self.result.residuals[self.used], axis=1)))
+
+    def figures(self) -> Figures:
+        """The accuracy figures of the fit (:func:`kpioed_drake.estimation.accuracy.accuracy`): the
+        used rows' residuals in W, the tracker frame estimated in the fit."""
+        used = self.used
+        target = None if self.data.target is None else self.data.target[used]
+        r_W = self.result.residuals[used] @ self.model.R_WT.T
+        return accuracy(r_W, self.data.q[used], kind="fit", tracker="fitted", target=target)
 
     @property
     def chi2(self) -> float:
@@ -248,8 +257,11 @@ class CalibrationReport:
         return {
             "robot": self.robot.name,
             "data": self.data.path,
-            "n_poses": self.data.n,
+            "n_poses": n_poses(self.data),
+            "n_rows": self.data.n,
             "n_used": int(np.count_nonzero(self.used)),
+            "counts_note": "n_poses: distinct poses (joint values); n_rows: rows, one per pose and target; "
+            "n_used: rows used in the fit; n_outliers and outlier_rows: rows",
             "sigma_mm": res.sigma,
             "q_work_deg": q_to_file(self.robot, self.q_work).tolist(),
             "converged": bool(res.converged),
@@ -258,6 +270,7 @@ class CalibrationReport:
             "rms_residual_mm": self.rms_residual_mm,
             "rms_residual_note": "root mean square over the coordinates of the used poses",
             "max_residual_mm": self.max_residual_mm,
+            "figures": {"fit": self.figures().to_dict()},
             "chi2": self.chi2,
             "dof": self.dof,
             "chi2_per_dof": self.chi2_per_dof,
@@ -304,8 +317,11 @@ class CalibrationReport:
             "identifiability": {
                 "at_nominal": list(self.identifiability.get("at_nominal", [])),
                 "at_solution": list(self.identifiability.get("at_solution", [])),
+                "effects_dropped": list(self.identifiability.get("effects_dropped", [])),
                 "note": "parameters held at nominal because these poses do not determine them: found on "
-                "the registered nominal model before the fit, and on the Jacobian at the estimate",
+                "the registered nominal model before the fit, and on the Jacobian at the estimate; "
+                "effects_dropped: effects of an extended fit these poses cannot tell from the geometry "
+                "or the effects before them (not estimated; the warnings say what each trades against)",
             },
             "robust": dict(self.robust),
             "effects": self.effect_table(),
@@ -318,16 +334,14 @@ class CalibrationReport:
     def summary(self) -> str:
         """A human-readable summary."""
         d = self
-        rows = f"{d.data.n} poses"
-        if d.data.n_targets > 1:  # a pose has one row per target (same joint angles)
-            rows = f"{d.data.n} rows ({len(np.unique(d.data.q, axis=0))} poses, {d.data.n_targets} targets)"
+        n_used = int(np.count_nonzero(d.used))
+        used = f"{n_used} used" if d.data.n == n_poses(d.data) else f"{n_used} rows used"
         model = f" + {', '.join(e.name for e in self.effects)}" if self.effects else ""
         lines = [
-            f"{d.robot.name}{model}: calibrated from {d.data.path}: {rows}, "
-            f"{int(np.count_nonzero(d.used))} used, {d.result.n_params} parameters, "
-            f"sigma {d.result.sigma:g} mm",
+            f"{d.robot.name}{model}: calibrated from {d.data.path}: {counted(d.data)}, "
+            f"{used}, {d.result.n_params} parameters, sigma {d.result.sigma:g} mm",
             f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",
-            f"  residuals: RMS {d.rms_residual_mm:.4f} mm per coordinate, max {d.max_residual_mm:.4f} mm",
+            *self.figures().lines(),
         ]
         if d.dof > 0:
             lines.append(f"  chi2/dof = {d.chi2_per_dof:.3f} (dof {d.dof}), p-value {d.p_value:.3g}")

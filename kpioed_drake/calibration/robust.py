@@ -173,7 +173,7 @@ def screen_outliers(
         if len(outliers) >= max_out:
             capped = True
             warnings.append(
-                f"outlier removal stopped after {len(outliers)} poses (cap {max_outlier_fraction:.0%} of the "
+                f"outlier removal stopped after {len(outliers)} rows (cap {max_outlier_fraction:.0%} of the "
                 f"data); row {int(data.rows[worst])} still fails the test at "
                 f"{res.sigma * np.sqrt(inflation):.3g} mm: the residuals suggest model discrepancy rather "
                 "than single bad points"
@@ -254,7 +254,7 @@ def _few_fail(t, mask, factor, res, data: Measurements, alpha: float, force: boo
     if n_fail <= MAX_OUTLIER_SHARE * n:
         return True
     message = (
-        f"{data.path}: {n_fail} of {n} poses fail the outlier test even at the residuals' own scale "
+        f"{data.path}: {n_fail} of {n} rows fail the outlier test even at the residuals' own scale "
         f"{res.sigma * np.sqrt(inflation):.3g} mm (sigma {res.sigma:g} mm): not single bad points but a "
         "heavy-tailed spread; the model misses an effect (run `kpioed diagnose`) or the file mixes data "
         "of different set-ups"

@@ -1,13 +1,26 @@
 """Validation of a model on fresh data: how well does it predict measurements it has not seen?
 
 ``kpioed validate --robot MODEL DATA.csv`` predicts every measured reflector position with the
-given model (its joint rows and reflector offset, paper eq. 3 ``h(p, q)``) and compares. Only the
-tracker frame is re-registered (a rigid 6-DoF fit, Kabsch/Umeyama:
-:func:`kpioed_drake.estimation.estimator.register_tracker`), because a tracker is set up anew for every
-measurement campaign; ``keep_tracker`` uses the model's tracker pose instead (a calibrated model
-file carries it). For data already in the base frame (``frame: base``) the registration estimates
-the small residual frame error; kept, the tracker frame is the robot file's (for a model
-calibrated on base-frame data: the frame error estimated then) or else the identity.
+given model (its joint rows and reflector offset, paper eq. 3 ``h(p, q)``) and compares. Nothing
+is fitted to the poses scored unless the result says so; the tracker frame (``tracker_frame``,
+:data:`METHODS`) is
+
+- ``kept``: the model's tracker pose, as a calibration estimated it (the model file's
+  ``tracker_position_mm``, ``tracker_rpy_deg``); for data in the base frame (``frame: base``) and a
+  model without one, the identity. The default where the model has a tracker pose or the data are in
+  the base frame: the data of the calibration's tracker set-up.
+- ``cross``: the tracker has moved (another session): cross-registered. The poses are split in two
+  halves (alternate poses in the order of the file, a pose's targets together), the tracker frame
+  registered (rigid, 6 DoF, Kabsch/Umeyama: :func:`kpioed_drake.estimation.estimator.register_tracker`)
+  on one half and the other half scored, then the halves swapped; the figures pool both halves'
+  out-of-sample errors. The default for a model without a tracker pose (a nominal model file):
+  keeping the cell file's nominal tracker pose would score the set-up, not the model, and is refused.
+- ``in-sample``: registered on the poses scored (6 parameters fitted to them): optimistic, labelled
+  so.
+
+With ``kept`` the errors are compared with the cross-registered ones as well: a kept frame that
+predicts much worse than one registered on other poses (:data:`MOVED_RATIO`) means the tracker moved
+(a warning).
 
 Several targets (a ``target`` column): each row is predicted with its target's offset from the
 model file (``targets_mm``); the report gives the errors per target as well.
@@ -15,10 +28,12 @@ model file (``targets_mm``); the report gives the errors per target as well.
 An extended model (a model file with ``effects:``) predicts with its effects: the per-pose
 conditions they need come from the data (``temperature_C`` for thermal expansion and tracker scale,
 ``time_s`` for tracker drift: an error names a missing column; ``payload_kg`` when given, else no
-payload), the tracker-frame prediction is taken to W with the model's tracker pose, then registered.
+payload), the tracker-frame prediction is taken to W with the model's tracker pose, then registered
+(when the method registers).
 
 Nothing robot-side is fitted, so the errors are prediction errors: for a nominal model they are its
 absolute accuracy (the "uncalibrated" error), for a calibrated one its accuracy after calibration.
+The figures are those of every report (:mod:`kpioed_drake.estimation.accuracy`).
 """
 
 from __future__ import annotations
@@ -32,7 +47,9 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import require
 from kpioed_drake.calibration.common import read_inputs
-from kpioed_drake.errors import InputError
+from kpioed_drake.calibration.robust import pose_groups
+from kpioed_drake.errors import InputError, param
+from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs, pyplot
@@ -42,6 +59,16 @@ from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflec
 
 _NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}
 """The data column an effect's prediction needs."""
+METHODS = {
+    "kept": "kept",
+    "cross": "cross-registered (2 halves)",
+    "in-sample": "registered in-sample",
+}
+"""The tracker frame of a validation (``tracker_frame``) -> the JSON's ``tracker.method``."""
+MOVED_RATIO = 1.5
+"""A kept tracker frame whose mean error exceeds this times the cross-registered one's is reported
+as moved (a warning): on the calibration's set-up the two agree (the public UR10 set's same session:
+0.442 and 0.440 mm), on another one they do not (its other session: 1.600 and 0.851 mm)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,27 +80,51 @@ class ValidationResult:
         model_source: the model file.
         data: the measurements.
         residuals_W: (n, 3) measured minus predicted reflector position, in W [mm].
-        R_WT: (3, 3) tracker orientation used (registered or kept).
-        p_WT: (3,) tracker position used [mm].
-        registered: True if the tracker frame was re-registered to these data.
+        method: the tracker frame, a key of :data:`METHODS`.
+        frames: the tracker frames used, ``(R_WT (3, 3), p_WT (3,) [mm])``: one (kept, in-sample),
+            or one per half (cross: the frame registered on the other half scores the half).
+        halves: (n,) the half (0, 1) of each row (cross), else None.
         effects: the names of the model's non-geometric effects it predicted with (empty: geometric).
-        warnings: the plausibility checks' remarks (``force`` turns a refusal into one).
+        warnings: the plausibility checks' remarks (``force`` turns a refusal into one), a moved tracker.
+        notes: why the method was chosen when it was not given.
     """
 
     robot: str
     model_source: str
     data: Measurements
     residuals_W: np.ndarray
-    R_WT: np.ndarray
-    p_WT: np.ndarray
-    registered: bool
+    method: str
+    frames: tuple[tuple[np.ndarray, np.ndarray], ...]
+    halves: np.ndarray | None = None
     effects: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+    @property
+    def registered(self) -> bool:
+        """The tracker frame was registered to the data (cross or in-sample), not kept."""
+        return self.method != "kept"
+
+    @property
+    def R_WT(self) -> np.ndarray:
+        """(3, 3) the tracker orientation used (cross: the one registered on the second half)."""
+        return self.frames[-1][0]
+
+    @property
+    def p_WT(self) -> np.ndarray:
+        """(3,) the tracker position used [mm] (cross: the one registered on the second half)."""
+        return self.frames[-1][1]
 
     @property
     def errors_mm(self) -> np.ndarray:
-        """(n,) 3-D prediction error of each pose [mm]."""
+        """(n,) 3-D prediction error of each row [mm]."""
         return np.linalg.norm(self.residuals_W, axis=1)
+
+    def figures(self) -> Figures:
+        """The accuracy figures (:func:`kpioed_drake.estimation.accuracy.accuracy`), held-out."""
+        return accuracy(
+            self.residuals_W, self.data.q, kind="held-out", tracker=self.method, target=self.data.target
+        )
 
     def per_target(self) -> list[dict]:
         """Errors of each target's rows (target numbers 1..T as in the file) [mm]."""
@@ -88,14 +139,39 @@ class ValidationResult:
                     "n_rows": int(np.count_nonzero(rows)),
                     "rms_mm": float(np.sqrt(np.mean(r**2))) if e.size else None,
                     "mean_error_mm": float(np.mean(e)) if e.size else None,
+                    "p95_error_mm": float(np.percentile(e, 95)) if e.size else None,
                     "max_error_mm": float(np.max(e)) if e.size else None,
                 }
             )
         return out
 
+    def tracker(self) -> dict:
+        """The JSON's ``tracker`` block: the method and the frames used (mm, deg)."""
+        frames = [
+            {
+                "p_WT_mm": p.tolist(),
+                "rpy_deg": np.rad2deg(RollPitchYaw(RotationMatrix(R)).vector()).tolist(),
+                **({"scores_half": k + 1, "registered_on_half": 2 - k} if self.method == "cross" else {}),
+            }
+            for k, (R, p) in enumerate(self.frames)
+        ]
+        return {
+            "method": METHODS[self.method],
+            "key": self.method,
+            "registered": self.registered,
+            "frames": frames,
+            "p_WT_mm": self.p_WT.tolist(),
+            "rpy_deg": frames[-1]["rpy_deg"],
+            "halves": None if self.halves is None else [int(h) + 1 for h in self.halves],
+            "note": "kept: the model's tracker frame (nothing fitted to these poses); cross-registered: "
+            "registered on one half of the poses (alternate poses, a pose's targets together) and "
+            "scored on the other, both ways; registered in-sample: fitted to the poses scored "
+            "(optimistic)",
+        }
+
     def to_dict(self) -> dict:
         """The JSON report (mm, deg)."""
-        e = self.errors_mm
+        fig = self.figures()
         return {
             "robot": self.robot,
             "model": self.model_source,
@@ -103,59 +179,106 @@ class ValidationResult:
             "frame": self.data.frame,
             "n_poses": n_poses(self.data),
             "n_rows": self.data.n,
-            "rms_mm": float(np.sqrt(np.mean(self.residuals_W**2))),
-            "rms_xyz_mm": np.sqrt(np.mean(self.residuals_W**2, axis=0)).tolist(),
-            "mean_error_mm": float(np.mean(e)),
-            "p95_error_mm": float(np.percentile(e, 95)),
-            "max_error_mm": float(np.max(e)),
-            "errors_mm": e.tolist(),
+            "rms_mm": fig.rms_mm,
+            "rms_xyz_mm": list(fig.rms_xyz_mm),
+            "mean_error_mm": fig.mean_error_mm,
+            "p95_error_mm": fig.p95_error_mm,
+            "max_error_mm": fig.max_error_mm,
+            "errors_mm": self.errors_mm.tolist(),
+            "figures": fig.to_dict(),
             "targets": self.per_target(),
             "rows": [int(r) for r in self.data.rows],
             "row_convention": ROW_CONVENTION,
             "residuals_W_mm": self.residuals_W.tolist(),
             "effects": list(self.effects),
             "warnings": list(self.warnings),
-            "tracker": {
-                "registered": self.registered,
-                "p_WT_mm": self.p_WT.tolist(),
-                "rpy_deg": np.rad2deg(RollPitchYaw(RotationMatrix(self.R_WT)).vector()).tolist(),
-            },
+            "notes": list(self.notes),
+            "tracker": self.tracker(),
             "note": "measured minus predicted reflector position in W; rms_mm over all coordinates, "
-            "rms_xyz_mm per axis; *_error_mm of the 3-D distance per pose; only the tracker frame "
-            "was fitted (rigid, 6 DoF) unless tracker.registered is false",
+            "rms_xyz_mm per axis; *_error_mm of the 3-D distance per row; nothing robot-side is fitted; "
+            "the tracker frame as tracker.method says",
         }
 
     def summary(self) -> str:
         """A human-readable summary."""
-        d = self.to_dict()
-        how = "re-registered (rigid, 6 DoF)" if self.registered else "kept from the model"
-        per_target = [
-            f"  target {t['target']}: {t['n_rows']} rows, mean {t['mean_error_mm']:.4f} mm, "
-            f"max {t['max_error_mm']:.4f} mm"
-            for t in d["targets"]
-            if self.data.n_targets > 1 and t["n_rows"]
-        ]
         return "\n".join(
             [
                 f"{self.robot}"
                 + (f" (with {', '.join(self.effects)})" if self.effects else "")
-                + f": validated on {self.data.path}: {counted(self.data)}, tracker frame {how}",
-                f"  3-D error: mean {d['mean_error_mm']:.4f} mm, 95 % {d['p95_error_mm']:.4f} mm, "
-                f"max {d['max_error_mm']:.4f} mm",
-                f"  RMS per coordinate {d['rms_mm']:.4f} mm (x, y, z: "
-                + ", ".join(f"{v:.4f}" for v in d["rms_xyz_mm"])
-                + ")",
-                *per_target,
+                + f": validated on {self.data.path}: {counted(self.data)}",
+                *self.figures().lines(),
+                *(f"  note: {n}" for n in self.notes),
                 *(f"  warning: {w}" for w in self.warnings),
             ]
         )
+
+
+def choose_method(robot: Robot, data: Measurements, tracker_frame: str | None) -> tuple[str, list[str]]:
+    """The tracker frame of a validation: ``tracker_frame``, or by default ``kept`` where the model has a
+    tracker pose (or the data are in the base frame) and ``cross`` otherwise; and a note saying why
+    when it was not given.
+
+    Raises:
+        InputError: ``kept`` for tracker-frame data with a model whose tracker pose was never
+            estimated (the cell file's nominal pose would score the set-up, not the model).
+    """
+    own = robot.X_WT is not None or data.frame == "base"
+    if tracker_frame is None:
+        if own:
+            return "kept", []
+        return "cross", [
+            f"{robot.source or robot.name} has no estimated tracker pose (tracker_position_mm), so the "
+            "tracker frame is cross-registered: registered on one half of the poses and scored on the "
+            f"other, both ways ({param('tracker_frame')} chooses)"
+        ]
+    if tracker_frame == "kept" and not own:
+        raise InputError(
+            f"{robot.source or robot.name}: tracker_frame kept, but the model file has no estimated "
+            "tracker pose (tracker_position_mm, tracker_rpy_deg; a calibrated model file has them): the "
+            "cell file's nominal tracker pose would score the set-up, not the model (errors of metres); "
+            "use tracker_frame 'cross' (registered on other poses than those scored) or validate a "
+            "calibrated model file",
+            fields=("tracker_frame",),
+        )
+    return tracker_frame, []
+
+
+def cross_residuals(p_W: np.ndarray, data: Measurements) -> tuple[np.ndarray, tuple, np.ndarray]:
+    """Residuals in W of every row with the tracker frame registered on the other half of the poses.
+
+    Halves: the poses in the order of appearance, alternately (pose 1, 3, 5, ... and 2, 4, 6, ...),
+    the rows of one pose's targets together.
+
+    Returns:
+        residuals (n, 3) [mm], frames ``((R, p) scoring half 1, (R, p) scoring half 2)``, halves (n,).
+
+    Raises:
+        InputError: a half with fewer than 3 points or collinear points.
+    """
+    halves = pose_groups(data) % 2
+    residuals = np.empty_like(p_W)
+    frames = []
+    for h in (0, 1):
+        test, train = halves == h, halves != h
+        try:
+            R, p = register_tracker(p_W[train], data.eta[train])
+        except InputError as exc:
+            raise InputError(
+                f"{data.path}: cross-registration of the tracker frame needs 3 or more non-collinear points "
+                f"in each half of the poses ({counted(data)}): {exc}",
+                fields=("tracker_frame",),
+            ) from None
+        residuals[test] = data.eta[test] @ R.T + p - p_W[test]
+        frames.append((R, p))
+    return residuals, tuple(frames), halves
 
 
 def validate(
     robot: Robot,
     data: Measurements,
     *,
-    keep_tracker: bool = False,
+    tracker_frame: str | None = None,
+    keep_tracker: bool | None = None,
     cell: Cell | None = None,
     force: bool = False,
 ) -> ValidationResult:
@@ -165,9 +288,10 @@ def validate(
         robot: the model (joint rows; reflector offset, further targets and tracker pose from
             the robot file when it has them, else from the cell file).
         data: the measurements (tracker or base frame).
-        keep_tracker: use the model's tracker pose instead of re-registering it to the data: the
-            robot file's (a calibrated model has one), else the identity for base-frame data,
-            else the cell file's.
+        tracker_frame: a key of :data:`METHODS` (``kept``, ``cross``, ``in-sample``);
+            None: ``kept`` where the model has a tracker pose or the data are in the base frame
+            (the identity without one), else ``cross``.
+        keep_tracker: True is ``tracker_frame="kept"``, False is ``tracker_frame="cross"``.
         cell: the measuring cell (default ``models/cell.yaml``).
         force: go on with implausible data, with a warning in the result.
 
@@ -175,32 +299,81 @@ def validate(
         :class:`ValidationResult`.
 
     Raises:
-        InputError: too few poses or collinear points (the tracker frame is undetermined), or
-            implausible data (:func:`kpioed_drake.estimation.plausibility.check_data`: other length units,
-            gross errors, another robot or a wrong joint map).
+        InputError: too few poses or collinear points (the tracker frame is undetermined), a kept
+            tracker pose never estimated, or implausible data
+            (:func:`kpioed_drake.estimation.plausibility.check_data`: other length units, gross
+            errors, another robot or a wrong joint map).
     """
+    method, notes = choose_method(robot, data, _method(tracker_frame, keep_tracker))
     model = nominal_model(robot, load_cell(robot=robot) if cell is None else cell)
     warnings = check_data(model, data, n_params=6, force=force)
     effects = fx.model_effects(robot)
     p_W = predicted_world(model, data, effects)
-    if keep_tracker and robot.X_WT is None and data.frame == "base":
-        R_WT, p_WT = np.eye(3), np.zeros(3)
-    elif keep_tracker:
-        R_WT, p_WT = model.R_WT, model.p_WT
+    halves = None
+    if method == "cross":
+        residuals, frames, halves = cross_residuals(p_W, data)
     else:
-        R_WT, p_WT = register_tracker(p_W, data.eta)
-    residuals = data.eta @ R_WT.T + p_WT - p_W
+        if method == "in-sample":
+            R_WT, p_WT = register_tracker(p_W, data.eta)
+        elif robot.X_WT is None and data.frame == "base":
+            R_WT, p_WT = np.eye(3), np.zeros(3)
+        else:
+            R_WT, p_WT = model.R_WT, model.p_WT
+        residuals, frames = data.eta @ R_WT.T + p_WT - p_W, ((R_WT, p_WT),)
+        if method == "kept":
+            warnings += _moved(residuals, p_W, data)
     return ValidationResult(
         robot=robot.name,
         model_source=robot.source,
         data=data,
         residuals_W=residuals,
-        R_WT=R_WT,
-        p_WT=p_WT,
-        registered=not keep_tracker,
+        method=method,
+        frames=frames,
+        halves=halves,
         effects=tuple(e.name for e in effects),
         warnings=tuple(warnings),
+        notes=tuple(notes),
     )
+
+
+def _method(tracker_frame, keep_tracker) -> str | None:
+    """``tracker_frame`` checked, with the older ``keep_tracker`` (True: kept, False: cross) folded in."""
+    require(
+        tracker_frame is None or tracker_frame in METHODS,
+        f"tracker_frame: expected one of {', '.join(METHODS)} (or None: the default), got {tracker_frame!r}",
+        fields=("tracker_frame",),
+    )
+    require(
+        keep_tracker is None or isinstance(keep_tracker, bool),
+        f"keep_tracker: expected True or False, got {keep_tracker!r}",
+        fields=("keep_tracker",),
+    )
+    if keep_tracker is None:
+        return tracker_frame
+    alias = "kept" if keep_tracker else "cross"
+    require(
+        tracker_frame in (None, alias),
+        f"keep_tracker {keep_tracker} and tracker_frame {tracker_frame!r} contradict each other; give one",
+        fields=("keep_tracker", "tracker_frame"),
+    )
+    return alias
+
+
+def _moved(residuals: np.ndarray, p_W: np.ndarray, data: Measurements) -> list[str]:
+    """A warning when the kept tracker frame predicts much worse than a cross-registered one (the
+    tracker moved since the calibration); none when it does not, or the halves are too small."""
+    try:
+        cross = cross_residuals(p_W, data)[0]
+    except InputError:
+        return []
+    kept_mean, cross_mean = np.linalg.norm(residuals, axis=1).mean(), np.linalg.norm(cross, axis=1).mean()
+    if kept_mean <= MOVED_RATIO * cross_mean:
+        return []
+    return [
+        f"the kept tracker frame predicts with a mean error of {kept_mean:.4g} mm, the tracker frame "
+        f"cross-registered on these poses with {cross_mean:.4g} mm: the tracker has probably moved since "
+        f"the calibration (another set-up); {param('tracker_frame')} 'cross' scores the model without it"
+    ]
 
 
 def predicted_world(model: TrackerModel, data: Measurements, effects=()) -> np.ndarray:
@@ -236,10 +409,11 @@ def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6))
     ax1.plot(result.data.rows, e, ".", ms=4)
     ax1.axhline(np.mean(e), color="k", lw=0.8, label=f"mean {np.mean(e):.3f} mm")
-    ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=f"{result.robot}: prediction error")
+    title = f"{result.robot}: prediction error, tracker frame {METHODS[result.method]}"
+    ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=title)
     ax1.legend()
     ax2.hist(e, bins=min(30, max(5, len(e) // 5)))
-    ax2.set(xlabel="3-D error [mm]", ylabel="poses")
+    ax2.set(xlabel="3-D error [mm]", ylabel="rows")
     fig.tight_layout()
     path = folder / "validation_errors.png"
     fig.savefig(path, dpi=110)
@@ -252,7 +426,8 @@ def validate_file(
     data_path: str | Path,
     *,
     data_format: str | Path | None = None,
-    keep_tracker: bool = False,
+    tracker_frame: str | None = None,
+    keep_tracker: bool | None = None,
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
     cell_path=None,
@@ -264,17 +439,23 @@ def validate_file(
         robot: model name or YAML path (e.g. the file ``kpioed calibrate --out`` wrote).
         data_path: the measurement file (SPEC layout, or another one with ``data_format``).
         data_format: format file of another layout (``docs/data-formats.md``).
-        keep_tracker: use the model's tracker pose instead of re-registering it.
+        tracker_frame: ``kept`` (the model's tracker frame), ``cross`` (the tracker moved: registered on
+            one half of the poses, scored on the other) or ``in-sample`` (registered on the poses
+            scored: optimistic); default ``kept`` where the model has an estimated tracker pose or
+            the data are in the base frame, else ``cross`` (:func:`validate`).
+        keep_tracker: True is ``tracker_frame="kept"``, False ``tracker_frame="cross"``.
         json_path: JSON report; plots_dir: folder for ``validation_errors.png``.
         cell_path: cell file (default ``models/cell.yaml``).
         force: go on with implausible data (a warning in the report).
     """
-    for name, flag in (("keep_tracker", keep_tracker), ("force", force)):
-        require(isinstance(flag, bool), f"{name}: expected True or False, got {flag!r}", fields=(name,))
+    require(isinstance(force, bool), f"force: expected True or False, got {force!r}", fields=("force",))
+    _method(tracker_frame, keep_tracker)
     rob, cell, data = read_inputs(
         robot, data_path, data_format, cell_path=cell_path, outputs=[json_path], folders=[plots_dir]
     )
-    result = validate(rob, data, keep_tracker=keep_tracker, cell=cell, force=force)
+    result = validate(
+        rob, data, tracker_frame=tracker_frame, keep_tracker=keep_tracker, cell=cell, force=force
+    )
     with Outputs() as staged:
         if json_path:
             staged.add_json(json_path, result.to_dict())

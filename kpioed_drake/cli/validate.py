@@ -12,16 +12,21 @@ API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 def register(sub) -> None:
     p = sub.add_parser(
         "validate",
-        help="predict fresh measurements with a model (only the tracker frame is re-registered)",
+        help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
     )
     add_robot(p)
     p.add_argument("data", metavar="DATA.csv", help="measurement file (SPEC format, or see --format)")
     add_format(p)
     p.add_argument(
-        "--keep-tracker",
-        action="store_true",
-        help="use the model's tracker pose instead of re-registering it to the data",
+        "--tracker-frame",
+        choices=("kept", "cross", "in-sample"),
+        default=None,
+        help="kept: the model's tracker frame (default for a calibrated model file); cross: the tracker "
+        "moved (another session): registered on one half of the poses, scored on the other, both ways "
+        "(default for a model without an estimated tracker pose); in-sample: registered on the poses "
+        "scored (optimistic)",
     )
+    p.add_argument("--keep-tracker", action="store_true", help="the same as --tracker-frame kept")
     p.add_argument(
         "--force", action="store_true", help="go on with implausible data (a warning instead of a refusal)"
     )
@@ -35,7 +40,8 @@ def run(args) -> int:
         args.robot,
         args.data,
         data_format=args.format,
-        keep_tracker=args.keep_tracker,
+        tracker_frame=args.tracker_frame,
+        keep_tracker=args.keep_tracker or None,
         force=args.force,
         json_path=json_file(args.json),
         plots_dir=args.plots,

@@ -40,6 +40,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration import kpi_and_covariance
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.records import Alternative, CandidateTest, Cause, PairTest, SelectionStep
+from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.tracker.csvio import jsonable, q_to_file
 from kpioed_drake.tracker.measurement import reflector_world
@@ -196,6 +197,10 @@ class DiagnosisReport:
             f"(ratio {self.gain['holdout_rms_ratio']:.3f}); chi2/dof {b['chi2_per_dof']:.3f} -> "
             f"{e['chi2_per_dof']:.3f}"
         )
+        models = (("geometric model", b), ("extended model", e)) if self.causes else (("geometric model", b),)
+        for name, fits in models:
+            for f in fits["figures"].values():
+                lines += Figures.from_dict(f, model=name).lines(indent="")
         if self.kpi:
             lines.append(
                 f"KPI (TCP at q_work): shift {self.kpi['tcp_shift_mm']:.4f} mm; tr(Cs)/3 "
@@ -308,8 +313,17 @@ def _alternative_lines(c: dict) -> list[str]:
 
 
 def fit_summary(fit: Fit, holdout: np.ndarray) -> dict:
-    """rms [mm], chi2, dof, chi2/dof, p-value, held-out rms [mm] and parameter count of a fit."""
+    """rms [mm], chi2, dof, chi2/dof, p-value, held-out rms [mm] and parameter count of a fit, and
+    the accuracy figures (:func:`kpioed_drake.estimation.accuracy.accuracy`) of its fit and of its
+    held-out residuals (in W with the fit's tracker orientation)."""
+    m, R = fit.mask, fit.model.R_WT
+    t = None if fit.conditions.target is None else fit.conditions.target[m]
+    figures = {
+        kind.replace("-", "_"): accuracy(r[m] @ R.T, fit.q[m], kind=kind, tracker=how, target=t).to_dict()
+        for kind, how, r in (("fit", "fitted", fit.residuals), ("held-out", "folds", holdout))
+    }
     return {
+        "figures": figures,
         "rms_mm": rms(fit.residuals),
         "chi2": fit.cost,
         "dof": fit.dof,

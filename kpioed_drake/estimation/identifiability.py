@@ -291,3 +291,38 @@ def projected_basis(Q: np.ndarray, C: np.ndarray) -> np.ndarray:
     Qc, sv, _ = np.linalg.svd(Cp, full_matrices=False)
     keep = sv > 1e-9 * max(sv.max(), 1e-300)
     return Qc[:, keep]
+
+
+def trades_against(J_kept: np.ndarray, owners, J_cand: np.ndarray, *, k: int = 3) -> tuple[list[str], float]:
+    """What candidate columns trade against among a model's columns (both weighted, (m, .)).
+
+    Each candidate column, scaled to unit length, is written as the least-squares combination of the
+    model's unit columns (minimum norm); the owners of the columns with the largest weights (the
+    largest over the candidate's columns, at least a tenth of the largest) are what the candidate
+    trades against: the data change them to mimic it.
+
+    Args:
+        J_kept: (m, p) the model's columns.
+        owners: (p,) who each column belongs to (a parameter name, or the effect a column is of);
+            columns of one owner count as one.
+        J_cand: (m, c) the candidate's columns.
+        k: most owners returned.
+
+    Returns:
+        (owners, share): the owners, largest weight first, and the share of the candidate's
+        signature within the model's span, ``1 - remaining^2`` of :func:`identifiability` (1: a
+        combination of the model's columns; a zero column counts as 1).
+    """
+    if J_kept.shape[1] == 0:
+        return [], 0.0
+    A = unit_columns(J_kept)
+    C = unit_columns(J_cand)
+    weights = np.abs(np.linalg.lstsq(A, C, rcond=None)[0]).max(axis=1)  # (p,)
+    best: dict[str, float] = {}
+    for owner, w in zip(owners, weights, strict=True):
+        best[owner] = max(best.get(owner, 0.0), float(w))
+    ranked = sorted(best.items(), key=lambda item: -item[1])
+    top = ranked[0][1] if ranked else 0.0
+    names = [o for o, w in ranked[:k] if top > 0 and w >= 0.1 * top]
+    remaining = identifiability(J_kept, J_cand)["remaining"]
+    return names, float(1.0 - remaining**2)

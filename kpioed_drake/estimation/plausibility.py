@@ -90,7 +90,7 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
     if 3 * n <= n_params:
         raise InputError(
             f"{where}: {n} rows give {3 * n} coordinates for {n_params} parameters: no degree of freedom "
-            f"is left to test the fit; at least {n_params // 3 + 1} poses are needed"
+            f"is left to test the fit; at least {n_params // 3 + 1} rows (poses x targets) are needed"
         )
     warnings: list[str] = []
     p_W = reflector_world(model, data.q, data.target)

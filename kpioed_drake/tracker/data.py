@@ -317,18 +317,18 @@ def _check_header(path: Path, header: list[str]) -> None:
 
 
 def check_pose_count(path, n: int, robot: Robot) -> None:
-    """Enough poses for the robot's estimated parameters (27 parameters: 9 poses).
+    """Enough rows (poses x targets) for the robot's estimated parameters (27 parameters: 9 rows).
 
     Raises:
-        InputError: naming the file, the poses and the parameters.
+        InputError: naming the file, the rows and the parameters.
     """
     n_free = parameter_layout(robot).n_free
     need = int(np.ceil(n_free / 3))
     if n < need:
         raise InputError(
-            f"{path}: {n} poses (data rows 2..{n + 1}) are too few: the {n_free} estimated "
-            f"parameters need at least {need} poses (3 coordinates each), and more than {need} for a "
-            "goodness-of-fit test; about 60 are usual"
+            f"{path}: {n} rows (data rows 2..{n + 1}) are too few: the {n_free} estimated "
+            f"parameters need at least {need} rows (poses x targets, 3 coordinates each), and more than "
+            f"{need} for a goodness-of-fit test; about 60 poses are usual"
         )
 
 
@@ -401,3 +401,15 @@ def counted(data: Measurements) -> str:
     """``"30 poses"``, or ``"30 poses (90 rows, 3 targets)"`` with several targets per pose."""
     poses = n_poses(data)
     return f"{poses} poses" if poses == data.n else f"{poses} poses ({data.n} rows, {data.n_targets} targets)"
+
+
+def poses_and_rows(n_poses: int, n_rows: int) -> str:
+    """``"30 poses"``, or ``"30 poses (90 rows)"`` when the poses have several rows (their targets):
+    how every message counts measurements, so that rows are never called poses."""
+    return f"{n_poses} poses" if n_poses == n_rows else f"{n_poses} poses ({n_rows} rows)"
+
+
+def counted_rows(q) -> str:
+    """:func:`poses_and_rows` of the rows ``q`` (n, n_joints) (rows with equal values are one pose's)."""
+    q = np.asarray(q)
+    return poses_and_rows(int(len(np.unique(q, axis=0))) if len(q) else 0, len(q))
