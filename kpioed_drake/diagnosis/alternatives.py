@@ -209,14 +209,20 @@ def judged(prob: FitProblem, fit: Fit, i: int) -> tuple[bool, str | None]:
 
 def basis_size(prob: FitProblem, fit: Fit, i: int, cov: np.ndarray) -> BasisSize | None:
     """How far the mass-free basis ``i`` of ``fit`` (covariance ``cov`` of its values) turns what its
-    joint carries: its largest displacement at the reflector over the reflector's distance from the
-    joint (poses at least 10 mm from it), a lower bound of the angle; None for a zero effect."""
-    e, q = fit.effects[i], prob.data.q
+    joint carries: the largest displacement at the reflector that no geometric parameter takes (its
+    signal beside the span of the geometric columns: a level the joint's offset or a frame's tilt
+    absorbs is no deflection the data show) over the reflector's distance from the joint (poses at
+    least 10 mm from it), a lower bound of the angle; None for a zero effect."""
+    e, q, n = fit.effects[i], prob.data.q, prob.data.n
     v = e.value_array()
     vv = float(v @ v)
     if vv == 0.0:
         return None
-    size = np.linalg.norm(prob.effect_signal(fit, i), axis=1)
+    _, H, E = prob.response(fit.model, fit.effects, np.arange(n))
+    Q = np.linalg.qr(H[:, :, fit.free].reshape(3 * n, -1))[0]
+    c = sum(x.n_params for x in fit.effects[:i])
+    sig = (E[:, :, c : c + e.n_params] @ v).reshape(-1)
+    size = np.linalg.norm((sig - Q @ (Q.T @ sig)).reshape(n, 3), axis=1)
     p_W = reflector_world(fit.model, q, prob.data.target)
     lever = np.linalg.norm(p_W - fit.model.frames(q).joint_points[:, e.joint - 1], axis=1)
     ratio = np.where(lever > 10.0, size / np.maximum(lever, 10.0), 0.0)

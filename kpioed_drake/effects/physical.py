@@ -30,9 +30,9 @@ Bounds (docs/diagnosis.md, "Plausibility"):
   against gravity);
 - the mass-free bases ``joint_elasticity_basis``, ``lateral_compliance_basis`` (their values are
   moments times a compliance, with no bound of their own): the rotation they cause
-  (:class:`BasisSize`: the largest displacement at the reflector over its distance from the joint,
-  a lower bound of the angle) at most the drive's ``elastic_deg`` (a twist about the axis) or
-  ``lateral_deg`` (a bearing's tilt).
+  (:class:`BasisSize`: the largest displacement at the reflector that no geometric parameter takes,
+  over its distance from the joint, a lower bound of the angle) at most the drive's ``elastic_deg``
+  (a twist about the axis) or ``lateral_deg`` (a bearing's tilt).
 """
 
 from __future__ import annotations
@@ -100,8 +100,8 @@ class BasisSize:
     """How far a mass-free basis turns what the joint carries, over the data's poses.
 
     Attributes:
-        angle: the largest displacement at the reflector over its distance from the joint's axis
-            point, a lower bound of the largest rotation [rad].
+        angle: the largest displacement at the reflector that the geometric parameters cannot take,
+            over its distance from the joint's axis point: a lower bound of the rotation [rad].
         relative_std: the standard deviation of the effect's size along its fitted values, relative
             to the size (``sqrt(v^T C v) / |v|^2``).
         max_mm: the largest displacement at the reflector [mm]; lever_mm: the reflector's distance
