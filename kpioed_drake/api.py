@@ -320,7 +320,7 @@ def diagnose(
     robot: str,
     data_path,
     *,
-    sigma_mm: float = 0.02,
+    sigma_mm: float | None = None,
     json_path=None,
     plots_dir=None,
     html=None,
@@ -334,7 +334,9 @@ def diagnose(
     Args:
         robot: model name or YAML path.
         data_path: the measurement CSV.
-        sigma_mm: the known noise standard deviation per coordinate [mm].
+        sigma_mm: the known noise standard deviation per coordinate [mm]; None: measured on repeated
+            poses, else the tracker's 0.02 mm, either checked against the residuals (the report's
+            ``noise``).
         json_path: JSON report to write.
         plots_dir: folder for the residual pictures (PNG).
         html: 3-D page (Meshcat) of the residuals before and after the named extension.

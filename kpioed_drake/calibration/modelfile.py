@@ -61,6 +61,7 @@ def _spec_from_robot(robot: Robot) -> RobotSpec:
         targets_mm=[] if robot.targets is None else robot.targets.tolist(),
         compliant_base=robot.compliant_base,
         rated_payload_kg=robot.rated_payload_kg or 0.0,
+        drives={str(i + 1): d for i, d in enumerate(robot.drives)},
     )
 
 

@@ -24,7 +24,7 @@ def register(sub) -> None:
         metavar="DATA.csv",
         help="measurements: q1_deg..q6_deg, x_mm, y_mm, z_mm [, temperature_C, time_s, payload_kg]",
     )
-    add_sigma(p, default=0.02)
+    add_sigma(p)  # None: measured on repeated poses or checked against the residuals
     p.add_argument(
         "--out",
         default=None,

@@ -58,10 +58,12 @@ from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
-from kpioed_drake.effects.physical import plausibility
+from kpioed_drake.effects.physical import BasisSize, plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
+from kpioed_drake.robot.drivetrain import follower_factor
 from kpioed_drake.robot.models import Robot
+from kpioed_drake.tracker.measurement import reflector_world
 
 REFIT_MARGIN = 2
 """Candidates refitted beyond the alternatives a cause lists (:data:`MAX_ALTERNATIVES`), by score."""
@@ -191,12 +193,47 @@ def _swap_evidence(prob: FitProblem, f0: Fit, b, fb: Fit, ev: dict, hold, m: int
 
 def _plausible(prob: FitProblem, b, fb: Fit) -> bool:
     """Whether the value of B (the last effect of ``fb``) is physically plausible."""
-    return plausibility(b, _last_std(fb, b), tau=prob.tau, time_s=prob.data.time_s)[0]
+    return judged(prob, fb, len(fb.effects) - 1)[0]
 
 
-def _last_std(fit: Fit, e) -> np.ndarray:
-    """Standard deviations of the values of ``e``, the last effect of ``fit`` (internal units)."""
-    return np.sqrt(np.clip(np.diag(fit.Cp), 0, None))[fit.layout.effects][-e.n_params :]
+def judged(prob: FitProblem, fit: Fit, i: int) -> tuple[bool, str | None]:
+    """:func:`~kpioed_drake.effects.physical.plausibility` of effect ``i`` of ``fit``: the bounds of
+    its joint's drive, a mass-free basis by the rotation it causes (:func:`basis_size`)."""
+    e = fit.effects[i]
+    c = fit.layout.effects.start + sum(x.n_params for x in fit.effects[:i])
+    cov = fit.Cp[c : c + e.n_params, c : c + e.n_params]
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    size = basis_size(prob, fit, i, cov) if e.family in (gb.FAMILY, lb.FAMILY) else None
+    return plausibility(e, std, tau=prob.tau, time_s=prob.data.time_s, robot=prob.robot, size=size)
+
+
+def basis_size(prob: FitProblem, fit: Fit, i: int, cov: np.ndarray) -> BasisSize | None:
+    """How far the mass-free basis ``i`` of ``fit`` (covariance ``cov`` of its values) turns what its
+    joint carries: the largest displacement at the reflector that no geometric parameter takes (its
+    signal beside the span of the geometric columns: a level the joint's offset or a frame's tilt
+    absorbs is no deflection the data show) over the reflector's distance from the joint (poses at
+    least 10 mm from it), a lower bound of the angle; None for a zero effect."""
+    e, q, n = fit.effects[i], prob.data.q, prob.data.n
+    v = e.value_array()
+    vv = float(v @ v)
+    if vv == 0.0:
+        return None
+    _, H, E = prob.response(fit.model, fit.effects, np.arange(n))
+    Q = np.linalg.qr(H[:, :, fit.free].reshape(3 * n, -1))[0]
+    c = sum(x.n_params for x in fit.effects[:i])
+    sig = (E[:, :, c : c + e.n_params] @ v).reshape(-1)
+    size = np.linalg.norm((sig - Q @ (Q.T @ sig)).reshape(n, 3), axis=1)
+    p_W = reflector_world(fit.model, q, prob.data.target)
+    lever = np.linalg.norm(p_W - fit.model.frames(q).joint_points[:, e.joint - 1], axis=1)
+    ratio = np.where(lever > 10.0, size / np.maximum(lever, 10.0), 0.0)
+    k = int(np.argmax(ratio))
+    return BasisSize(
+        angle=float(ratio[k]),
+        relative_std=float(np.sqrt(max(float(v @ cov @ v), 0.0)) / vv),
+        max_mm=float(size[k]),
+        lever_mm=float(lever[k]),
+        reach_mm=float(prob.robot.reach),
+    )
 
 
 def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: int) -> Selection:
@@ -245,6 +282,36 @@ def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selecti
     return sel, out
 
 
+def replace_implausible(sel: Selection, causes, settled: dict, pool, *, alpha: float, k_folds: int):
+    """Each named cause whose value is implausible replaced by the effect it stands for: its best
+    plausible alternative that explains the data as well (not a nested one), recorded as a swap
+    step; then :func:`settle` again. A cause without such an alternative stays (the report says so).
+
+    Returns:
+        (selection, settled, notes): the selection after the replacements, :func:`settle`'s
+        ``settled`` of it and one note per replacement.
+    """
+    notes = []
+    for c in causes:
+        if c.plausible or c.effect.name not in {e.name for e in sel.fit.effects}:
+            continue
+        f0, found = settled[c.effect.name]
+        ok = {a.effect.name for a in c.alternatives if a.plausible and not a.evidence.get("nested")}
+        best = next(((b, fb, ev) for b, fb, ev in found if b.name in ok), None)
+        if best is None:
+            continue
+        a = next(e for e in sel.fit.effects if e.name == c.effect.name)
+        sel = _swap(sel, a, f0, *best, pool, k_folds=k_folds)
+        notes.append(
+            f"{a.name} is implausible ({c.plausible_reason}); replaced by {best[0].name}, which explains the "
+            f"data as well (LR {best[2]['lr_stat']:.1f} against {best[2]['lr_stat_cause']:.1f}) with a "
+            "plausible value: the effect it stood in for"
+        )
+    if notes:
+        sel, settled = settle(sel, pool, alpha=alpha, k_folds=k_folds)
+    return sel, settled, notes
+
+
 def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
     """The effects of the extended model as causes: values and standard deviations (display units),
     the evidence (the step's statistics, the final LR given all other effects, the size at the
@@ -266,9 +333,9 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
         }
         alts = []
         for b, fb, ev_b in found:
-            ok, why = plausibility(b, _last_std(fb, b), tau=prob.tau, time_s=prob.data.time_s)
+            ok, why = judged(prob, fb, len(fb.effects) - 1)
             alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
-        ok, why = plausibility(e, e_std, tau=prob.tau, time_s=prob.data.time_s)
+        ok, why = judged(prob, ext, i)
         out.append(
             Cause(
                 effect=e,
@@ -346,6 +413,12 @@ def describe(effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...]
     out = {"median_mm": med, "max_mm": top}
     j = effect.joint
     what = _WHAT.get(effect.family, effect.family).format(j=j, h=effect.harmonic, c=effect.coupled)
+    factor = follower_factor(robot, j, effect.coupled) if effect.family == "joint_coupling" else None
+    if factor is not None:
+        what = (
+            f"joint {j} follows joint {effect.coupled} by a ratio other than the joint map's factor "
+            f"({factor:g} in size): the coupling's mechanism"
+        )
     where = ""
     if j is not None and 1 <= j <= robot.n_joints:
         links = child_links(robot) if links is None else links

@@ -28,10 +28,9 @@ NESTED_SHARE = 1.0 / 3.0
 """... and at most this share of what it keeps outside the span of the other causes (the cause holds it)."""
 MAX_ALTERNATIVES = 3
 """Most competing explanations listed per cause."""
-COUPLING_PAIRS = ((3, 2), (5, 4), (6, 4), (6, 5))
-"""(i, j) of the ``joint_coupling:i:j`` candidates: joint i errs with the angle of a joint j whose axis
-its drive train crosses (joint 3's drive through joint 2 on parallelogram arms; the wrist drives of
-joints 5 and 6 through joint 4, and of joint 6 through joint 5)."""
+DEFAULT_SIGMA_MM = 0.02
+"""The tracker's noise per coordinate [mm]: the sigma when none is given and the data repeat no pose
+(checked against the residuals, :mod:`kpioed_drake.estimation.noise`)."""
 BACKLASH_MIN_SIDE = 3
 """Poses a backlash candidate needs on each side of the gravity torque (as ``calibrate --extend``)."""
 PAIR_CORRELATION = 0.5
@@ -48,9 +47,11 @@ class DiagnosisOptions:
     """The settings of one diagnosis (:func:`~kpioed_drake.diagnosis.diagnose`); read from YAML
     with :func:`load_options`."""
 
-    sigma_mm: float = 0.02
-    """The known noise standard deviation per coordinate [mm]: the goodness-of-fit test and every
-    likelihood ratio are taken against it."""
+    sigma_mm: float | None = None
+    """The known noise standard deviation per coordinate [mm]; None: measured on the data's repeated
+    poses, else :data:`DEFAULT_SIGMA_MM`. The goodness-of-fit test and every likelihood ratio are
+    taken against it, unless the residuals of the model with every candidate lie far above it
+    (:mod:`kpioed_drake.estimation.noise`; the report's ``noise`` says which sigma and why)."""
     alpha: float = ALPHA
     """Level of the goodness-of-fit test and family-wise level of each selection step."""
     k_folds: int = K_FOLDS

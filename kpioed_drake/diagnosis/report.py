@@ -58,7 +58,7 @@ class DiagnosisReport:
         robot: robot name.
         n_poses: poses in the data (distinct joint values).
         n_rows: measured points (several per pose with several targets).
-        sigma_mm: the known noise per coordinate [mm].
+        sigma_mm: the noise per coordinate every test rests on [mm].
         discrepancy: the geometric model does not explain the data, or a cause was named.
         test: the goodness-of-fit test of the geometric model (chi2, dof, p_value, alpha, rejects).
         cause_records: the named effects with values, standard deviations, evidence and alternatives
@@ -76,6 +76,7 @@ class DiagnosisReport:
         joint_names: the robot's joint names (reports name a cause's joint by them, index second).
         selection_stop: why the selection of effects stopped, ``{"reason", "text"}``
             (:data:`~kpioed_drake.diagnosis.fit.STOPS`).
+        noise: which sigma and where it comes from (:class:`~kpioed_drake.estimation.noise.Noise`).
     """
 
     robot: str
@@ -96,6 +97,7 @@ class DiagnosisReport:
     unexplained: dict | None = None
     joint_names: tuple[str, ...] = ()
     selection_stop: dict | None = None
+    noise: dict | None = None
 
     @functools.cached_property
     def causes(self) -> list[dict]:
@@ -130,6 +132,7 @@ class DiagnosisReport:
                 "n_poses": self.n_poses,
                 "n_rows": self.n_rows,
                 "sigma_mm": self.sigma_mm,
+                "noise": self.noise,
                 "discrepancy": self.discrepancy,
                 "test": self.test,
                 "causes": self.causes,
@@ -151,10 +154,13 @@ class DiagnosisReport:
         lines = [
             f"{self.robot}: {self.n_poses} poses"
             + (f" ({self.n_rows} rows)" if self.n_rows != self.n_poses else "")
-            + f", sigma {self.sigma_mm:g} mm",
+            + f", sigma {self.sigma_mm:.3g} mm"
+            + (f" ({self.noise['source']})" if self.noise else ""),
             f"geometric model: chi2/dof {t['chi2_per_dof']:.3f} (dof {t['dof']}, p = {t['p_value']:.3g})"
             f" -> {'DISCREPANCY' if self.discrepancy else 'explains the data to the noise level'}",
         ]
+        if self.noise and self.noise["source"] == "residuals":
+            lines.append(f"  noise: {self.noise['text']}")
         for c in self.causes:
             v, s = c["value"], c["std"]
             if isinstance(v, list):

@@ -1,10 +1,10 @@
 """Naming the cause: candidate effects, their identifiability, score tests and stepwise selection.
 
-- :func:`candidate_effects`: joint elasticity of the joints gravity loads (2..6 of a floor-mounted
-  six-joint robot), gear errors of every joint with n in {1, 2}, gear-ratio errors (joint scale)
-  of every joint, the couplings of :data:`~kpioed_drake.diagnosis.common.COUPLING_PAIRS`, backlash
-  of the joints whose gravity torque takes both signs, thermal expansion and tracker scale if the
-  temperature varies, tracker drift if the time does.
+- :func:`candidate_effects`: joint elasticity of the joints gravity loads, gear errors (n in {1, 2})
+  and gear-ratio errors of every joint, the couplings of the robot's structure (joint-map followers
+  and their leaders, each branch's drive trains: :func:`~kpioed_drake.robot.drivetrain.coupling_pairs`),
+  backlash of the joints whose gravity torque takes both signs, thermal expansion and tracker scale
+  if the temperature varies, tracker drift if the time does.
 - :func:`identifiability`: the fraction of a candidate's columns outside the span of the current
   model's columns (``remaining``; 1 = orthogonal, 0 = absorbed) and the largest canonical
   correlation with them.
@@ -28,7 +28,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, COUPLING_PAIRS, MIN_REMAINING, PAIR_ALPHA_SHARE
+from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, MIN_REMAINING, PAIR_ALPHA_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain, held_out_gain, pose_groups, stop_reason
 from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
@@ -39,6 +39,7 @@ from kpioed_drake.effects.compliance import candidates as compliance_candidates
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, model_factors, projected_basis
 from kpioed_drake.estimation.multiplicity import adjusted_p, critical_p, min_p_null, normalized
+from kpioed_drake.robot.drivetrain import coupling_pairs
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.data import Measurements
 
@@ -91,7 +92,7 @@ def candidate_effects(
     )
     cands += [fx.Effect("gear_cyclic", j, n) for j in range(1, nj + 1) for n in (1, 2)]
     cands += [fx.Effect("joint_scale", j) for j in range(1, nj + 1)]
-    cands += [fx.Effect("joint_coupling", i, coupled=j) for i, j in COUPLING_PAIRS if max(i, j) <= nj]
+    cands += [fx.Effect("joint_coupling", i, coupled=j) for i, j in coupling_pairs(robot or None, nj)]
     one_sided = []
     for j in np.flatnonzero(loaded) + 1:
         side = np.sign(tau[:, j - 1]) if tau is not None else np.zeros(1)

@@ -20,6 +20,7 @@ Four steps on laser-tracker data (SPEC "Measured data and model discrepancy"; do
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -30,17 +31,23 @@ from kpioed_drake.calibration import calibrate, hold_undetermined
 from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
-from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, settle
-from kpioed_drake.diagnosis.common import DiagnosisOptions
-from kpioed_drake.diagnosis.elastic_basis import basis_alternatives, reduce_absorbed, upgrade_elasticity
+from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, replace_implausible, settle
+from kpioed_drake.diagnosis.common import DEFAULT_SIGMA_MM, DiagnosisOptions
+from kpioed_drake.diagnosis.elastic_basis import (
+    basis_alternatives,
+    basis_for,
+    reduce_absorbed,
+    upgrade_elasticity,
+)
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.records import Selection
-from kpioed_drake.diagnosis.selection import candidate_effects, score_tests, select_effects
+from kpioed_drake.diagnosis.selection import candidate_effects, columns, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns, with_expected_sides
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.errors import InputError, check_sigma
+from kpioed_drake.estimation import noise as ns
 from kpioed_drake.estimation.estimator import covariance
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.outputs import Outputs
@@ -63,13 +70,13 @@ def _problem(robot, data, sigma_mm: float, k_folds: int, cell) -> FitProblem:
 
 
 def _prepared(
-    robot: Robot, data: Measurements, opts: DiagnosisOptions, cell
+    robot: Robot, data: Measurements, opts: DiagnosisOptions, cell, sigma: float
 ) -> tuple[FitProblem, list, list, tuple]:
     """The fit problem as calibrate's (parameters these poses do not determine held at nominal,
     with a note), every backlash on its expected side (where the file's masses leave it uncertain),
     the candidates with the notes so far and the joints whose gravity basis is sized on the data's
     poses (:func:`~kpioed_drake.effects.gravity_basis.size_on_poses`)."""
-    prob = _problem(robot, data, opts.sigma_mm, opts.k_folds, cell)
+    prob = _problem(robot, data, sigma, opts.k_folds, cell)
     warnings = check_data(prob.nominal, data, n_params=prob.nominal.layout.n_free, force=opts.force)
     prob = with_expected_sides(prob.with_nominal(hold_undetermined(prob.nominal, data, False, warnings)))
     sized, resized = gb.size_on_poses(prob.robot, data.q)
@@ -108,6 +115,21 @@ def _baseline(prob: FitProblem, k_folds: int) -> tuple[Fit, np.ndarray]:
     return base, prob.holdout(base, k=k_folds)
 
 
+def _noise(prob: FitProblem, base: Fit, cands, stated: tuple[float, str], repeats) -> ns.Noise:
+    """The noise the tests rest on (:mod:`~kpioed_drake.estimation.noise`): the stated sigma, checked
+    against the robust scale of the residuals beside the geometry, every candidate and the gravity
+    basis of every joint gravity can load (the most the selection and the upgrades could name)."""
+    have = {e.name for e in cands}
+    bases = [
+        basis_for(prob, j)
+        for j in range(1, prob.robot.n_joints + 1)
+        if gb.joint_basis(prob.robot, j).rank > 0 and f"{gb.FAMILY}:{j}" not in have
+    ]
+    Jm, cols = columns(prob, base, [*cands, *bases])
+    scale, dof = ns.residual_scale(base.residuals, np.concatenate([Jm, *cols], axis=1))
+    return ns.choose(*stated, scale, dof, repeats)
+
+
 def _gof_test(base: Fit, alpha: float) -> dict:
     p_gof = float(scipy.stats.chi2.sf(base.cost, base.dof))
     return {
@@ -121,10 +143,15 @@ def _gof_test(base: Fit, alpha: float) -> dict:
 
 
 def _closing_notes(sel: Selection, test: dict, causes, extended: dict, alpha: float) -> list[str]:
-    """The notes on the stand-ins left unnamed, a discrepancy without a cause and a poor final fit."""
+    """The notes on the stand-ins left unnamed (not those a later step named after all: their note
+    says so), a discrepancy without a cause and a poor final fit."""
+    named = {c.effect.name for c in causes}
     notes = [
         f"{si.name} is significant (LR {si.lr_stat:.1f}) but not named: it {si.reason} "
         "(a stand-in for the unexplained rest)"
+        if si.name not in named
+        else f"{si.name} first looked like a stand-in (LR {si.lr_stat:.1f}: it {si.reason}); a later step "
+        "named it as a cause"
         for si in sel.stand_ins
     ]
     if test["rejects"] and not causes:
@@ -159,11 +186,17 @@ def diagnose(
     alpha, k_folds = opts.alpha, opts.k_folds
     data = as_measurements(data, robot)
     data.check()
-    prob, cands, notes, resized = _prepared(robot, data, opts, cell)
+    repeats = ns.repeat_scatter(data.q, data.eta, data.target)
+    stated = ns.stated(opts.sigma_mm, repeats, DEFAULT_SIGMA_MM)
+    prob, cands, notes, resized = _prepared(robot, data, opts, cell, stated[0])
     sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
     base, base_hold = _baseline(prob, k_folds)
     prob, cands, more = reduce_absorbed(prob, base, cands, resized)
     notes += more
+    noise = _noise(prob, base, cands, stated, repeats)
+    if noise.sigma_mm != prob.sigma:  # the tests rest on the residuals' scale
+        prob = dataclasses.replace(prob, sigma=noise.sigma_mm)
+        base, base_hold = _baseline(prob, k_folds)
     test = _gof_test(base, alpha)
     structure = score_tests(prob, base, cands)
     sel = select_effects(
@@ -179,6 +212,10 @@ def diagnose(
     sel, basis_notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
     sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
     causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    sel, settled, replaced = replace_implausible(sel, causes, settled, cands, alpha=alpha, k_folds=k_folds)
+    if replaced:
+        causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    basis_notes += replaced + _implausible_notes(causes)
     causes = describe_causes(causes, robot, sel.problem, sel.fit)
     final = sel.problem
     baseline = rp.fit_summary(base, base_hold)
@@ -189,6 +226,7 @@ def diagnose(
         n_poses=n_poses(data),
         n_rows=data.n,
         sigma_mm=final.sigma,
+        noise=noise.as_dict(),
         discrepancy=bool(test["rejects"] or causes),
         test=test,
         cause_records=causes,
@@ -239,7 +277,7 @@ def diagnose_file(
             the geometric model when none is named): a YAML file, a URDF robot's ``.urdf``.
     """
     opts = DiagnosisOptions() if options is None else options
-    check_sigma(opts.sigma_mm)
+    check_sigma(opts.sigma_mm, allow_none=True)
     rob, cell, data = read_inputs(
         robot, data_path, data_format, model_out=out, outputs=[json_path], folders=[plots_dir], html=html
     )
@@ -271,25 +309,36 @@ def diagnose_file(
 def extended_calibration(
     robot: Robot, data: Measurements, report: rp.DiagnosisReport, opts: DiagnosisOptions
 ):
-    """The calibration of the diagnosed extended model: the geometry with the plausible named causes
-    (started from their fitted values), as ``calibrate`` with ``effects`` runs it; a cause the
-    report flags implausible (a stand-in, :mod:`kpioed_drake.effects.physical`) is left out, with a
-    note in ``report``."""
-    keep = [c.effect for c in report.cause_records if c.plausible]
+    """The calibration of the diagnosed extended model: the geometry with the named causes (started
+    from their fitted values), as ``calibrate`` with ``effects`` runs it, at the sigma the diagnosis
+    rested on: the model the report's figures describe. A cause flagged implausible that no plausible
+    alternative could replace (:func:`~kpioed_drake.diagnosis.alternatives.replace_implausible`) is
+    written too (it predicts fresh poses better), with a note in ``report``."""
+    keep = [c.effect for c in report.cause_records]
     keep += [e for e in fx.model_effects(robot) if e.key not in {k.key for k in keep}]  # the file's stay
     for c in report.cause_records:
         if not c.plausible:
             report.notes.append(
-                f"out: {c.effect.name} is not written into the model: its value is implausible "
-                f"({c.plausible_reason}); it stands in for something else"
+                f"out: {c.effect.name} is written although its value is implausible ({c.plausible_reason}); "
+                "it predicts fresh poses better, as a stand-in for an effect with its signature"
             )
     robot = report.details["prob"].robot  # with the gravity bases sized on these poses
     cal = calibrate(
-        robot, data, CalibrationOptions(sigma_mm=opts.sigma_mm, effects=tuple(keep), force=opts.force)
+        robot, data, CalibrationOptions(sigma_mm=report.sigma_mm, effects=tuple(keep), force=opts.force)
     )
     names = ", ".join(e.name for e in keep) or "no effect (the geometric model)"
     report.notes.append(f"out: the model written is the geometry calibrated with {names}")
     return cal
+
+
+def _implausible_notes(causes) -> list[str]:
+    """A note per cause whose value is implausible and that no plausible alternative replaced."""
+    return [
+        f"{c.effect.name} is kept in the model although its value is implausible ({c.plausible_reason}): "
+        "no plausible candidate explains the data as well; it stands in for an effect with its signature"
+        for c in causes
+        if not c.plausible
+    ]
 
 
 def _stage_plots(report: rp.DiagnosisReport, folder: Path) -> None:

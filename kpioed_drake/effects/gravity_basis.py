@@ -306,7 +306,8 @@ def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tupl
         notes.append(
             f"joint_elasticity and backlash of joint(s) {js} are not candidates: the model file gives the "
             "links these joints carry no masses (their gravity torque is unknown, not zero); "
-            f"{FAMILY} of joint(s) {js} (the torque of any link masses, sized on these poses) is"
+            f"{FAMILY} of joint(s) {js} (the torque of any link masses, sized on these poses) is the "
+            "candidate instead"
         )
     return cands, notes
 

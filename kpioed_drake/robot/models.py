@@ -20,6 +20,7 @@ from pydrake.math import RollPitchYaw
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot import chain as chainmod
 from kpioed_drake.robot.cell import Cell, Obstacle, cell_from_spec, load_cell, vec3  # noqa: F401 (re-exported)
+from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec
 from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and locations, re-exported)
     MODELS_DIR,
@@ -101,6 +102,8 @@ class Robot:
         compliant_base: the model file says the base or floor is compliant (``compliant_base:
             true``): ``base_compliance`` is a diagnosis candidate.
         rated_payload_kg: the payload the robot may carry [kg] (``rated_payload_kg``), or None.
+        drives: per joint its drive type (``drive``, ``drives``: gear, harmonic, cable, belt;
+            :mod:`kpioed_drake.robot.drivetrain`); empty: every joint a gear.
         effects: an extended model file's effects (``effects:``; :func:`kpioed_drake.effects.model_effects`).
         effects_where: the file holding ``effects`` (for messages).
         gravity_bases: ``((effect name, D, V), ...)`` mass-free gravity bases sized on a data set's
@@ -139,6 +142,7 @@ class Robot:
     effects_where: str = ""
     gravity_bases: tuple = ()
     target_links: np.ndarray | None = None
+    drives: tuple[str, ...] = ()
     estimated_errors: np.ndarray | None = None
     payload_point: np.ndarray | None = None
 
@@ -335,6 +339,7 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
         targets=targets,
         compliant_base=bool(spec.compliant_base),
         rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
+        drives=drive_types(spec.drive, spec.drives, spec_joint_names(spec), where),
         effects=checked_effects(spec.effects, where),
         effects_where=where,
         payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")

@@ -172,6 +172,11 @@ class RobotSpec:
     rated_payload_kg: float = 0.0
     """Optional: the payload the robot may carry [kg] (0: not given); a discrimination design's payload
     plan may not exceed it."""
+    drive: str = ""
+    """Optional: how every joint is driven, ``gear`` (default), ``harmonic``, ``cable`` or ``belt``
+    (:mod:`kpioed_drake.robot.drivetrain`): sets the plausibility bounds of the joints' effects."""
+    drives: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Optional: the drive type per joint (name or 1-based number), overriding ``drive``."""
     effects: list[EffectSpec] = dataclasses.field(default_factory=list)
     """Optional: the non-geometric effects of an extended model (``calibrate`` with ``extend``)."""
     payload_point_mm: list[float] = dataclasses.field(default_factory=list)
@@ -284,6 +289,10 @@ class SidecarSpec:
     """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
     rated_payload_kg: float = 0.0
     """The payload the robot may carry [kg] (0: not given)."""
+    drive: str = ""
+    """How every joint is driven (``gear``, ``harmonic``, ``cable``, ``belt``), as in the YAML files."""
+    drives: dict[str, str] = dataclasses.field(default_factory=dict)
+    """The drive type per joint (URDF joint name or 1-based number), overriding ``drive``."""
     effects: list[EffectSpec] = dataclasses.field(default_factory=list)
     """The non-geometric effects of an extended model, as in the YAML files."""
     payload_point_mm: list[float] = dataclasses.field(default_factory=list)

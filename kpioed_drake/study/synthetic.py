@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import COUPLING_PAIRS, DiagnosisOptions
+from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
+from kpioed_drake.robot.drivetrain import coupling_pairs
 from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.models import Robot, load_cell, load_robot
 from kpioed_drake.simulation.truth import true_model
@@ -159,9 +160,9 @@ def _urdf_masses(robot: Robot, masses: np.ndarray, coms: np.ndarray):
 
 
 def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES) -> str:
-    """A random effect (family, joint, harmonic uniform; a coupling among the diagnosis's
-    :data:`~kpioed_drake.diagnosis.common.COUPLING_PAIRS`), without a value. A family given with
-    its joint (``column_compliance:1``: a robot's lift) is taken as it is."""
+    """A random effect (family, joint, harmonic uniform; a coupling among the diagnosis's candidates
+    of a six-joint arm, :func:`~kpioed_drake.robot.drivetrain.coupling_pairs`), without a value. A
+    family given with its joint (``column_compliance:1``: a robot's lift) is taken as it is."""
     while True:
         fam = families[rng.integers(len(families))]
         if ":" in fam:
@@ -173,7 +174,8 @@ def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES)
         elif fam in ("joint_scale", "backlash"):
             text = f"{fam}:{rng.integers(1 if fam == 'joint_scale' else 2, 7)}"
         elif fam == "joint_coupling":
-            i, j = COUPLING_PAIRS[rng.integers(len(COUPLING_PAIRS))]
+            pairs = coupling_pairs(None, 6)
+            i, j = pairs[rng.integers(len(pairs))]
             text = f"{fam}:{i}:{j}"
         else:
             text = fam

@@ -32,6 +32,7 @@ from pydrake.multibody.tree import PrismaticJoint
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
+from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
 from kpioed_drake.robot.urdf.tree import MOVABLE, chain_joints, measured_links, mimics
@@ -231,6 +232,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         urdf=source,
         compliant_base=bool(side.compliant_base),
         rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
+        drives=drive_types(side.drive, side.drives, names, sw),
         effects=checked_effects(side.effects, sw),
         effects_where=sw,
         target_links=target_links,
