@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from kpioed_drake.robot.authoring import EnvelopeSize, envelope_links, kinematic_rows, solve_q_work
+from kpioed_drake.study.authoring import EnvelopeSize, envelope_links, kinematic_rows, solve_q_work
 from kpioed_drake.robot.models import MODELS_DIR, RobotSpec, load_cell, robot_from_spec
 
 KUKA = {
@@ -48,7 +48,7 @@ SELF_PAIRS = [[0, 3], [0, 5], [0, 6], [1, 3], [1, 5], [1, 6], [2, 5], [2, 6], [3
 BEAM_LINKS = [0, 1, 2, 3, 5]
 SOURCES = (
     "Geometry: SPEC.md (public datasheet numbers converted to our DH/Hayati rows). Capsules: "
-    "kpioed_drake.robot.authoring.envelope_links, radii chosen to nearly surround the links (paper 3.2). "
+    "kpioed_drake.study.authoring.envelope_links, radii chosen to nearly surround the links (paper 3.2). "
     "Masses: estimates that add up to the datasheet's total robot mass, split base 25 %, shoulder "
     "30 %, upper arm 20 %, forearm 15 %, wrist and flange the rest; centres of mass at the middle of "
     "each link's capsule."
@@ -106,7 +106,7 @@ def author(name: str, entry: dict, out: Path) -> None:
         raise SystemExit(f"{name}: no working pose found for any car shift")
     spec.q_work_deg = np.rad2deg(q).round(4).tolist()
     spec.notes = (
-        f"q_work by Drake IK (kpioed_drake.robot.authoring.solve_q_work): reflector 100 mm above the cabin, "
+        f"q_work by Drake IK (kpioed_drake.study.authoring.solve_q_work): reflector 100 mm above the cabin, "
         f"reflector axis {np.rad2deg(ang):.1f} deg from the line of sight, position error {err:.2e} mm."
         + (f" Car moved {shift:+.0f} mm along x so that the working point is reachable." if shift else "")
     )
