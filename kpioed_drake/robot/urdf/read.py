@@ -34,6 +34,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
+from kpioed_drake.robot.urdf.limits import checked_limits, sidecar_limits
 from kpioed_drake.robot.urdf.tree import MOVABLE, chain_joints, measured_links, mimics
 
 MM = 1e-3
@@ -168,9 +169,12 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     sw = str(side_path)
     tips = measured_links(side, sw, path)
     chain_xml, parents, root, welded = chain_joints(xml, path, tips)
+    mimicked = mimics(chain_xml, path)  # the URDF's own joint map: its errors name the URDF
     X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
-    source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
+    overrides = sidecar_limits(side, sw)
+    text = _stripped(checked_limits(xml, overrides, path), side.masses, chain_xml, sw)
+    source = UrdfSource(str(path), text, X_WB, root, names)
     plant = MultibodyPlant(0.0)
     inst = add_urdf(plant, source)
     plant.Finalize()
@@ -178,7 +182,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     joints = movable_joints(plant, inst, source)
     n = len(joints)
     R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, parents, path)
-    lo, up = _limits(side, names, pris, lo, up, sw, path)
+    lo, up = _limits(overrides, names, pris, lo, up, sw, path)
     tree = bool(np.any(parents != np.arange(n) - 1))
     chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris, parent=parents if tree else None)
     masses, coms, owner = _inertia(plant, ctx, bodies)
@@ -199,10 +203,11 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         for j in xml.iter("joint")
         if j.get("type") in MOVABLE and j.get("name") not in names
     }
+    jwhere = sw if side.joint_map else str(path)
     jmap = side.joint_map or mimic_joint_map(
-        list(names), mimics(chain_xml), [MM if p else 1.0 for p in pris], sw, off_chain=off_chain
+        list(names), mimicked, [MM if p else 1.0 for p in pris], jwhere, off_chain=off_chain
     )
-    joint_map = joint_map_from_spec(jmap, sw, joint_names=names, prismatic=pris)
+    joint_map = joint_map_from_spec(jmap, jwhere, joint_names=names, prismatic=pris)
     refl = p_FQ if targets is None else targets
     gauge = _gauge(side, chain, lo, up, refl, sw, path, joint_map, target_links)
     return dict(
@@ -361,18 +366,15 @@ def _vec(values, where: str, size: int = 3) -> np.ndarray:
     return arr
 
 
-def _limits(side, names, pris, lo, up, sw, path):
+def _limits(overrides, names, pris, lo, up, sw, path):
     lo, up = lo.copy(), up.copy()
-    by_name = {lim.joint: lim for lim in side.limits}
-    unknown = sorted(set(by_name) - set(names))
+    unknown = sorted(set(overrides) - set(names))
     if unknown:
         raise InputError(f"{sw}: limits: unknown joints {unknown} (joints: {', '.join(names)})")
     for i, name in enumerate(names):
-        if name in by_name:
-            lim = by_name[name]
-            if not (np.isfinite(lim.lower) and np.isfinite(lim.upper) and lim.lower < lim.upper):
-                raise InputError(f"{sw}: limits of joint {name!r}: need finite lower < upper")
-            lo[i], up[i] = (lim.lower, lim.upper) if pris[i] else np.deg2rad([lim.lower, lim.upper])
+        if name in overrides:
+            lower, upper = overrides[name]
+            lo[i], up[i] = (lower, upper) if pris[i] else np.deg2rad([lower, upper])
         elif not (np.isfinite(lo[i]) and np.isfinite(up[i])):
             if pris[i]:
                 raise InputError(f"{path}: prismatic joint {name!r} has no limits; give them in {sw}")
