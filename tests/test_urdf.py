@@ -171,7 +171,10 @@ BAD_SIDECAR = {
     ),
     "sidecar_pairs": ("self_collision_pairs: [[2, 3]]\n", r"self_collision_pairs"),
     "sidecar_mass_link": ("masses: [{link: 0, mass_kg: 1.0}]\n", r"masses\[0\]: link must be in 1..6"),
-    "sidecar_mass_nan": ("masses: [{link: 2, mass_kg: .nan}]\n", r"masses\[0\]: mass_kg"),
+    "sidecar_mass_nan": (
+        "masses: [{link: 2, mass_kg: .nan}]\n",
+        r"masses\[0\]\.mass_kg: expected a finite number",
+    ),
 }
 
 
