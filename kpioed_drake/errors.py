@@ -100,14 +100,24 @@ def param_names(names: Mapping[str, str]):
 
 def name_fields(text: str, fields: Iterable[str], names: Mapping[str, str]) -> str:
     """``text`` with every word that is one of ``fields`` replaced by its name in ``names`` (kept where
-    ``names`` has none); a word is delimited by anything but letters, digits, ``_`` and ``-``, and
-    text in backticks (a command such as `dask scheduler`) is kept as it is."""
+    ``names`` has none); a word is delimited by anything but letters, digits, ``_`` and ``-`` (and is
+    no file name's stem or extension: ``out.csv``, ``a.out``). Kept as they are: text in backticks (a
+    command such as `dask scheduler`), a quoted value without spaces (``'out'``), and a path
+    (``out/try.yaml``, ``/tmp/out``: a token starting with ``/``, ``~`` or ``.``, or holding a ``/``
+    and a ``.``)."""
     words = [f for f in fields if f in names]
     if not words:
         return text
-    word = re.compile(r"(?<![\w-])(" + "|".join(map(re.escape, words)) + r")(?![\w-])")
-    parts = re.split(r"(`[^`]*`)", text)  # odd parts: quoted in backticks
-    return "".join(p if k % 2 else word.sub(lambda m: names[m.group(1)], p) for k, p in enumerate(parts))
+    word = re.compile(r"(?<![\w.-])(" + "|".join(map(re.escape, words)) + r")(?![\w-]|\.\w)")
+
+    def token(m: re.Match) -> str:
+        t = m.group()
+        if t.startswith(("/", "~", ".")) or ("/" in t and "." in t):
+            return t
+        return word.sub(lambda w: names[w.group(1)], t)
+
+    parts = re.split(r"(`[^`]*`|(?<!\w)'[^'\s]*'(?!\w))", text)  # odd parts: quoted
+    return "".join(p if k % 2 else re.sub(r"\S+", token, p) for k, p in enumerate(parts))
 
 
 _INTERRUPTED = threading.Event()

@@ -65,7 +65,7 @@ def register_next(sub) -> None:
     p.add_argument(
         "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
     )
-    p.add_argument("--n", type=int, default=5, help="poses to design when not done (5)")
+    p.add_argument("--n", type=int, default=5, help="poses to design when not done, at most --max-plan (5)")
     p.add_argument("--sigma-mm", type=float, default=0.02, help="tracker noise per coordinate [mm] (0.02)")
     p.add_argument("--seed", type=int, default=0, help="seed of the design's starts and the certificate (0)")
     p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
@@ -81,11 +81,14 @@ def register_next(sub) -> None:
     )
     add_json_out(p)
     add_format(p)
+    p.add_argument(
+        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
+    )
     p.set_defaults(func=run_next, api_names=NEXT_API_NAMES)
 
 
 def run_next(args) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan")
+    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
     result = api.next(
         args.robot,
         args.data,

@@ -69,9 +69,14 @@ def _validate(
     """Raise :class:`~kpioed_drake.errors.InputError` naming the first bad argument of
     :func:`optimize_design`."""
     if criterion not in DESIGN_METHODS:
-        raise InputError(f"unknown criterion {criterion!r}; expected one of {', '.join(DESIGN_METHODS)}")
+        raise InputError(
+            f"unknown criterion {criterion!r}; expected one of {', '.join(DESIGN_METHODS)}",
+            fields=("criterion",),
+        )
     if solver not in SOLVERS:
-        raise InputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}")
+        raise InputError(
+            f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}", fields=("solver",)
+        )
     if not isinstance(n, int | np.integer) or n < min_new_poses(problem, n_given):
         given = f" with the {n_given} given poses" if n_given else ""
         raise InputError(
@@ -100,10 +105,13 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
         applies = criterion == "kpi" and not worst_case
         return DEFAULT_START if applies else "heuristic"
     if start not in START_METHODS:
-        raise InputError(f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}")
+        raise InputError(
+            f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}", fields=("start",)
+        )
     if start == "approximate" and criterion != "kpi":
         raise InputError(
-            f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}"
+            f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}",
+            fields=("start", "criterion"),
         )
     return start
 

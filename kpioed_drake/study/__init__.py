@@ -196,7 +196,7 @@ def run_study(
     check_count("heuristic_draws", heuristic_draws, allow_none=True)
     check_count("jobs", jobs, allow_none=True)
     robots = list(robots) if robots is not None else study_robots(quick)
-    require(len(robots) > 0, "robots: expected at least one robot name")
+    require(len(robots) > 0, "robots: expected at least one robot name", fields=("robots",))
     require(not Path(out_dir).is_file(), f"{out_dir}: is a file; expected a folder for the study")
     var = get_variant(variant)
     known = set(list_robots())
