@@ -22,8 +22,10 @@ import contextlib
 import contextvars
 import math
 import numbers
+import os
 import re
 import signal
+import sys
 import threading
 import types
 from collections.abc import Iterable, Mapping
@@ -149,6 +151,33 @@ def catch_interrupts():
         raise KeyboardInterrupt
 
     _INTERRUPTED.clear()
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def exit_on_interrupt(line: str):
+    """Within the block, SIGINT ends the process at once: ``line`` on stderr and status 130.
+
+    For a command's start-up, while its imports (Drake, numpy, scipy) take their seconds: nothing
+    is written yet, and a ``KeyboardInterrupt`` raised inside an extension's initialisation would
+    end as its traceback (``ImportError: initialization failed``). Only the main thread can
+    install signal handlers; elsewhere the block changes nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        try:
+            sys.stderr.write(line + "\n")
+            sys.stderr.flush()
+        finally:
+            os._exit(EXIT_INTERRUPTED)
+
     previous = signal.signal(signal.SIGINT, handler)
     try:
         yield
