@@ -24,7 +24,7 @@ import pandas as pd
 
 from kpioed_drake.arguments import check_count, check_seed, require
 from kpioed_drake.errors import InputError, SolverError
-from kpioed_drake.outputs import atomic_write_text
+from kpioed_drake.outputs import atomic_write_text, check_output_paths
 from kpioed_drake.paper import PAPER
 from kpioed_drake.robot.models import list_robots, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
@@ -190,6 +190,7 @@ def run_study(
         SolverError: every task failed (nothing to tabulate; the task files keep the errors).
     """
     t0 = time.perf_counter()
+    check_output_paths(folders=[out_dir])  # an empty name would be the current folder
     out_dir = Path(out_dir)
     check_seed(seed)
     check_count("n", n)
@@ -197,7 +198,6 @@ def run_study(
     check_count("jobs", jobs, allow_none=True)
     robots = list(robots) if robots is not None else study_robots(quick)
     require(len(robots) > 0, "robots: expected at least one robot name", fields=("robots",))
-    require(not Path(out_dir).is_file(), f"{out_dir}: is a file; expected a folder for the study")
     var = get_variant(variant)
     known = set(list_robots())
     unknown = [r for r in robots if r not in known]
