@@ -509,7 +509,7 @@ def announce():
 
 
 cli.build_parser = announce
-sys.exit(cli.main(sys.argv[1:]))
+sys.exit(cli.main())  # as the kpioed command: its arguments from sys.argv
 """
 """The command line, saying on stderr when it starts building its parser (nothing else changed)."""
 
@@ -521,6 +521,7 @@ sys.exit(cli.main(sys.argv[1:]))
         (["info", "--robot", "kr16"], 0.3),
         (["design", "--robot", "kr16", "--criterion", "kpi", "--out", "d.csv"], 0.6),
         (["calibrate", "--robot", "kr16", "data.csv"], 1.2),
+        (["calibrate", "--robot", "kr16", "data.csv"], 2.5),
     ],
 )
 def test_ctrl_c_at_start_up_is_one_line_and_status_130(argv, after_s, tmp_path):

@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import signal
 import sys
+import threading
 import traceback
 
 from kpioed_drake.errors import (
@@ -102,8 +104,12 @@ def main(argv: list[str] | None = None) -> int:
 
     The interrupt handler is installed first, before the commands' imports (Drake, numpy) take
     their seconds: a Ctrl-C at any point ends with one line and status 130, never a traceback
-    (during the imports at once, :func:`~kpioed_drake.errors.exit_on_interrupt`).
+    (during the imports at once, :func:`~kpioed_drake.errors.exit_on_interrupt`). Without
+    ``argv`` (the ``kpioed`` process itself), a Ctrl-C after the command ended is ignored: the
+    process is exiting with the command's status.
     """
+    if argv is None and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # what catch_interrupts restores at the end
     with catch_interrupts():
         with exit_on_interrupt("kpioed: interrupted"):
             parser = build_parser()
