@@ -56,8 +56,9 @@ def load_options(cls, *, filename: str | Path | None = None, data: str | None = 
     schema = _yaml_schema(cls)
     try:
         parsed = yaml.safe_load(Path(filename).read_text(encoding="utf-8") if filename is not None else data)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise InputError(f"{where}: not a readable YAML file ({str(exc).splitlines()[0]})") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+        what = str(exc).splitlines()[0] if str(exc).strip() else "nested too deeply"
+        raise InputError(f"{where}: not a readable YAML file ({what})") from None
     mismatch = yaml_mismatch({} if parsed is None else parsed, schema)
     if mismatch:
         raise InputError(f"{where}: {mismatch}")

@@ -193,6 +193,28 @@ URDF_NUMBERS = {
         ),
         r"joint 'elbow_joint': <mimic multiplier='abc'>: expected one finite number",
     ),
+    "mass-negative": (
+        UR5_URDF.replace('<mass value="3.7"/>', '<mass value="-3.7"/>'),
+        r"link 'shoulder_link': <mass value='-3.7'>: expected a number >= 0",
+    ),
+    "origin-1e300": (
+        UR5_URDF.replace('<origin xyz="-0.42499999999999999 0 0" rpy="0 0 0"/>', '<origin xyz="1e300 0 0"/>'),
+        r"joint 'elbow_joint': xyz='1e300 0 0': expected values of at most 1000 in size",
+    ),
+    "radius-negative": (
+        UR5_URDF.replace('<cylinder radius="0.06"', '<cylinder radius="-0.06"'),
+        r"link 'shoulder_link' collision 0: <cylinder>: expected sizes >= 0",
+    ),
+    "nested-20000-deep": (
+        UR5_URDF.replace(
+            '<link name="wrist_3_link">', '<link name="wrist_3_link">' + "<x>" * 20000 + "</x>" * 20000
+        ),
+        r"elements nested deeper than 64 \(<x>\); not a URDF",
+    ),
+    "sidecar-nested-20000-deep": (
+        UR5_URDF,
+        r"bad\.kpioed\.yaml: lists or mappings nested too deeply",
+    ),
     "mimic-cycle": (
         UR5_URDF.replace(
             '<joint name="elbow_joint" type="revolute">',
@@ -209,9 +231,10 @@ URDF_NUMBERS = {
 @pytest.mark.parametrize("case", sorted(URDF_NUMBERS))
 def test_a_bad_urdf_number_names_the_urdf_and_the_joint(case, tmp_path, capsys):
     text, pattern = URDF_NUMBERS[case]
-    path = _urdf(tmp_path, text)
+    deep = "notes: " + "[" * 20000 + "]" * 20000 + "\n"
+    path = _urdf(tmp_path, text, UR5_SIDECAR + deep if case.startswith("sidecar") else UR5_SIDECAR)
     line = _refused(["info", "--robot", path], capsys, tmp_path)
-    assert str(path) in line and re.search(pattern, line), line
+    assert str(tmp_path / "bad") in line and re.search(pattern, line), line
 
 
 def test_the_sidecar_limits_replace_a_urdf_limit_drake_refuses(tmp_path):

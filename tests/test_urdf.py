@@ -148,7 +148,7 @@ BAD = {
     ),
     "bad_origin": (
         UR5_URDF.replace('xyz="-0.42499999999999999 0 0"', 'xyz="a b c"'),
-        r"could not parse the URDF: .*xyz",
+        r"joint 'elbow_joint': xyz='a b c' is not a list of numbers",
     ),
     "prismatic_no_limits": (
         UR5_URDF.replace('name="elbow_joint" type="revolute"', 'name="elbow_joint" type="prismatic"').replace(

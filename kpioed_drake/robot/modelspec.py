@@ -312,6 +312,8 @@ def load_yaml_typed(path: str | Path, schema):
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except RecursionError:  # PyYAML builds nested lists by recursion
+        raise InputError(f"{path}: lists or mappings nested too deeply; not a model file") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

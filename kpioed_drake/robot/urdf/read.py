@@ -34,7 +34,13 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
-from kpioed_drake.robot.urdf.limits import checked_limits, sidecar_limits
+from kpioed_drake.robot.urdf.numbers import (
+    MAX_LENGTH_M,
+    check_numbers,
+    checked_limits,
+    floats,
+    sidecar_limits,
+)
 from kpioed_drake.robot.urdf.tree import MOVABLE, chain_joints, measured_links, mimics
 
 MM = 1e-3
@@ -59,20 +65,9 @@ def sidecar_path(path: Path) -> Path:
     return path.with_name(path.stem + ".kpioed.yaml")
 
 
-def _floats(el, attr: str, default: str, where: str) -> np.ndarray:
-    text = el.get(attr, default) if el is not None else default
-    try:
-        vals = np.array([float(x) for x in text.split()])
-    except ValueError:
-        raise InputError(f"{where}: {attr}={text!r} is not a list of numbers") from None
-    if not np.all(np.isfinite(vals)):
-        raise InputError(f"{where}: {attr}={text!r} is not finite")
-    return vals
-
-
 def _origin(el, where: str) -> RigidTransform:
     o = el.find("origin")
-    xyz, rpy = _floats(o, "xyz", "0 0 0", where), _floats(o, "rpy", "0 0 0", where)
+    xyz, rpy = floats(o, "xyz", "0 0 0", where), floats(o, "rpy", "0 0 0", where)
     if xyz.shape != (3,) or rpy.shape != (3,):
         raise InputError(f"{where}: origin needs three xyz and three rpy values")
     return RigidTransform(RollPitchYaw(rpy), xyz)
@@ -164,6 +159,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     xml = _parse_xml(path)
+    check_numbers(xml, path)
     side_path = sidecar_path(path)
     side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
     sw = str(side_path)
@@ -444,18 +440,23 @@ def _capsule_geometry(col, where):
         raise InputError(f"{where}: no geometry")
     tag = shape.tag.split("}")[-1]
     if tag in ("cylinder", "capsule"):
-        r, length = (_floats(shape, k, "nan", where)[0] for k in ("radius", "length"))
+        r, length = (floats(shape, k, "nan", where, bound=MAX_LENGTH_M)[0] for k in ("radius", "length"))
         half = np.array([0.0, 0.0, 0.5 * length])
-        return r, -half, half
-    if tag == "sphere":
-        return _floats(shape, "radius", "nan", where)[0], np.zeros(3), np.zeros(3)
-    if tag == "box":
-        size = _floats(shape, "size", "nan nan nan", where)
+        sizes = (r, length)
+    elif tag == "sphere":
+        r = floats(shape, "radius", "nan", where, bound=MAX_LENGTH_M)[0]
+        half, sizes = np.zeros(3), (r,)
+    elif tag == "box":
+        size = floats(shape, "size", "nan nan nan", where, bound=MAX_LENGTH_M)
         k = int(np.argmax(size))
         half = np.zeros(3)
         half[k] = 0.5 * size[k]
-        return 0.5 * float(np.linalg.norm(np.delete(size, k))), -half, half
-    return None
+        r, sizes = 0.5 * float(np.linalg.norm(np.delete(size, k))), tuple(size)
+    else:
+        return None
+    if min(sizes) < 0:
+        raise InputError(f"{where}: <{tag}>: expected sizes >= 0, got {', '.join(f'{s:g}' for s in sizes)}")
+    return r, -half, half
 
 
 def _side_capsules(side, n, sw):

@@ -1,10 +1,13 @@
-"""The joint limits of a URDF, checked before Drake reads them: Drake asserts (and ends the process)
-on a ``<limit>`` whose lower bound lies above its upper one, so such a file must be answered here.
+"""The numbers of a URDF, checked before Drake reads them: Drake asserts (and ends the process) on a
+``<limit>`` whose lower bound lies above its upper one, and only warns of a negative mass; a
+hostile file (an element nested thousands deep, a length of 1e300) must be answered here, naming
+the file, the joint or link and the attribute.
 
 A ``<limit>`` attribute is one finite number; ``lower <= upper`` and ``velocity >= 0``. The
 sidecar's ``limits`` (degrees; prismatic joints millimetres) replace a joint's URDF limits, also in
 the text Drake parses: a URDF whose own limits are wrong is usable when the sidecar gives that
-joint's.
+joint's. A mass is a finite number >= 0, an inertia's entries finite, an origin within
+:data:`MAX_LENGTH_M` of its frame, a geometry's sizes >= 0.
 """
 
 import math
@@ -17,6 +20,59 @@ from kpioed_drake.errors import InputError
 
 MM = 1e-3
 LIMIT_ATTRIBUTES = ("lower", "upper", "effort", "velocity")
+MAX_DEPTH = 64
+"""Deepest element nesting accepted (a URDF's is five or six: robot, link, collision, geometry,
+shape); the serialisation of a deeper tree recurses past Python's limit."""
+MAX_LENGTH_M = 1e3
+"""Largest origin offset [m] of a robot's frames (a kilometre: no robot; beyond, products overflow)."""
+INERTIA = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
+
+
+def floats(el, attr: str, default: str, where: str, *, bound: float = math.inf) -> np.ndarray:
+    """Attribute ``attr`` of ``el`` (``default`` when absent) as numbers, each finite and at most
+    ``bound`` in size.
+
+    Raises:
+        InputError: ``where``, the attribute and its text.
+    """
+    text = el.get(attr, default) if el is not None else default
+    try:
+        vals = np.array([float(x) for x in text.split()])
+    except ValueError:
+        raise InputError(f"{where}: {attr}={text!r} is not a list of numbers") from None
+    if not np.all(np.isfinite(vals)):
+        raise InputError(f"{where}: {attr}={text!r} is not finite")
+    if np.any(np.abs(vals) > bound):
+        raise InputError(f"{where}: {attr}={text!r}: expected values of at most {bound:g} in size")
+    return vals
+
+
+def check_numbers(root: ET.Element, path: Path) -> None:
+    """The URDF's nesting, origins and inertias (module docstring), before anything else reads them.
+
+    Raises:
+        InputError: the file, the element (link, joint) and the attribute.
+    """
+    stack = [(root, 1)]
+    while stack:  # a loop, not recursion: any depth is answered
+        el, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise InputError(f"{path}: elements nested deeper than {MAX_DEPTH} (<{el.tag}>); not a URDF")
+        stack.extend((child, depth + 1) for child in el)
+    for kind in ("link", "joint"):
+        for el in root.iter(kind):
+            where = f"{path}: {kind} {el.get('name', '?')!r}"
+            for origin in el.iter("origin"):
+                floats(origin, "xyz", "0 0 0", where, bound=MAX_LENGTH_M)
+                floats(origin, "rpy", "0 0 0", where, bound=MAX_LENGTH_M)
+    for link in root.iter("link"):
+        where = f"{path}: link {link.get('name', '?')!r}"
+        for mass in link.iter("mass"):
+            if floats(mass, "value", "0", f"{where} <mass>")[0] < 0:
+                raise InputError(f"{where}: <mass value={mass.get('value')!r}>: expected a number >= 0")
+        for inertia in link.iter("inertia"):
+            for attr in INERTIA:
+                floats(inertia, attr, "0", f"{where} <inertia>")
 
 
 def sidecar_limits(side, sw: str) -> dict[str, tuple[float, float]]:
