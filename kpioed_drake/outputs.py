@@ -119,7 +119,8 @@ def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | No
             parent = parent.parent
         if not parent.is_dir():
             raise InputError(f"{p}: cannot be created: {parent} is a file, not a folder")
-        _check_writable(p, parent)
+        own = Path(os.path.realpath(p))
+        _check_writable(p, own if p in folders and own.is_dir() else parent)  # a folder's files go into it
     for p in [o for o in outputs if o and o != "-"]:
         if Path(p).is_dir():
             raise InputError(f"{p}: is a folder; expected a file name")

@@ -436,6 +436,12 @@ def test_an_unwritable_output_is_refused_before_the_work(command, work, capsys, 
     )
 
 
+def test_an_existing_folder_that_takes_no_file_is_refused(work, capsys):
+    """--plots /proc: the folder exists, but no picture can be made in it."""
+    line = _refused(["calibrate", "--robot", "kr16", work / "data.csv", "--plots", "/proc"], capsys, work)
+    assert line == "kpioed: error: /proc: cannot be written: No such file or directory (in /proc)"
+
+
 def test_the_library_refuses_an_empty_output_name(work):
     with pytest.raises(InputError, match=r"^output '': expected a file or folder name"):
         api.diagnose("kr16", work / "data.csv", out="")
