@@ -175,6 +175,7 @@ def next(  # noqa: A001 (the command's name)
     json_path=None,
     data_format=None,
     plan=None,
+    force: bool = False,
 ) -> dict:
     """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
 
@@ -191,12 +192,13 @@ def next(  # noqa: A001 (the command's name)
         sigma_mm: the tracker's noise per coordinate [mm].
         seed: seed of the design's starts and the certificate's search.
         certify: add the certificate of the combined design.
-        max_plan: most poses planned ahead.
+        max_plan: most poses planned ahead (at least ``n``).
         out: design CSV of the next poses; json_path: the JSON record.
         data_format: format file of a measurement file of another layout.
         plan: design CSV carrying the plan between steps (read if it exists, then replaced by
             this step's plan; removed when done): a re-plan then never ends worse than the rest
             of the previous plan.
+        force: go on with data that fails the plausibility checks, with a warning.
 
     Returns:
         The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
@@ -205,7 +207,13 @@ def next(  # noqa: A001 (the command's name)
         ``summary``.
     """
     options = NextOptions(
-        target_var_mm2=target_var_mm2, n=n, sigma_mm=sigma_mm, seed=seed, certify=certify, max_plan=max_plan
+        target_var_mm2=target_var_mm2,
+        n=n,
+        sigma_mm=sigma_mm,
+        seed=seed,
+        certify=certify,
+        max_plan=max_plan,
+        force=force,
     )
     result, rob = next_file(
         robot, data_path, options, out=out, json_path=json_path, data_format=data_format, plan_path=plan

@@ -1,7 +1,8 @@
 """Checks of the arguments a user gives a command, shared by the workflows behind :mod:`kpioed_drake.api`.
 
-Each check raises :class:`~kpioed_drake.errors.InputError` naming the argument and what was
-expected, before any work is done; the command line maps it to exit status 2.
+Each check raises :class:`~kpioed_drake.errors.InputError` naming the argument (in its ``fields``:
+the command line shows it as the option) and what was expected, before any work is done; the
+command line maps it to exit status 2.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ def require(ok: bool, message: str, *, fields=()) -> None:
 
 def check_seed(seed) -> None:
     """A random seed: an integer >= 0."""
-    require(isinstance(seed, int | np.integer) and seed >= 0, f"seed: expected an integer >= 0, got {seed!r}")
+    ok = isinstance(seed, int | np.integer) and not isinstance(seed, bool) and seed >= 0
+    require(ok, f"seed: expected an integer >= 0, got {seed!r}", fields=("seed",))
 
 
 def check_count(name: str, value, *, at_least: int = 1, allow_none: bool = False) -> None:
@@ -37,7 +39,7 @@ def check_count(name: str, value, *, at_least: int = 1, allow_none: bool = False
     if value is None and allow_none:
         return
     ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= at_least
-    require(ok, f"{name}: expected an integer >= {at_least}, got {value!r}")
+    require(ok, f"{name}: expected an integer >= {at_least}, got {value!r}", fields=(name,))
 
 
 def check_positive(name: str, value, *, allow_none: bool = False, zero_ok: bool = False) -> None:
@@ -46,7 +48,8 @@ def check_positive(name: str, value, *, allow_none: bool = False, zero_ok: bool 
         return
     ok = isinstance(value, int | float | np.number) and not isinstance(value, bool) and math.isfinite(value)
     ok = ok and (value >= 0 if zero_ok else value > 0)
-    require(ok, f"{name}: expected a finite number {'>= 0' if zero_ok else '> 0'}, got {value!r}")
+    what = f"{name}: expected a finite number {'>= 0' if zero_ok else '> 0'}, got {value!r}"
+    require(ok, what, fields=(name,))
 
 
 def robot_file(robot: str) -> str | None:

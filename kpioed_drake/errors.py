@@ -22,8 +22,10 @@ import contextlib
 import contextvars
 import math
 import numbers
+import os
 import re
 import signal
+import sys
 import threading
 import types
 from collections.abc import Iterable, Mapping
@@ -100,14 +102,24 @@ def param_names(names: Mapping[str, str]):
 
 def name_fields(text: str, fields: Iterable[str], names: Mapping[str, str]) -> str:
     """``text`` with every word that is one of ``fields`` replaced by its name in ``names`` (kept where
-    ``names`` has none); a word is delimited by anything but letters, digits, ``_`` and ``-``, and
-    text in backticks (a command such as `dask scheduler`) is kept as it is."""
+    ``names`` has none); a word is delimited by anything but letters, digits, ``_`` and ``-`` (and is
+    no file name's stem or extension: ``out.csv``, ``a.out``). Kept as they are: text in backticks (a
+    command such as `dask scheduler`), a quoted value without spaces (``'out'``), and a path
+    (``out/try.yaml``, ``/tmp/out``: a token starting with ``/``, ``~`` or ``.``, or holding a ``/``
+    and a ``.``)."""
     words = [f for f in fields if f in names]
     if not words:
         return text
-    word = re.compile(r"(?<![\w-])(" + "|".join(map(re.escape, words)) + r")(?![\w-])")
-    parts = re.split(r"(`[^`]*`)", text)  # odd parts: quoted in backticks
-    return "".join(p if k % 2 else word.sub(lambda m: names[m.group(1)], p) for k, p in enumerate(parts))
+    word = re.compile(r"(?<![\w.-])(" + "|".join(map(re.escape, words)) + r")(?![\w-]|\.\w)")
+
+    def token(m: re.Match) -> str:
+        t = m.group()
+        if t.startswith(("/", "~", ".")) or ("/" in t and "." in t):
+            return t
+        return word.sub(lambda w: names[w.group(1)], t)
+
+    parts = re.split(r"(`[^`]*`|(?<!\w)'[^'\s]*'(?!\w))", text)  # odd parts: quoted
+    return "".join(p if k % 2 else re.sub(r"\S+", token, p) for k, p in enumerate(parts))
 
 
 _INTERRUPTED = threading.Event()
@@ -139,6 +151,33 @@ def catch_interrupts():
         raise KeyboardInterrupt
 
     _INTERRUPTED.clear()
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def exit_on_interrupt(line: str):
+    """Within the block, SIGINT ends the process at once: ``line`` on stderr and status 130.
+
+    For a command's start-up, while its imports (Drake, numpy, scipy) take their seconds: nothing
+    is written yet, and a ``KeyboardInterrupt`` raised inside an extension's initialisation would
+    end as its traceback (``ImportError: initialization failed``). Only the main thread can
+    install signal handlers; elsewhere the block changes nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        try:
+            sys.stderr.write(line + "\n")
+            sys.stderr.flush()
+        finally:
+            os._exit(EXIT_INTERRUPTED)
+
     previous = signal.signal(signal.SIGINT, handler)
     try:
         yield

@@ -9,9 +9,11 @@ and the check that turns keyword arguments into one of them.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from pathlib import Path
 
+import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
@@ -51,10 +53,17 @@ def load_options(cls, *, filename: str | Path | None = None, data: str | None = 
         InputError: unknown field or a value of the wrong type, naming the file.
     """
     where = str(filename) if filename is not None else "options"
+    schema = _yaml_schema(cls)
     try:
-        raw = yaml_load_typed(
-            schema=_yaml_schema(cls), filename=None if filename is None else str(filename), data=data
-        )
+        parsed = yaml.safe_load(Path(filename).read_text(encoding="utf-8") if filename is not None else data)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+        what = str(exc).splitlines()[0] if str(exc).strip() else "nested too deeply"
+        raise InputError(f"{where}: not a readable YAML file ({what})") from None
+    mismatch = yaml_mismatch({} if parsed is None else parsed, schema)
+    if mismatch:
+        raise InputError(f"{where}: {mismatch}")
+    try:
+        raw = yaml_load_typed(schema=schema, filename=None if filename is None else str(filename), data=data)
     except RuntimeError as exc:
         raise InputError(f"{where}: {exc}") from None
     values = {f.name: getattr(raw, f.name) for f in dataclasses.fields(cls)}
@@ -82,3 +91,63 @@ def options_from(cls, options=None, **fields):
         what = f"options: expected a {cls.__name__}, got {type(options).__name__}"
         raise InputError(what, fields=("options",))
     return dataclasses.replace(options, **fields) if fields else options
+
+
+_KINDS = {bool: "true or false", int: "a whole number", float: "a finite number", str: "text"}
+
+
+def _got(value) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return "nothing" if value is None else repr(value)
+
+
+def _scalar_ok(kind: type, value) -> bool:
+    if kind is bool or isinstance(value, bool):
+        return kind is bool and isinstance(value, bool)
+    if kind is float:
+        return isinstance(value, int | float) and math.isfinite(value)
+    if kind is int:
+        return isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    return isinstance(value, kind)
+
+
+def yaml_mismatch(data, schema, field: str = "") -> str | None:
+    """Where the parsed YAML ``data`` does not fit the type ``schema`` (a dataclass as the YAML
+    loaders take it): ``"field: expected ..., got ..."`` naming the first field that does not
+    (``effects[0].values[2]``), or None when all fit. Numbers must be finite.
+
+    The typed loader's own messages name no field (``could not convert string to float``) or
+    accept what they should not (text given for a list of numbers is read letter by letter).
+    """
+    at = field or "the top level"
+    origin, args = typing.get_origin(schema), typing.get_args(schema)
+    if type(None) in args:  # an optional field
+        rest = [a for a in args if a is not type(None)]
+        return None if data is None else yaml_mismatch(data, rest[0], field)
+    if dataclasses.is_dataclass(schema):
+        if not isinstance(data, dict):
+            return f"{at}: expected a mapping (key: value), got {_got(data)}"
+        hints = typing.get_type_hints(schema)
+        for key, value in data.items():
+            if key not in hints:
+                return f"{at}: unknown field {key!r} (fields: {', '.join(hints)})"
+            found = yaml_mismatch(value, hints[key], f"{field}.{key}" if field else str(key))
+            if found:
+                return found
+        return None
+    if origin is list:
+        if not isinstance(data, list):
+            return f"{at}: expected a list [...], got {_got(data)}"
+        return next(
+            (m for k, v in enumerate(data) if (m := yaml_mismatch(v, args[0], f"{field}[{k}]"))), None
+        )
+    if origin is dict:
+        if not isinstance(data, dict):
+            return f"{at}: expected a mapping (key: value), got {_got(data)}"
+        return next((m for k, v in data.items() if (m := yaml_mismatch(v, args[1], f"{field}.{k}"))), None)
+    if schema in _KINDS and not _scalar_ok(schema, data):
+        return f"{at}: expected {_KINDS[schema]}, got {_got(data)}"
+    return None

@@ -5,7 +5,8 @@
   the permissions of the user's umask, an existing file keeps its own; an output that is a symbolic
   link is written through (the file it points to is replaced, the link stays).
 - :func:`check_output_paths`: refuses, before any work, an output that would overwrite an input,
-  names a folder, or is named twice, and a plots folder that is a file.
+  names a folder, is named twice, is an empty string or cannot be written (its folder is
+  read-only or no folder), and a plots folder that is a file.
 - :class:`Outputs`: a command stages its files (text, JSON, picture folders) while it works and writes
   them all at the end with :meth:`Outputs.commit`; a command that fails on the way writes nothing.
 """
@@ -43,7 +44,10 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     path = _target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     mode = (path.stat().st_mode & 0o7777) if path.exists() else (0o666 & ~_umask())
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:  # named after the user's file, not the temporary one
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -94,10 +98,13 @@ def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | No
         suffixes: ``{path: (".png", ...)}`` allowed endings for some outputs.
 
     Raises:
-        InputError: an output equals an input or another output, is a folder, lies below a file;
-            a folder is a file; an ending not allowed.
+        InputError: an output equals an input or another output, is a folder, lies below a file,
+            is an empty string or cannot be written; a folder is a file; an ending not allowed.
     """
     ins = [p for p in inputs if p]
+    for p in [*outputs, *folders]:
+        if p is not None and not str(p).strip():
+            raise InputError(f"output {str(p)!r}: expected a file or folder name, got an empty string")
     seen: list[str | Path] = []
     for p in [o for o in outputs if o and o != "-"] + [f for f in folders if f]:
         for i in ins:
@@ -112,6 +119,8 @@ def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | No
             parent = parent.parent
         if not parent.is_dir():
             raise InputError(f"{p}: cannot be created: {parent} is a file, not a folder")
+        own = Path(os.path.realpath(p))
+        _check_writable(p, own if p in folders and own.is_dir() else parent)  # a folder's files go into it
     for p in [o for o in outputs if o and o != "-"]:
         if Path(p).is_dir():
             raise InputError(f"{p}: is a folder; expected a file name")
@@ -120,7 +129,19 @@ def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | No
             raise InputError(f"{p}: expected a file name ending in {', '.join(allowed)}")
     for f in folders:
         if f and Path(f).exists() and not Path(f).is_dir():
-            raise InputError(f"{f}: is a file; expected a folder for the plots")
+            raise InputError(f"{f}: is a file; expected a folder")
+
+
+def _check_writable(path, folder: Path) -> None:
+    """A file can be created in ``folder`` (the nearest existing folder of the output ``path``): a
+    probe file made and removed at once, as only trying tells (a read-only file system, a virtual
+    one such as /proc, permissions; the root user passes every permission test)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".kpioed-probe.", dir=folder)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be written: {exc.strerror or exc} (in {folder})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def pyplot():

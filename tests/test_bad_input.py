@@ -271,7 +271,7 @@ CASES = [
         "study-heuristic-draws-zero",
         "study --robots kr16 --heuristic-draws 0 --out {root}/st",
         2,
-        r"heuristic_draws",
+        r"--heuristic-draws",
     ),
     (
         "study-scheduler-unreachable",

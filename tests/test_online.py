@@ -110,10 +110,12 @@ def test_the_aposteriori_noise_is_used_when_the_fit_rejects(kr16, measured):
 @pytest.mark.parametrize(
     "extra, match",
     [
-        (["--target-var", "0"], "target_var"),
-        (["--target-var", "-1"], "target_var"),
-        (["--target-var", "0.1", "--n", "0"], "n:"),
-        (["--target-var", "0.1", "--max-plan", "0"], "max_plan"),
+        (["--target-var", "0"], "--target-var:"),
+        (["--target-var", "-1"], "--target-var:"),
+        (["--target-var", "0.1", "--n", "0"], "--n:"),
+        (["--target-var", "0.1", "--max-plan", "0"], "--max-plan:"),
+        (["--target-var", "0.1", "--n", "100000"], "--n 100000: expected at most --max-plan (60)"),
+        (["--target-var", "0.1", "--n", "8", "--max-plan", "6"], "--n 8: expected at most --max-plan (6)"),
     ],
 )
 def test_bad_input_exits_2_and_writes_nothing(measured, tmp_path, capsys, extra, match):

@@ -148,7 +148,7 @@ BAD = {
     ),
     "bad_origin": (
         UR5_URDF.replace('xyz="-0.42499999999999999 0 0"', 'xyz="a b c"'),
-        r"could not parse the URDF: .*xyz",
+        r"joint 'elbow_joint': xyz='a b c' is not a list of numbers",
     ),
     "prismatic_no_limits": (
         UR5_URDF.replace('name="elbow_joint" type="revolute"', 'name="elbow_joint" type="prismatic"').replace(
@@ -171,7 +171,10 @@ BAD_SIDECAR = {
     ),
     "sidecar_pairs": ("self_collision_pairs: [[2, 3]]\n", r"self_collision_pairs"),
     "sidecar_mass_link": ("masses: [{link: 0, mass_kg: 1.0}]\n", r"masses\[0\]: link must be in 1..6"),
-    "sidecar_mass_nan": ("masses: [{link: 2, mass_kg: .nan}]\n", r"masses\[0\]: mass_kg"),
+    "sidecar_mass_nan": (
+        "masses: [{link: 2, mass_kg: .nan}]\n",
+        r"masses\[0\]\.mass_kg: expected a finite number",
+    ),
 }
 
 

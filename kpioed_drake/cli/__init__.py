@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import signal
 import sys
+import threading
 import traceback
 
 from kpioed_drake.errors import (
@@ -26,6 +28,7 @@ from kpioed_drake.errors import (
     InputError,
     SolverError,
     catch_interrupts,
+    exit_on_interrupt,
     interrupted,
     name_fields,
     param_names,
@@ -85,12 +88,40 @@ def _os_error_text(exc: OSError) -> str:
     return f"{name}: {what}"
 
 
+def _empty_options(args, parser: argparse.ArgumentParser) -> None:
+    """Refuse an option given as an empty string (``--out ''``): no command takes one, and a
+    command that tests its option for truth would silently do without it."""
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for action in sub.choices[args.command]._actions:
+        value = getattr(args, action.dest, None) if action.option_strings else None
+        values = value if isinstance(value, list) else [value]
+        if any(isinstance(v, str) and not v.strip() for v in values):
+            raise InputError(f"{_long_option(action.option_strings)}: expected a value, got an empty string")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run ``kpioed`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run ``kpioed`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+
+    The interrupt handler is installed first, before the commands' imports (Drake, numpy) take
+    their seconds: a Ctrl-C at any point ends with one line and status 130, never a traceback
+    (during the imports at once, :func:`~kpioed_drake.errors.exit_on_interrupt`). Without
+    ``argv`` (the ``kpioed`` process itself), a Ctrl-C after the command ended is ignored: the
+    process is exiting with the command's status.
+    """
+    if argv is None and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # what catch_interrupts restores at the end
+    with catch_interrupts():
+        with exit_on_interrupt("kpioed: interrupted"):
+            parser = build_parser()
+            args = parser.parse_args(argv)
+        return _run(args, parser)
+
+
+def _run(args, parser: argparse.ArgumentParser) -> int:
+    """The parsed command, its errors as one line and an exit status."""
     try:
-        with catch_interrupts(), param_names(args.option_names):
+        with param_names(args.option_names):
+            _empty_options(args, parser)
             return int(args.func(args) or EXIT_OK)
     except InputError as exc:
         print(f"kpioed: error: {name_fields(str(exc), exc.fields, args.option_names)}", file=sys.stderr)

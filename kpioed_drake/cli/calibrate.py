@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from kpioed_drake import api
 from kpioed_drake.cli.common import (
+    DATA_HELP,
+    MODEL_OUT_METAVAR,
     add_data_outputs,
     add_extend,
     add_format,
@@ -25,13 +27,19 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", 
 def register(sub) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="calibrate from a measurement CSV (q1_deg..q6_deg, x_mm, y_mm, z_mm in the tracker frame)",
+        help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help="measurement CSV (SPEC format)")
+    p.add_argument("data", metavar="DATA.csv", help=DATA_HELP)
     p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
     add_q_work(p)
-    p.add_argument("--out", default=None, metavar="PARAMS.yaml", help="write the calibrated robot model file")
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar=MODEL_OUT_METAVAR,
+        help="write the calibrated robot model file: YAML, or for a URDF robot NAME.urdf (its sidecar "
+        "NAME.kpioed.yaml beside it)",
+    )
     add_data_outputs(p, plots_help="write residual plots (PNG) to DIR")
     p.add_argument(
         "--outlier-alpha",
@@ -61,11 +69,11 @@ def register_next(sub) -> None:
         "write the next poses to measure",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help="the measurements so far (SPEC format, or see --format)")
+    p.add_argument("data", metavar="DATA.csv", help=f"the measurements so far; {DATA_HELP}")
     p.add_argument(
         "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
     )
-    p.add_argument("--n", type=int, default=5, help="poses to design when not done (5)")
+    p.add_argument("--n", type=int, default=5, help="poses to design when not done, at most --max-plan (5)")
     p.add_argument("--sigma-mm", type=float, default=0.02, help="tracker noise per coordinate [mm] (0.02)")
     p.add_argument("--seed", type=int, default=0, help="seed of the design's starts and the certificate (0)")
     p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
@@ -81,11 +89,14 @@ def register_next(sub) -> None:
     )
     add_json_out(p)
     add_format(p)
+    p.add_argument(
+        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
+    )
     p.set_defaults(func=run_next, api_names=NEXT_API_NAMES)
 
 
 def run_next(args) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan")
+    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
     result = api.next(
         args.robot,
         args.data,

@@ -28,9 +28,25 @@ def add_optional_number(p, option: str, *, type, metavar: str, help: str) -> Non
     p.add_argument(option, type=type, default=None, metavar=metavar, help=help)
 
 
+JOINT_COLUMNS = "one column per joint (q1_deg, q2_deg, ...; a prismatic joint's qK_mm)"
+"""The joint columns of the files, whatever the robot's joint count (docs/data-formats.md)."""
+DATA_HELP = (
+    f"measurement CSV: {JOINT_COLUMNS}, x_mm, y_mm, z_mm (the reflector in the tracker frame) "
+    "[, temperature_C, time_s, payload_kg, target] (docs/data-formats.md), or see --format"
+)
+"""The help of a command's measurement file argument."""
+DESIGN_HELP = f"design CSV: {JOINT_COLUMNS}"
+"""The help of a design file argument."""
+MODEL_OUT_METAVAR = "MODEL.yaml|NAME.urdf"
+"""A calibrated model file: YAML, or for a URDF robot a URDF with its sidecar."""
+
+
 def add_q_work(p) -> None:
     p.add_argument(
-        "--q-work", default=None, metavar="q1,...,q6", help="working pose [deg], overrides the model's"
+        "--q-work",
+        default=None,
+        metavar="q1,...,qN",
+        help="working pose, one value per joint [deg; a prismatic joint's mm], overrides the model's",
     )
 
 

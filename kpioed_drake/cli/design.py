@@ -42,7 +42,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "design",
         help="compute measurement poses (KPI, standard, D, O1 optimal or heuristic)",
-        description="Compute a design of measurement poses and write it as a CSV (q1_deg..q6_deg).",
+        description="Compute a design of measurement poses and write it as a CSV (a column per joint: "
+        "q1_deg, q2_deg, ...).",
     )
     add_robot(p)
     p.add_argument(
@@ -126,15 +127,17 @@ def _add_kpi_options(p) -> None:
         "--q-work",
         action="append",
         default=None,
-        metavar="q1,...,q6",
-        help="working pose [deg], overrides the model's; repeat it for several KPIs (working poses, or a "
+        metavar="q1,...,qN",
+        help="working pose, one value per joint [deg; a prismatic joint's mm], overrides the model's; repeat "
+        "it for several KPIs (working poses, or a "
         "working path sampled at K points)",
     )
     p.add_argument(
         "--q-work-file",
         default=None,
         metavar="FILE.csv",
-        help="CSV of working poses (q1_deg..q6_deg [deg], optional weight column) instead of --q-work",
+        help="CSV of working poses (a column per joint: q1_deg, ...; optional weight column) instead of "
+        "--q-work",
     )
     p.add_argument(
         "--kpi-weights",

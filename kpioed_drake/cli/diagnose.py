@@ -3,7 +3,15 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_data_outputs, add_robot, add_sigma, data_outputs, print_json
+from kpioed_drake.cli.common import (
+    DATA_HELP,
+    MODEL_OUT_METAVAR,
+    add_data_outputs,
+    add_robot,
+    add_sigma,
+    data_outputs,
+    print_json,
+)
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -22,14 +30,15 @@ def register(sub) -> None:
     p.add_argument(
         "data",
         metavar="DATA.csv",
-        help="measurements: q1_deg..q6_deg, x_mm, y_mm, z_mm [, temperature_C, time_s, payload_kg]",
+        help=DATA_HELP,
     )
     add_sigma(p)  # None: measured on repeated poses or checked against the residuals
     p.add_argument(
         "--out",
         default=None,
-        metavar="MODEL.yaml",
-        help="write the extended model of the named causes (the geometric one if none is named)",
+        metavar=MODEL_OUT_METAVAR,
+        help="write the extended model of the named causes (the geometric one if none is named): YAML, or "
+        "for a URDF robot NAME.urdf with its sidecar",
     )
     add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
     p.set_defaults(func=run, api_names=API_NAMES)

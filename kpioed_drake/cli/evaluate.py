@@ -7,6 +7,7 @@ import argparse
 
 from kpioed_drake import api
 from kpioed_drake.cli.common import (
+    DESIGN_HELP,
     add_extend,
     add_html,
     add_json_out,
@@ -23,9 +24,9 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
 
 
 def register(sub) -> None:
-    p = sub.add_parser("evaluate", help="evaluate a design CSV (q1_deg..q6_deg)")
+    p = sub.add_parser("evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
     add_robot(p)
-    p.add_argument("--design", required=True, help="design CSV with columns q1_deg..q6_deg")
+    p.add_argument("--design", required=True, help=DESIGN_HELP)
     p.add_argument(
         "--certify",
         action=argparse.BooleanOptionalAction,

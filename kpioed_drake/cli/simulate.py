@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_optional_number, add_robot
+from kpioed_drake.cli.common import DESIGN_HELP, add_optional_number, add_robot
 from kpioed_drake.tracker import csvio
 
 API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
@@ -11,9 +11,11 @@ API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
 
 
 def register(sub) -> None:
-    p = sub.add_parser("simulate", help="simulate measurements of a design CSV (writes the SPEC data format)")
+    p = sub.add_parser(
+        "simulate", help="simulate measurements of a design CSV (writes the measurement CSV layout)"
+    )
     add_robot(p)
-    p.add_argument("--design", required=True, help="design CSV with columns q1_deg..q6_deg")
+    p.add_argument("--design", required=True, help=DESIGN_HELP)
     p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
     p.add_argument("--seed", type=int, default=0, help="random seed (geometric errors, tracker frame, noise)")
     p.add_argument(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_format, add_json_out, add_robot, json_file, print_json
+from kpioed_drake.cli.common import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_json
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -15,7 +15,7 @@ def register(sub) -> None:
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help="measurement file (SPEC format, or see --format)")
+    p.add_argument("data", metavar="DATA.csv", help=DATA_HELP)
     add_format(p)
     p.add_argument(
         "--tracker-frame",

@@ -56,9 +56,14 @@ def _validate(
     """Raise :class:`~kpioed_drake.errors.InputError` naming the first bad argument of
     :func:`optimize_design`."""
     if criterion not in DESIGN_METHODS:
-        raise InputError(f"unknown criterion {criterion!r}; expected one of {', '.join(DESIGN_METHODS)}")
+        raise InputError(
+            f"unknown criterion {criterion!r}; expected one of {', '.join(DESIGN_METHODS)}",
+            fields=("criterion",),
+        )
     if solver not in SOLVERS:
-        raise InputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}")
+        raise InputError(
+            f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}", fields=("solver",)
+        )
     if not isinstance(n, int | np.integer) or n < min_new_poses(problem, n_given):
         given = f" with the {n_given} given poses" if n_given else ""
         raise InputError(

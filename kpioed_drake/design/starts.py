@@ -40,10 +40,13 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
         applies = criterion == "kpi" and not worst_case
         return DEFAULT_START if applies else "heuristic"
     if start not in START_METHODS:
-        raise InputError(f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}")
+        raise InputError(
+            f"unknown start {start!r}; expected one of {', '.join(START_METHODS)}", fields=("start",)
+        )
     if start == "approximate" and criterion != "kpi":
         raise InputError(
-            f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}"
+            f"start 'approximate' is the approximate KPI design: it needs criterion 'kpi', not {criterion!r}",
+            fields=("start", "criterion"),
         )
     return start
 

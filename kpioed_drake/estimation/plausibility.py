@@ -94,8 +94,8 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
         )
     warnings: list[str] = []
     p_W = reflector_world(model, data.q, data.target)
-    span_model = float(np.max(np.ptp(p_W, axis=0)))
-    span_data = float(np.max(np.ptp(data.eta, axis=0)))
+    _check_spread(p_W, data.eta, where)
+    span_model, span_data = _span(p_W), _span(data.eta)
     if span_model > 0 and span_data * UNIT_RATIO < span_model:
         _refuse(
             f"{where}: the measured points span {span_data:.4g} mm but the robot's poses span "
@@ -114,6 +114,16 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
         return warnings
     gate = geometric_gate_mm(model)
     miss = _registered_miss(model, data)
+    wild = data.rows[miss > WILD_REACHES * float(model.robot.reach)]
+    if 0 < wild.size <= MAX_GROSS_FRACTION * n:  # more are the other checks' (units, robot, joint map)
+        _refuse(
+            f"{where}: row(s) {', '.join(map(str, wild[:8]))}{', ...' if wild.size > 8 else ''} miss the "
+            f"nominal model by more than {WILD_REACHES:g} times the robot's reach after registering the "
+            "tracker: no measurement of this robot (a mistyped or broken row); correct or remove them",
+            force,
+            warnings,
+        )
+        return warnings
     good = miss <= gate
     rows = data.rows[~good]
     if rows.size > MAX_GROSS_FRACTION * n:
@@ -139,6 +149,66 @@ def check_data(model: TrackerModel, data: Measurements, *, n_params: int, force:
     return warnings
 
 
+SPAN_PERCENTILES = (10.0, 90.0)
+"""The span of points compared in the units check: between these percentiles per axis, so that
+one wild row (a mistyped coordinate) does not pass for other units; the gross-error check names
+it."""
+FLAT_SPREAD = 1e-6
+"""Points whose second principal spread is below this share of the first lie on one line: no
+rotation registers them."""
+
+
+def _span(points: np.ndarray) -> float:
+    """The largest robust extent of ``points`` (n, 3) over the axes [mm] (:data:`SPAN_PERCENTILES`)."""
+    low, high = np.percentile(points, SPAN_PERCENTILES, axis=0)
+    return float(np.max(high - low))
+
+
+def _flat(points: np.ndarray) -> bool:
+    """The points are all one or lie (nearly) on one line (:data:`FLAT_SPREAD`)."""
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return bool(spread[1] <= FLAT_SPREAD * max(spread[0], 1e-300))
+
+
+def _check_spread(p_W: np.ndarray, eta: np.ndarray, where: str) -> None:
+    """Refuse points no tracker frame can be registered to (never forced: no fit exists).
+
+    Raises:
+        InputError: the file, and whether the poses or the measured points lie on one line.
+    """
+    distinct = len(np.unique(np.round(p_W, 9), axis=0))
+    if _flat(p_W):
+        at = "one point" if distinct == 1 else f"{distinct} distinct points on (nearly) one line"
+        raise InputError(
+            f"{where}: the poses put the reflector at {at}: "
+            "the tracker frame cannot be registered; measure poses spread over the workspace (e.g. of "
+            "`kpioed design`)"
+        )
+    if _flat(eta):
+        raise InputError(
+            f"{where}: the measured points (x_mm, y_mm, z_mm) are all one or lie (nearly) on one line "
+            "while the poses spread: the tracker frame cannot be registered; check the file's columns"
+        )
+
+
+WILD_REACHES = 2.0
+"""A row that misses the registered nominal model by more than this many reaches of the robot is
+no gross error of a measurement of it (a wrong reflector is still within reach): a broken row,
+refused by its row number (when they are a few: many are other units, another robot or a wrong
+joint map)."""
+WILD_FACTOR = 10.0
+"""A measured point more than this many times the median distance from the points' median is left
+out of the first registration rounds (a mistyped coordinate would turn the whole frame)."""
+
+
+def _not_wild(eta: np.ndarray) -> np.ndarray:
+    """(n,) the rows whose measured point lies within :data:`WILD_FACTOR` median distances of the
+    points' median (all rows when fewer than three would be left)."""
+    d = np.linalg.norm(eta - np.median(eta, axis=0), axis=1)
+    use = d <= WILD_FACTOR * np.median(d)
+    return use if np.count_nonzero(use) >= 3 else np.ones(len(eta), dtype=bool)
+
+
 def _registered_miss(model: TrackerModel, data: Measurements) -> np.ndarray:
     """(n,) distance [mm] of each row after registering the tracker frame and the target offsets on
     all rows, then on the better half. Alternating: the tracker rotation by Procrustes given the
@@ -155,7 +225,7 @@ def _registered_miss(model: TrackerModel, data: Measurements) -> np.ndarray:
     A[:, :, :3] = np.eye(3)
     for t in range(T):
         A[target == t, :, 3 + 3 * t : 6 + 3 * t] = -R_WF[target == t]
-    use = np.ones(n, dtype=bool)
+    use = _not_wild(data.eta)
     for k in range(REGISTRATION_ROUNDS):
         p_W = o_WF + np.einsum("nij,nj->ni", R_WF, offsets[target])
         R_WT, _ = register_tracker(p_W[use], data.eta[use])

@@ -59,12 +59,20 @@ class NextOptions:
     """Add the certificate of the combined design (``bound_mm2``, ``efficiency``)."""
     max_plan: int = 60
     """Most poses planned ahead: the step designs the poses still needed to reach the target (at
-    least ``n``, at most this many) and returns the ``n`` of them that help most now."""
+    least ``n``, at most this many) and returns the ``n`` of them that help most now; ``n`` may not
+    exceed it."""
+    force: bool = False
+    """Go on with data that fails the plausibility checks (warned in the summary)."""
 
     def __post_init__(self):
         check_positive("target_var_mm2", self.target_var_mm2)
         check_count("n", self.n)
         check_count("max_plan", self.max_plan)
+        if self.n > self.max_plan:
+            raise InputError(
+                f"n {self.n}: expected at most max_plan ({self.max_plan}), the most poses a step plans ahead",
+                fields=("n", "max_plan"),
+            )
         check_sigma(self.sigma_mm)
         check_seed(self.seed)
 
@@ -139,10 +147,12 @@ class NextResult:
             f"{self.n_measured} poses measured: tr(Cs)/3 = {self.kpi_avg_var_mm2:.4g} mm^2{post}, "
             f"target {self.target_var_mm2:g} mm^2"
         )
+        forced = [f"  warning: {w}" for w in self.report.warnings if w.startswith("forced:")]
         if self.done:
-            return head + "\n  done: the precision is reached; nothing to measure"
+            return "\n".join([head, *forced, "  done: the precision is reached; nothing to measure"])
         lines = [
             head,
+            *forced,
             f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2",
             f"  planned {self.n_planned} more; at least {self.min_more_poses} more are needed "
             "(with fewer, the certified bound exceeds the target)",
@@ -199,7 +209,9 @@ def next_poses(
     opts = options or NextOptions()
     if data.n == 0:
         raise InputError(f"{data.source}: no poses measured yet: start with a design (kpioed design)")
-    cal_opts = CalibrationOptions(sigma_mm=opts.sigma_mm, effects=tuple(model_effects(robot)))
+    cal_opts = CalibrationOptions(
+        sigma_mm=opts.sigma_mm, effects=tuple(model_effects(robot)), force=opts.force
+    )
     report = calibrate(robot, data, cal_opts, cell=cell)
     scale = report.chi2_per_dof if report.rejects else 1.0
     var_now = float(np.trace(report.kpi_cov) / 3.0 * scale)
@@ -269,7 +281,7 @@ def plan_size(problem: Problem, opts: NextOptions, q_given: np.ndarray) -> tuple
         (poses planned, fewest more poses: 0 .. ``max_plan + 1``).
     """
     approx = certificate.certified_design(problem, collision=opts.collision, seed=opts.seed)
-    top = max(opts.n, opts.max_plan)
+    top = opts.max_plan  # at least opts.n (NextOptions)
     greedy = fewest_new_poses(problem, approx, given=q_given, target=opts.target_var_mm2, n_max=top)
     gd = given_design(
         problem, approx, given=q_given, n=int(np.clip(greedy, opts.n, top)), collision=opts.collision

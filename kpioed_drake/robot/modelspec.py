@@ -18,6 +18,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.options import yaml_mismatch
 from kpioed_drake.robot.jointmap import JointMapSpec
 
 MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
@@ -119,8 +120,8 @@ def checked_effects(specs, where: str) -> tuple[EffectSpec, ...]:
         at = f"{where}: effects[{k}]"
         if not str(e.name).strip() or "=" in e.name:
             raise InputError(f"{at}.name: expected an effect text without values, got {e.name!r}")
-        for field in ("values", "std", "basis_rms"):
-            v = np.asarray(getattr(e, field), dtype=float).ravel()
+        for field in ("values", "std", "basis_rms", "basis_directions"):
+            v = np.concatenate([np.ravel(np.asarray(x, dtype=float)) for x in getattr(e, field)] + [[]])
             if not np.all(np.isfinite(v)):
                 raise InputError(f"{at}.{field}: expected finite numbers, got {getattr(e, field)!r}")
         if not e.values:
@@ -330,14 +331,19 @@ def load_yaml_typed(path: str | Path, schema):
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     try:  # PyYAML first: its syntax errors carry the line and column
-        yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except RecursionError:  # PyYAML builds nested lists by recursion
+        raise InputError(f"{path}: lists or mappings nested too deeply; not a model file") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         loc = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise InputError(f"{path}: YAML syntax error{loc}: {what}") from None
+    mismatch = yaml_mismatch(data, schema)  # the field and what it should be, before Drake's loader
+    if mismatch:
+        raise InputError(f"{path}: {mismatch}")
     try:
         return yaml_load_typed(filename=str(path), schema=schema)
     except AssertionError:

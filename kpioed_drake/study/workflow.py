@@ -15,7 +15,7 @@ import pandas as pd
 
 from kpioed_drake.arguments import check_count, check_seed, require
 from kpioed_drake.errors import InputError, SolverError
-from kpioed_drake.outputs import atomic_write_text
+from kpioed_drake.outputs import atomic_write_text, check_output_paths
 from kpioed_drake.robot.models import list_robots, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.study.bounds import add_efficiency, bound_tasks_of, bounds_frame, rows_from_results
@@ -138,6 +138,7 @@ def run_study(
         SolverError: every task failed (nothing to tabulate; the task files keep the errors).
     """
     t0 = time.perf_counter()
+    check_output_paths(folders=[out_dir])  # an empty name would be the current folder
     out_dir = Path(out_dir)
     robots = list(robots) if robots is not None else study_robots(quick)
     _check(out_dir, robots, n=n, seed=seed, heuristic_draws=heuristic_draws, jobs=jobs)
@@ -174,8 +175,7 @@ def _check(out_dir: Path, robots: list[str], *, n, seed, heuristic_draws, jobs) 
     check_count("n", n)
     check_count("heuristic_draws", heuristic_draws, allow_none=True)
     check_count("jobs", jobs, allow_none=True)
-    require(len(robots) > 0, "robots: expected at least one robot name")
-    require(not out_dir.is_file(), f"{out_dir}: is a file; expected a folder for the study")
+    require(len(robots) > 0, "robots: expected at least one robot name", fields=("robots",))
     known = set(list_robots())
     unknown = [r for r in robots if r not in known]
     if unknown:

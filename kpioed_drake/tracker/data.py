@@ -48,6 +48,19 @@ TARGET_COLUMN = "target"
 FRAMES = ("tracker", "base")
 """Frames measured positions can be given in: the tracker frame T, or the robot base frame W."""
 ROW_CONVENTION = "CSV record number, header = row 1 (data row k is row k + 1; blank lines not counted)"
+PLAUSIBLE = {
+    "x_mm": (-1e6, 1e6, "mm"),
+    "y_mm": (-1e6, 1e6, "mm"),
+    "z_mm": (-1e6, 1e6, "mm"),
+    "temperature_C": (-273.15, 1e3, "C"),
+    "time_s": (-1e11, 1e11, "s"),
+    "payload_kg": (0.0, 1e5, "kg"),
+}
+"""Bounds of a measured value no real measurement leaves (low, high, unit): a reflector within a
+kilometre of the tracker (trackers reach some 80 m), a temperature above absolute zero, a time
+within some thousand years of its origin (Unix seconds included), a payload under 100 t. A value
+beyond them is a broken row (an overflowed or mistyped number), named by its row and column
+before any statistic sees it."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,11 +216,26 @@ class Measurements:
         for name, v in self.extra:
             if v.shape != (n,) or not np.all(np.isfinite(v)):
                 raise InputError(f"{self.source}: column {name}: expected one finite number per row")
+        self._check_plausible()
         t = self.target
         if t is not None:
             ok = t.shape == (n,) and np.all(np.isfinite(t)) and np.all(t == np.round(t)) and np.all(t >= 0)
             if not ok:
                 raise InputError(f"{self.source}: target: expected (n,) integer indices >= 0 (0-based)")
+
+    def _check_plausible(self) -> None:
+        """Every measured value within :data:`PLAUSIBLE` (the first one beyond named by row and column)."""
+        columns = {c: self.eta[:, k] for k, c in enumerate(XYZ_COLUMNS)}
+        columns |= {c: getattr(self, c) for c in OPTIONAL_COLUMNS if getattr(self, c) is not None}
+        for name, values in columns.items():
+            low, high, unit = PLAUSIBLE[name]
+            bad = np.flatnonzero((values < low) | (values > high))
+            if bad.size:
+                k = int(bad[0])
+                raise InputError(
+                    f"{self.source}: row {self.rows[k]}, column {name!r}: {values[k]:g} {unit} is no "
+                    f"measured value (expected {low:g} .. {high:g} {unit}); check the row"
+                )
 
     def subset(self, idx) -> Measurements:
         """The poses ``idx`` (indices or a boolean mask), rows kept."""

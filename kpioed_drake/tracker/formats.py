@@ -4,7 +4,8 @@ Other tools write laser-tracker data with their own column names, units, separat
 A format file (documented in ``docs/data-formats.md``) maps such a file onto the one
 :class:`~kpioed_drake.tracker.data.Measurements` type (the measurements eta of paper eq. 3):
 
-- ``joints``: the six joint-angle columns, in ``angle_unit`` (``deg`` or ``rad``); with
+- ``joints``: the joint columns, one per joint (or controller axis), in ``angle_unit`` (``deg`` or
+  ``rad``; a prismatic joint's in ``length_unit``); with
   ``angles: controller`` (the default) the robot file's ``joint_map``
   (:mod:`kpioed_drake.robot.jointmap`) turns them into model angles, so controller angles go in
   unchanged;

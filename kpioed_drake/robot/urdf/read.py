@@ -35,6 +35,13 @@ from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
 from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
 from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
+from kpioed_drake.robot.urdf.numbers import (
+    MAX_LENGTH_M,
+    check_numbers,
+    checked_limits,
+    floats,
+    sidecar_limits,
+)
 from kpioed_drake.robot.urdf.tree import MOVABLE, chain_joints, measured_links, mimics
 
 MM = 1e-3
@@ -60,20 +67,9 @@ def sidecar_path(path: Path) -> Path:
     return path.with_name(path.stem + ".kpioed.yaml")
 
 
-def _floats(el, attr: str, default: str, where: str) -> np.ndarray:
-    text = el.get(attr, default) if el is not None else default
-    try:
-        vals = np.array([float(x) for x in text.split()])
-    except ValueError:
-        raise InputError(f"{where}: {attr}={text!r} is not a list of numbers") from None
-    if not np.all(np.isfinite(vals)):
-        raise InputError(f"{where}: {attr}={text!r} is not finite")
-    return vals
-
-
 def _origin(el, where: str) -> RigidTransform:
     o = el.find("origin")
-    xyz, rpy = _floats(o, "xyz", "0 0 0", where), _floats(o, "rpy", "0 0 0", where)
+    xyz, rpy = floats(o, "xyz", "0 0 0", where), floats(o, "rpy", "0 0 0", where)
     if xyz.shape != (3,) or rpy.shape != (3,):
         raise InputError(f"{where}: origin needs three xyz and three rpy values")
     return RigidTransform(RollPitchYaw(rpy), xyz)
@@ -165,14 +161,18 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     xml = _parse_xml(path)
+    check_numbers(xml, path)
     side_path = sidecar_path(path)
     side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
     sw = str(side_path)
     tips = measured_links(side, sw, path)
     chain_xml, parents, root, welded = chain_joints(xml, path, tips)
+    mimicked = mimics(chain_xml, path)  # the URDF's own joint map: its errors name the URDF
     X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
-    source = UrdfSource(str(path), _stripped(xml, side.masses, chain_xml, sw), X_WB, root, names)
+    overrides = sidecar_limits(side, sw)
+    text = _stripped(checked_limits(xml, overrides, path), side.masses, chain_xml, sw)
+    source = UrdfSource(str(path), text, X_WB, root, names)
     plant = MultibodyPlant(0.0)
     inst = add_urdf(plant, source)
     plant.Finalize()
@@ -180,7 +180,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     joints = movable_joints(plant, inst, source)
     n = len(joints)
     R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, parents, path)
-    lo, up = _limits(side, names, pris, lo, up, sw, path)
+    lo, up = _limits(overrides, names, pris, lo, up, sw, path)
     tree = bool(np.any(parents != np.arange(n) - 1))
     chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris, parent=parents if tree else None)
     masses, coms, owner = _inertia(plant, ctx, bodies)
@@ -201,10 +201,11 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         for j in xml.iter("joint")
         if j.get("type") in MOVABLE and j.get("name") not in names
     }
+    jwhere = sw if side.joint_map else str(path)
     jmap = side.joint_map or mimic_joint_map(
-        list(names), mimics(chain_xml), [MM if p else 1.0 for p in pris], sw, off_chain=off_chain
+        list(names), mimicked, [MM if p else 1.0 for p in pris], jwhere, off_chain=off_chain
     )
-    joint_map = joint_map_from_spec(jmap, sw, joint_names=names, prismatic=pris)
+    joint_map = joint_map_from_spec(jmap, jwhere, joint_names=names, prismatic=pris)
     refl = p_FQ if targets is None else targets
     gauge = _gauge(side, chain, lo, up, refl, sw, path, joint_map, target_links)
     return dict(
@@ -368,18 +369,15 @@ def _vec(values, where: str, size: int = 3) -> np.ndarray:
     return arr
 
 
-def _limits(side, names, pris, lo, up, sw, path):
+def _limits(overrides, names, pris, lo, up, sw, path):
     lo, up = lo.copy(), up.copy()
-    by_name = {lim.joint: lim for lim in side.limits}
-    unknown = sorted(set(by_name) - set(names))
+    unknown = sorted(set(overrides) - set(names))
     if unknown:
         raise InputError(f"{sw}: limits: unknown joints {unknown} (joints: {', '.join(names)})")
     for i, name in enumerate(names):
-        if name in by_name:
-            lim = by_name[name]
-            if not (np.isfinite(lim.lower) and np.isfinite(lim.upper) and lim.lower < lim.upper):
-                raise InputError(f"{sw}: limits of joint {name!r}: need finite lower < upper")
-            lo[i], up[i] = (lim.lower, lim.upper) if pris[i] else np.deg2rad([lim.lower, lim.upper])
+        if name in overrides:
+            lower, upper = overrides[name]
+            lo[i], up[i] = (lower, upper) if pris[i] else np.deg2rad([lower, upper])
         elif not (np.isfinite(lo[i]) and np.isfinite(up[i])):
             if pris[i]:
                 raise InputError(f"{path}: prismatic joint {name!r} has no limits; give them in {sw}")
@@ -449,18 +447,23 @@ def _capsule_geometry(col, where):
         raise InputError(f"{where}: no geometry")
     tag = shape.tag.split("}")[-1]
     if tag in ("cylinder", "capsule"):
-        r, length = (_floats(shape, k, "nan", where)[0] for k in ("radius", "length"))
+        r, length = (floats(shape, k, "nan", where, bound=MAX_LENGTH_M)[0] for k in ("radius", "length"))
         half = np.array([0.0, 0.0, 0.5 * length])
-        return r, -half, half
-    if tag == "sphere":
-        return _floats(shape, "radius", "nan", where)[0], np.zeros(3), np.zeros(3)
-    if tag == "box":
-        size = _floats(shape, "size", "nan nan nan", where)
+        sizes = (r, length)
+    elif tag == "sphere":
+        r = floats(shape, "radius", "nan", where, bound=MAX_LENGTH_M)[0]
+        half, sizes = np.zeros(3), (r,)
+    elif tag == "box":
+        size = floats(shape, "size", "nan nan nan", where, bound=MAX_LENGTH_M)
         k = int(np.argmax(size))
         half = np.zeros(3)
         half[k] = 0.5 * size[k]
-        return 0.5 * float(np.linalg.norm(np.delete(size, k))), -half, half
-    return None
+        r, sizes = 0.5 * float(np.linalg.norm(np.delete(size, k))), tuple(size)
+    else:
+        return None
+    if min(sizes) < 0:
+        raise InputError(f"{where}: <{tag}>: expected sizes >= 0, got {', '.join(f'{s:g}' for s in sizes)}")
+    return r, -half, half
 
 
 def _side_capsules(side, n, sw):

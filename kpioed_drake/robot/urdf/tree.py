@@ -41,10 +41,13 @@ def chain_joints(
 ) -> tuple[list[ET.Element], np.ndarray, str, bool]:
     """The movable joints in tree order (base to flange; with ``tips``, the union of the chains to
     those links, other branches ignored; else the tree must be serial), each one's parent joint
-    (0-based, -1: the root), the root link, and whether the URDF welds to "world"."""
+    (0-based, -1: the root), the root link, and whether the URDF welds to "world".
+
+    Every walk over the file's graph is a loop over its links (no recursion), after
+    :func:`check_tree` made sure the graph is a tree: a URDF of any depth, or a malformed one,
+    ends with an answer or an :class:`InputError`.
+    """
     joints = root.findall("joint")
-    children: dict[str, list[ET.Element]] = {}
-    parent_joint: dict[str, ET.Element] = {}
     for j in joints:
         name, kind = j.get("name", "?"), j.get("type", "")
         if kind not in MOVABLE + HELD:
@@ -55,8 +58,8 @@ def chain_joints(
         p, c = j.find("parent"), j.find("child")
         if p is None or c is None or not p.get("link") or not c.get("link"):
             raise InputError(f"{path}: joint {name!r}: needs <parent link=...> and <child link=...>")
-        children.setdefault(p.get("link"), []).append(j)
-        parent_joint[c.get("link")] = j
+    links = [lk.get("name") for lk in root.findall("link")]
+    children, parent_joint, root_link = check_tree(joints, links, path)
     for j in joints:
         above = _above(j.find("parent").get("link"), parent_joint)
         if j.get("type") in ("floating", "planar") and any(a.get("type") in MOVABLE for a in above):
@@ -64,15 +67,11 @@ def chain_joints(
                 f"{path}: joint {j.get('name', '?')!r}: type {j.get('type')!r} is not supported below "
                 "a movable joint (a free or planar base is held at its origin)"
             )
-    links = [lk.get("name") for lk in root.findall("link")]
-    roots = [lk for lk in links if lk not in parent_joint]
-    if len(roots) != 1:
-        raise InputError(f"{path}: expected one root link, found {roots or 'none'} (not a tree)")
     if tips:
         used = {id(j) for t, where in tips for j in _path_to(t, parent_joint, links, where)}
-        chain = _depth_first(roots[0], children, used)
+        chain = [j for j in _depth_first(root_link, children) if id(j) in used and j.get("type") in MOVABLE]
     else:
-        chain = _serial(roots[0], children, path)
+        chain = _serial(root_link, children, path)
     if not chain:
         raise InputError(f"{path}: no revolute or prismatic joint")
     index = {id(j): i for i, j in enumerate(chain)}
@@ -80,24 +79,85 @@ def chain_joints(
         next((index[id(a)] for a in _above(j.find("parent").get("link"), parent_joint) if id(a) in index), -1)
         for j in chain
     ]
-    return chain, np.array(parents, dtype=int), roots[0], roots[0] == "world"
+    return chain, np.array(parents, dtype=int), root_link, root_link == "world"
+
+
+def check_tree(joints: list[ET.Element], links: list[str], path: Path) -> tuple[dict, dict, str]:
+    """The URDF's joints and links form one tree: each link named once, each joint between two
+    distinct links of the file, each link the child of at most one joint, no loop, one root.
+
+    Returns:
+        (link -> the joints whose parent it is, in the file's order; link -> its parent joint;
+        the root link).
+
+    Raises:
+        InputError: naming the file, the link or joints and what a URDF must be.
+    """
+    seen: set[str] = set()
+    for kind, names in (("link", links), ("joint", [j.get("name", "?") for j in joints])):
+        for name in names:
+            if name in seen:
+                raise InputError(f"{path}: {kind} {name!r} is defined more than once (names must be unique)")
+            seen.add(name)
+        seen = set()
+    known = set(links)
+    children: dict[str, list[ET.Element]] = {}
+    parent_joint: dict[str, ET.Element] = {}
+    for j in joints:
+        name, p, c = j.get("name", "?"), j.find("parent").get("link"), j.find("child").get("link")
+        for role, link in (("parent", p), ("child", c)):
+            if link not in known:
+                raise InputError(f"{path}: joint {name!r}: {role} link {link!r} is not a link of the URDF")
+        if p == c:
+            raise InputError(f"{path}: joint {name!r}: connects link {p!r} to itself")
+        if c in parent_joint:
+            raise InputError(
+                f"{path}: link {c!r} is the child of two joints ({parent_joint[c].get('name', '?')!r} and "
+                f"{name!r}); a URDF is a tree: every link but the root has one parent joint (closed "
+                "loops are not supported)"
+            )
+        children.setdefault(p, []).append(j)
+        parent_joint[c] = j
+    _check_no_loop(links, parent_joint, path)
+    roots = [lk for lk in links if lk not in parent_joint]
+    if len(roots) != 1:
+        raise InputError(f"{path}: expected one root link, found {roots or 'none'} (not a tree)")
+    return children, parent_joint, roots[0]
+
+
+def _check_no_loop(links: list[str], parent_joint: dict, path: Path) -> None:
+    """No link is its own ancestor (each link has at most one parent joint here)."""
+    done: set[str] = set()  # links whose way up ends at a root
+    for start in links:
+        way, link = [], start
+        while link in parent_joint and link not in done:
+            if link in way:
+                loop = way[way.index(link) :]
+                names = ", ".join(repr(parent_joint[lk].get("name", "?")) for lk in loop)
+                raise InputError(
+                    f"{path}: the joints {names} form a closed loop (link {link!r} is its own ancestor); "
+                    "a URDF is a tree"
+                )
+            way.append(link)
+            link = parent_joint[link].find("parent").get("link")
+        done.update(way)
 
 
 def _above(link: str, parent_joint: dict):
-    """The joints from ``link`` up to the root, nearest first."""
+    """The joints from ``link`` up to the root, nearest first (a tree: :func:`check_tree`)."""
     while link in parent_joint:
         yield parent_joint[link]
         link = parent_joint[link].find("parent").get("link")
 
 
-def _depth_first(link: str, children: dict, used: set) -> list[ET.Element]:
-    """The movable joints in ``used`` (ids) below ``link``, depth first in the URDF's order of
-    children, so that every joint follows its parent."""
-    out = []
-    for j in children.get(link, []):
-        if id(j) in used and j.get("type") in MOVABLE:
-            out.append(j)
-        out += _depth_first(j.find("child").get("link"), children, used)
+def _depth_first(link: str, children: dict) -> list[ET.Element]:
+    """The joints below ``link``, depth first in the URDF's order of children, so that every joint
+    follows its parent (an explicit stack: no recursion however deep the tree)."""
+    out, stack = [], list(reversed(children.get(link, [])))
+    while stack:
+        j = stack.pop()
+        out.append(j)
+        stack.extend(reversed(children.get(j.find("child").get("link"), [])))
     return out
 
 
@@ -109,19 +169,27 @@ def _path_to(tip: str, parent_joint: dict, links: list[str], where: str) -> list
     return list(_above(tip, parent_joint))[::-1]
 
 
+def _movable_below(root: str, children: dict) -> dict[str, int]:
+    """Link -> the movable joints below it, for every link under ``root`` (children before their
+    parents: the depth-first order reversed)."""
+    count: dict[str, int] = {}
+    for j in reversed(_depth_first(root, children)):
+        child = j.find("child").get("link")
+        below = count.get(child, 0) + (j.get("type") in MOVABLE)
+        parent = j.find("parent").get("link")
+        count[parent] = count.get(parent, 0) + below
+    return count
+
+
 def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
     """The movable joints of a serial chain from ``root`` (a branch of movable joints is an error)."""
-
-    def movable_below(link: str) -> int:
-        below = children.get(link, [])
-        return sum((j.get("type") in MOVABLE) + movable_below(j.find("child").get("link")) for j in below)
-
+    below = _movable_below(root, children)
     chain, link = [], root
     while True:
         branches = [
             j
             for j in children.get(link, [])
-            if j.get("type") in MOVABLE or movable_below(j.find("child").get("link"))
+            if j.get("type") in MOVABLE or below.get(j.find("child").get("link"), 0)
         ]
         if len(branches) > 1:
             raise InputError(
@@ -135,10 +203,28 @@ def _serial(root: str, children: dict, path: Path) -> list[ET.Element]:
         link = branches[0].find("child").get("link")
 
 
-def mimics(chain: list[ET.Element]) -> dict[str, tuple[str, float, float]]:
-    """The chain's ``<mimic>`` joints: name -> (leader, multiplier, offset [rad or m])."""
-    mimic = {j.get("name"): j.find("mimic") for j in chain if j.find("mimic") is not None}
-    return {
-        n: (m.get("joint", ""), float(m.get("multiplier", 1)), float(m.get("offset", 0)))
-        for n, m in mimic.items()
-    }
+def mimics(chain: list[ET.Element], path: Path) -> dict[str, tuple[str, float, float]]:
+    """The chain's ``<mimic>`` joints: name -> (leader, multiplier, offset [rad or m]).
+
+    Raises:
+        InputError: a multiplier or offset that is not one finite number (the URDF and joint named).
+    """
+    out = {}
+    for j in chain:
+        m = j.find("mimic")
+        if m is None:
+            continue
+        values = []
+        for attr, default in (("multiplier", "1"), ("offset", "0")):
+            text = m.get(attr, default)
+            try:
+                v = float(text)
+            except ValueError:
+                v = float("nan")
+            if not np.isfinite(v):
+                raise InputError(
+                    f"{path}: joint {j.get('name')!r}: <mimic {attr}={text!r}>: expected one finite number"
+                )
+            values.append(v)
+        out[j.get("name")] = (m.get("joint", ""), *values)
+    return out

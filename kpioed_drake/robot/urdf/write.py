@@ -37,13 +37,15 @@ def check_out_path(robot: Robot, out) -> None:
     is_urdf = Path(str(out)).suffix == URDF_SUFFIX
     if robot.urdf is not None and not is_urdf:
         raise InputError(
-            f"out {out}: {robot.name} is a URDF robot; its calibrated model is a URDF file: use "
-            f"out NAME{URDF_SUFFIX} (its sidecar NAME.kpioed.yaml is written beside it)",
+            f"out: {robot.name} is a URDF robot; its calibrated model is a URDF file: expected "
+            f"NAME{URDF_SUFFIX} (its sidecar NAME.kpioed.yaml is written beside it), got {str(out)!r}",
             fields=("out",),
         )
     if robot.urdf is None and is_urdf:
         raise InputError(
-            f"out {out}: {robot.name} is a YAML robot; write its calibrated model as .yaml", fields=("out",)
+            f"out: {robot.name} is a YAML robot; expected a .yaml file for its calibrated model, "
+            f"got {str(out)!r}",
+            fields=("out",),
         )
 
 
