@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from kpioed_drake.study.authoring import EnvelopeSize, envelope_links, kinematic_rows, solve_q_work
 from kpioed_drake.robot.models import MODELS_DIR, RobotSpec, load_cell, robot_from_spec
+from kpioed_drake.study.authoring import EnvelopeSize, envelope_links, kinematic_rows, solve_q_work
 
 KUKA = {
     "kr16": dict(

@@ -10,11 +10,11 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import covariance, criteria
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.study.authoring import work_target
 from kpioed_drake.robot.geometry import ClearanceModel, segment_distance
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import list_robots, load_cell, load_robot
 from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.study.authoring import work_target
 from kpioed_drake.tracker.feasibility import FeasibilityChecker
 from kpioed_drake.tracker.measurement import (
     incidence_cosine,
