@@ -65,6 +65,10 @@ from kpioed_drake.robot.drivetrain import follower_factor
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import reflector_world
 
+ALTERNATIVE_MAX_ITER = 25
+"""Levenberg-Marquardt iterations of an alternative's refit from the fit without the cause (most take
+6-12; the few that crawl along a direction the geometry nearly takes are within their last digits
+of the converged cost by then, and took 100 each)."""
 REFIT_MARGIN = 2
 """Candidates refitted beyond the alternatives a cause lists (:data:`MAX_ALTERNATIVES`), by score."""
 
@@ -147,7 +151,7 @@ def competing(
     keep += [t for t in screened if t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
     found = []
     for _, b, C, U_b, nested in keep:
-        f = prob.fit(list(f0.effects) + [b], start=f0)
+        f = prob.fit(list(f0.effects) + [b], start=f0, max_iter=ALTERNATIVE_MAX_ITER)
         lr_b = max(f0.cost - f.cost, 0.0)
         p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
         if lr_b < lr_a - c and not nested:

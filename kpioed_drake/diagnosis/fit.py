@@ -117,11 +117,12 @@ class FitProblem:
         cond = self.conditions.subset(idx)
         return estimator.response(self.own(model), list(effects), self.data.q[idx], cond)
 
-    def fit(self, effects, *, start: Fit | None = None, idx=None) -> Fit:
+    def fit(self, effects, *, start: Fit | None = None, idx=None, max_iter: int = 100) -> Fit:
         """Fit the geometric parameters and the effects' values on poses ``idx`` (default all).
 
         Starts from ``start`` (its model's parameters, this problem's robot, and the values of
-        effects it shares) or from the registered nominal model with zero effect values.
+        effects it shares) or from the registered nominal model with zero effect values; at most
+        ``max_iter`` Levenberg-Marquardt iterations.
         """
         n = self.data.n
         mask = np.zeros(n, dtype=bool)
@@ -141,6 +142,7 @@ class FitProblem:
             effects=effs,
             conditions=self.conditions,
             singular_ok=True,
+            max_iter=max_iter,
         )
 
     def folds(self, k: int = K_FOLDS) -> list[np.ndarray]:
