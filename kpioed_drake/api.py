@@ -5,7 +5,7 @@
 | ``kpioed info`` | :func:`info` | here |
 | ``kpioed evaluate`` | :func:`evaluate` | :func:`kpioed_drake.design.evaluate_file` |
 | ``kpioed design`` | :func:`design` | :func:`kpioed_drake.design.run_design` |
-| ``kpioed simulate`` | :func:`simulate` | :func:`kpioed_drake.simulation.truth.simulate_file` |
+| ``kpioed simulate`` | :func:`simulate` | :func:`kpioed_drake.simulation.workflow.simulate_file` |
 | ``kpioed calibrate`` | :func:`calibrate` | :func:`kpioed_drake.calibration.calibrate_file` |
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |

@@ -36,6 +36,7 @@ Modules, in dependency order:
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
 - :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
+- :mod:`~kpioed_drake.design.polish`: the final exchange on the exact criterion after the optimiser;
 - :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
   design; :func:`resolve_start`);
 - :mod:`~kpioed_drake.design.optimize`: :func:`optimize_design`, the entry point (also with poses

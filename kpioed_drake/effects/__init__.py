@@ -103,9 +103,10 @@ payload torques, the elastic lever), :mod:`.gravity_basis` (the gravity torque a
 identifiable mass moments: elasticity without trusting the model file's masses), :mod:`.compliance`
 (column, base and lateral compliance: the rotation, its pivot and their derivatives),
 :mod:`.lateral_basis` (the lateral compliance as a combination of identifiable mass moments),
-:mod:`.response`
-(the measurement model with effects, its
-Jacobian, the effects' design and KPI columns).
+:mod:`.response` (the measurement model with effects, its Jacobian, the effects' design and KPI
+columns), :mod:`.physical` (the plausibility bounds of a fitted effect, per drive type),
+:mod:`.stored` (an extended model file's ``effects:`` entries as effects, and back) and
+:mod:`.basis_store` (the mass-free bases a robot object carries).
 """
 
 from kpioed_drake.effects.gravity import (

@@ -5,4 +5,6 @@ loaded into typed dataclasses (:mod:`.models`, the cell in :mod:`.cell`, schemas
 from which both the numpy kinematics (:mod:`.kinematics`, :mod:`.chain`) and the Drake MultibodyPlant
 (:mod:`.plant`) are built. :mod:`.reference`: the geometry a calibrated extended model's effects are
 evaluated on (the model its fit started from), so that the file predicts what the fit predicted.
+:mod:`.jointmap`: controller angles to model angles; :mod:`.drivetrain`: drive types and the
+coupling pairs of the structure; :mod:`.urdf`: URDF robots; :mod:`.geometry`: capsule clearances.
 """

@@ -1,5 +1,8 @@
 """3-D scenes of designs, calibrations and diagnoses as self-contained HTML pages (Drake Meshcat).
 
+Modules: :mod:`.pages` (the pages), :mod:`.drawing` (robot, obstacles, beams and points drawn into
+a Meshcat scene), :mod:`.canvas` (the scene recorded as one self-contained HTML file).
+
 Public functions (plain arrays in, HTML text out; see :mod:`kpioed_drake.scene3d.pages`):
 :func:`design_page`, :func:`calibration_page`, :func:`diagnosis_page`, :func:`write_page`, and
 :func:`external_references` (markup of a page that would load from the network).

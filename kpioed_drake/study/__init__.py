@@ -8,7 +8,10 @@ A study is a list of :class:`Task` (robot x design method x collision avoidance 
 Per robot a :class:`BoundTask` computes the lower bound on tr(Cs)/3 of any design (the optimality
 certificate's search), joined into the rows and tables as each design's efficiency (:mod:`.bounds`).
 :mod:`.workflow`: :func:`run_study` does all of it; :func:`regenerate_tables` rebuilds the tables of a
-finished study with the bounds, without making the designs again.
+finished study with the bounds, without making the designs again. :mod:`.variants` (the problem
+variants of a study), :mod:`.sensitivity` (Table 6 under each variant),
+:mod:`.synthetic` (the diagnosis self-test: simulated campaigns with hidden effects) and
+:mod:`.authoring` (writes the model files: kinematic rows, capsules, ``q_work`` by inverse kinematics).
 """
 
 from __future__ import annotations
