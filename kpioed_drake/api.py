@@ -11,7 +11,7 @@
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.workflow.run_study` |
 | ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.next_file` |
-| ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.calibration.programs.compensate_file` |
+| ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.compensation.workflow.compensate_file` |
 
 Example::
 
@@ -43,8 +43,8 @@ import numpy as np
 
 from kpioed_drake.calibration import CalibrationReport, calibrate_file
 from kpioed_drake.calibration.common import CalibrationOptions
-from kpioed_drake.calibration.programs import compensate_file as compensate
 from kpioed_drake.calibration.validate import validate_file as validate
+from kpioed_drake.compensation.workflow import compensate_file as compensate
 from kpioed_drake.design import DesignOptions, DesignResult, run_design
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file

@@ -19,7 +19,7 @@ from kpioed_drake.cli import build_parser
 
 PACKAGE = Path(__file__).resolve().parents[1] / "kpioed_drake"
 MAX_LINES = 500
-WORKFLOWS = ("design", "simulation", "calibration", "diagnosis", "study")
+WORKFLOWS = ("design", "simulation", "calibration", "compensation", "online", "diagnosis", "study")
 CORE = ("robot", "tracker", "effects", "estimation")
 MAX_ROOT_MODULES = 10
 MAX_FOLDER_MODULES = 12
@@ -52,6 +52,7 @@ RANK = {
     "design": 5.6,
     "simulation": 5.8,
     "calibration": 6,
+    "compensation": 6.2,
     "online": 6.5,
     "diagnosis": 7,
     "study": 8,

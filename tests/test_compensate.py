@@ -1,4 +1,4 @@
-"""``kpioed compensate``: a calibrated model makes the robot accurate (kpioed_drake.calibration.compensate).
+"""``kpioed compensate``: a calibrated model makes the robot accurate (kpioed_drake.compensation.solve).
 
 The must-show case: a simulated kr16 with geometric errors and an elastic joint 2, calibrated with
 the elasticity on a 60-pose KPI design, compensates a 20-pose nominal program so that the true TCP
@@ -22,8 +22,8 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from kpioed_drake import api
 from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
-from kpioed_drake.calibration.compensate import compensate_program, model_pose, rotation_error
 from kpioed_drake.cli import main
+from kpioed_drake.compensation.solve import compensate_program, model_pose, rotation_error
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.effects import augmented_response, parse_effect
