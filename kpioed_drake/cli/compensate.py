@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_robot, passed
+from kpioed_drake.cli import add_robot, passed
 from kpioed_drake.compensation.workflow import ANGLES
 
 API_NAMES = {"effects": "effect"}
