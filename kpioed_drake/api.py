@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.calibration import CalibrationReport, calibrate_file
-from kpioed_drake.calibration.common import CalibrationOptions
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.compensation.workflow import compensate_file as compensate
 from kpioed_drake.design import DesignOptions, DesignResult, run_design
@@ -241,7 +241,7 @@ def calibrate(
     """Calibrate from a measurement file (``kpioed calibrate``):
     :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
     ``outlier_alpha``, ``force`` and ``strict`` as its
-    :class:`~kpioed_drake.calibration.common.CalibrationOptions`.
+    :class:`~kpioed_drake.calibration.options.CalibrationOptions`.
 
     Args:
         robot: model name or YAML path.

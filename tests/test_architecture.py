@@ -39,7 +39,7 @@ RANK = {
     "estimation": 4,
     "arguments": 4.5,
     "scene3d": 4.5,
-    "design.common": 5.0,
+    "design.settings": 5.0,
     "design.heuristic": 5.0,
     "design.exact": 5.1,
     "design.approximate": 5.2,
@@ -167,7 +167,7 @@ def test_checker_sees_a_cycle_and_a_late_import():
     )
     assert _rank("kpioed_drake.design.optimize") > _rank("kpioed_drake.design.approximate.search")
     assert _rank("kpioed_drake.design.approximate.search") > _rank("kpioed_drake.design.exact.program")
-    assert _rank("kpioed_drake.design.exact.program") > _rank("kpioed_drake.design.common")
+    assert _rank("kpioed_drake.design.exact.program") > _rank("kpioed_drake.design.settings")
     lines = 'def f(x):\n    """Doc."""\n\n    # note\n' + "    x += 1\n" * 81 + "    return x\n"
     assert [n for n, _ in _long_functions({"m": (Path("m.py"), ast.parse(lines))}, {"m": lines})] == [82]
 

@@ -427,7 +427,7 @@ def test_an_unwritable_output_is_refused_before_the_work(command, work, capsys, 
     def no_work(*args, **kwargs):
         raise AssertionError("the work started before the output paths were checked")
 
-    monkeypatch.setattr("kpioed_drake.calibration.common.read_data", no_work)
+    monkeypatch.setattr("kpioed_drake.calibration.inputs.read_data", no_work)
     monkeypatch.setattr("kpioed_drake.design.workflow.load_robot", no_work)
     monkeypatch.setattr("kpioed_drake.simulation.workflow.load_robot", no_work)
     line = _refused(_output_argv(work, command, "/proc/kpioed-out.x"), capsys, work)

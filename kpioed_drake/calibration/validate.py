@@ -46,7 +46,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import require
-from kpioed_drake.calibration.common import read_inputs
+from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.accuracy import Figures, accuracy

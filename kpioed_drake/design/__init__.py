@@ -16,7 +16,7 @@ optimum design for each criterion.
 
 Modules, in dependency order:
 
-- :mod:`~kpioed_drake.design.common`: the design methods, solvers and the optimiser's settings;
+- :mod:`~kpioed_drake.design.settings`: the design methods, solvers and the optimiser's settings;
 - :mod:`~kpioed_drake.design.heuristic`: the paper's heuristic (uniform random feasible poses), also
   the optimiser's default start;
 - :mod:`~kpioed_drake.design.exact.objective`: the cost and its closed-form gradient;
@@ -67,23 +67,6 @@ from kpioed_drake.design.approximate.certificate import (
     pool_certificate,
 )
 from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_design, approximate_start
-from kpioed_drake.design.common import (
-    ACTIVE_ROWS_PER_POSE,
-    CLEARANCE_MARGIN_MM,
-    CLEARANCE_ROW_SCALE,
-    DEFAULT_START,
-    DESIGN_METHODS,
-    HEURISTIC_MARGIN_MM,
-    INCIDENCE_MARGIN_DEG,
-    MAX_BLOCK_POSES,
-    MAX_SWEEPS,
-    POSE_BLOCK,
-    SOLVERS,
-    START_METHODS,
-    SWEEP_BLOCK_POSES,
-    SWEEP_RTOL,
-    method_label,
-)
 from kpioed_drake.design.discriminate.design import (
     DiscriminationResult,
     discrimination_design,
@@ -100,6 +83,23 @@ from kpioed_drake.design.optimize import min_new_poses, optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
+from kpioed_drake.design.settings import (
+    ACTIVE_ROWS_PER_POSE,
+    CLEARANCE_MARGIN_MM,
+    CLEARANCE_ROW_SCALE,
+    DEFAULT_START,
+    DESIGN_METHODS,
+    HEURISTIC_MARGIN_MM,
+    INCIDENCE_MARGIN_DEG,
+    MAX_BLOCK_POSES,
+    MAX_SWEEPS,
+    POSE_BLOCK,
+    SOLVERS,
+    START_METHODS,
+    SWEEP_BLOCK_POSES,
+    SWEEP_RTOL,
+    method_label,
+)
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
 from kpioed_drake.design.workflow import demo, read_working_poses, run_design

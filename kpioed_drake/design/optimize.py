@@ -2,7 +2,7 @@
 
 :func:`optimize_design` checks the request, then solves from each start in turn (the start methods
 and poses: :mod:`~kpioed_drake.design.starts`): one solve up to
-:data:`~kpioed_drake.design.common.MAX_BLOCK_POSES` poses, block sweeps above
+:data:`~kpioed_drake.design.settings.MAX_BLOCK_POSES` poses, block sweeps above
 (:mod:`~kpioed_drake.design.exact.solve`), each result checked independently
 (:func:`~kpioed_drake.design.exact.check.check_design`); it keeps the best feasible start, polishes it
 on the exact criterion (:mod:`~kpioed_drake.design.polish`) and records it. A failed or infeasible
@@ -21,7 +21,13 @@ import time
 import numpy as np
 
 from kpioed_drake.design.approximate.design import ApproximateDesign
-from kpioed_drake.design.common import (
+from kpioed_drake.design.exact.check import DesignCheck, check_design
+from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
+from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
+from kpioed_drake.design.result import DesignError, DesignResult
+from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
     DESIGN_METHODS,
     MAX_BLOCK_POSES,
@@ -29,12 +35,6 @@ from kpioed_drake.design.common import (
     SOLVERS,
     SWEEP_BLOCK_POSES,
 )
-from kpioed_drake.design.exact.check import DesignCheck, check_design
-from kpioed_drake.design.exact.objective import DesignObjective
-from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
-from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
-from kpioed_drake.design.result import DesignError, DesignResult
 from kpioed_drake.design.starts import checked_poses, resolve_start, start_methods, start_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -157,7 +157,7 @@ def optimize_design(
 
     Args:
         problem: robot, cell, model, ``q_work`` and noise.
-        criterion: the design method, one of :data:`~kpioed_drake.design.common.DESIGN_METHODS`:
+        criterion: the design method, one of :data:`~kpioed_drake.design.settings.DESIGN_METHODS`:
             ``heuristic``, ``kpi`` (tr(Cs)/3), ``param`` (scaled tr(Cp)), ``d`` or ``o1``.
         n: number of poses (at least ``problem.min_poses()``).
         collision: impose collision and laser-beam clearance (paper "CA").
@@ -172,19 +172,19 @@ def optimize_design(
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
             rows); see :class:`~kpioed_drake.design.exact.program.DesignProgram`.
         pose_block: poses per constraint binding (default
-            :data:`~kpioed_drake.design.common.POSE_BLOCK`; None: one binding for all poses).
+            :data:`~kpioed_drake.design.settings.POSE_BLOCK`; None: one binding for all poses).
         max_block: most poses one solve varies (default
-            :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES`). A design of more poses is
+            :data:`~kpioed_drake.design.settings.MAX_BLOCK_POSES`). A design of more poses is
             optimised by sweeps over blocks of about ``sweep_block`` poses, each solved with the
             others fixed; ``status`` then reports the sweeps and ``sweeps`` their number. None:
             always one solve over all poses.
         sweep_block: poses per block in sweeps (default
-            :data:`~kpioed_drake.design.common.SWEEP_BLOCK_POSES`).
+            :data:`~kpioed_drake.design.settings.SWEEP_BLOCK_POSES`).
         given: (m, 6) [rad] poses already measured (sequential re-identification): their
             information is held fixed and the ``n`` new poses are optimised (at least
             :func:`min_new_poses`). The given poses are neither moved nor checked.
         start: how the starting poses are made, one of
-            :data:`~kpioed_drake.design.common.START_METHODS`: ``heuristic`` (paper 3.2) or
+            :data:`~kpioed_drake.design.settings.START_METHODS`: ``heuristic`` (paper 3.2) or
             ``approximate`` (``kpi`` only, without ``given``:
             :func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses:
             the approximate design of their weighted mean); None: :func:`resolve_start`.

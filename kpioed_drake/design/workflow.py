@@ -18,13 +18,13 @@ import numpy as np
 
 from kpioed_drake.arguments import check_paths
 from kpioed_drake.design.approximate import certificate
-from kpioed_drake.design.common import method_label
 from kpioed_drake.design.discriminate.conditions import read_given_conditions
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
 from kpioed_drake.design.result import DesignError, DesignResult, json_record
+from kpioed_drake.design.settings import method_label
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError

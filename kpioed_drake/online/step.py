@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed
-from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.inputs import read_inputs
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
