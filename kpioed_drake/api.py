@@ -10,7 +10,7 @@
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.workflow.run_study` |
-| ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.next_file` |
+| ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.workflow.next_file` |
 | ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.compensation.workflow.compensate_file` |
 
 Example::
@@ -177,7 +177,7 @@ def next(  # noqa: A001 (the command's name)
     plan=None,
     force: bool = False,
 ) -> dict:
-    """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
+    """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.workflow.next_file`.
 
     Calibrates on the data so far, evaluates tr(Cs)/3 at the estimate (a-posteriori when the fit
     rejects) and either stops (``done``: nothing written) or plans the poses still needed to reach
