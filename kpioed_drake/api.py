@@ -54,7 +54,7 @@ from kpioed_drake.options import options_from
 from kpioed_drake.robot.geometry import beam_targets
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
-from kpioed_drake.simulation.truth import SimulationOptions
+from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.workflow import simulate_file
 from kpioed_drake.study import run_study as study
 from kpioed_drake.tracker.csvio import q_to_file
@@ -300,7 +300,7 @@ def simulate(
     """Simulated laser-tracker data of a design file (``kpioed simulate``):
     :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
     ``geometric_errors`` and ``n_targets`` as its
-    :class:`~kpioed_drake.simulation.truth.SimulationOptions`.
+    :class:`~kpioed_drake.simulation.options.SimulationOptions`.
 
     Args:
         robot: model name or YAML path; design: design CSV; out: measurement CSV to write.

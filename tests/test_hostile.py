@@ -25,7 +25,8 @@ from kpioed_drake.cli import build_parser, main
 from kpioed_drake.errors import EXIT_INTERRUPTED, InputError
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.robot.modelspec import EffectSpec, checked_effects
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements
 

@@ -25,7 +25,8 @@ from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.online.options import NextOptions
 from kpioed_drake.online.step import next_poses
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import kpi_jacobian
 
