@@ -45,7 +45,7 @@ from kpioed_drake.calibration import CalibrationReport, calibrate_file
 from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import validate_file as validate
 from kpioed_drake.compensation.workflow import compensate_file as compensate
-from kpioed_drake.design import DesignOptions, DesignResult, run_design
+from kpioed_drake.design import DesignOptions, DesignReport, run_design
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
@@ -128,7 +128,7 @@ def design(
     plot=None,
     html=None,
     **settings,
-) -> DesignResult:
+) -> DesignReport:
     """A design for a robot in the default cell, with its files (``kpioed design``):
     :func:`kpioed_drake.design.run_design`.
 
@@ -145,7 +145,7 @@ def design(
         out, json_path, plot, html: the design CSV, the JSON record, a picture, a 3-D page.
 
     Returns:
-        :class:`~kpioed_drake.design.DesignResult`.
+        :class:`~kpioed_drake.design.DesignReport`.
     """
     return run_design(
         robot,

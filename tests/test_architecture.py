@@ -45,7 +45,7 @@ RANK = {
     "design.approximate": 5.2,
     "design.polish": 5.25,
     "design.starts": 5.25,
-    "design.result": 5.3,
+    "design.report": 5.3,
     "design.optimize": 5.3,
     "design.discriminate": 5.4,
     "design.target": 5.4,

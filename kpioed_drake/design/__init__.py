@@ -35,7 +35,7 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
-- :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
+- :mod:`~kpioed_drake.design.report`: :class:`DesignReport`, its JSON record and summary;
 - :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
   design; :func:`resolve_start`);
 - :mod:`~kpioed_drake.design.optimize`: :func:`optimize_design`, the entry point (also with poses
@@ -68,7 +68,7 @@ from kpioed_drake.design.approximate.certificate import (
 )
 from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_design, approximate_start
 from kpioed_drake.design.discriminate.design import (
-    DiscriminationResult,
+    DiscriminationReport,
     discrimination_design,
     discrimination_lines,
 )
@@ -82,7 +82,7 @@ from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import min_new_poses, optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
-from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
+from kpioed_drake.design.report import DesignError, DesignReport, format_summary, json_record
 from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
     CLEARANCE_MARGIN_MM,
@@ -132,8 +132,8 @@ __all__ = [
     "DesignError",
     "DesignObjective",
     "DesignProgram",
-    "DesignResult",
-    "DiscriminationResult",
+    "DesignReport",
+    "DiscriminationReport",
     "PoolCertificate",
     "approximate_design",
     "approximate_start",

@@ -6,7 +6,7 @@ and poses: :mod:`~kpioed_drake.design.starts`): one solve up to
 (:mod:`~kpioed_drake.design.exact.solve`), each result checked independently
 (:func:`~kpioed_drake.design.exact.check.check_design`); it keeps the best feasible start, polishes it
 on the exact criterion (:mod:`~kpioed_drake.design.polish`) and records it. A failed or infeasible
-result raises :class:`~kpioed_drake.design.result.DesignError` unless ``allow_infeasible``.
+result raises :class:`~kpioed_drake.design.report.DesignError` unless ``allow_infeasible``.
 
 Sequential re-identification (paper, section 3.1 and Outlook): with ``given`` poses already
 measured, their information ``F1^T F1`` is held fixed and only the new poses are optimised, the
@@ -26,7 +26,7 @@ from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
-from kpioed_drake.design.result import DesignError, DesignResult
+from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
     DESIGN_METHODS,
@@ -96,7 +96,7 @@ def _criteria(problem: Problem, q: np.ndarray, given: np.ndarray | None, *, stri
 
 
 def _given_record(problem: Problem, given: np.ndarray | None) -> dict | None:
-    """The ``given`` field of :class:`DesignResult`: the given poses alone."""
+    """The ``given`` field of :class:`DesignReport`: the given poses alone."""
     if given is None:
         return None
     alone = _criteria(problem, given, None)
@@ -110,11 +110,11 @@ def _given_record(problem: Problem, given: np.ndarray | None) -> dict | None:
 
 def _heuristic_result(
     problem: Problem, *, n: int, seed: int, collision: bool, given: np.ndarray | None, base: dict
-) -> DesignResult:
+) -> DesignReport:
     q = heuristic_design(problem, n=n, seed=seed, collision=collision)
     reports, n_bad, n_col = check_design(problem, q, collision=collision)
     crit = _criteria(problem, q, given, strict=given is None)
-    return DesignResult(
+    return DesignReport(
         q=q,
         value=crit["kpi_avg_var_mm2"],
         solver="none",
@@ -152,7 +152,7 @@ def optimize_design(
     start: str | None = None,
     polish: int = POLISH_ROUNDS,
     approx: ApproximateDesign | None = None,
-) -> DesignResult:
+) -> DesignReport:
     """Optimum experimental design (paper eq. 24) or, for ``criterion="heuristic"``, the heuristic.
 
     Args:
@@ -199,7 +199,7 @@ def optimize_design(
             :func:`~kpioed_drake.design.polish.polish_design`); 0: none.
 
     Returns:
-        :class:`~kpioed_drake.design.result.DesignResult` of the ``n`` new poses; its criteria
+        :class:`~kpioed_drake.design.report.DesignReport` of the ``n`` new poses; its criteria
         (``value``, ``kpi_avg_var_mm2``, ``param_crit``) are those of the combined design (given
         and new poses), ``given`` records the given poses alone.
 
@@ -332,11 +332,11 @@ def _polish(run: _Run, best: _Start, rounds: int) -> Polished:
 
 
 def _result(run: _Run, runs: list[_Start], best: int, polished: Polished | None, *, start: str, base: dict):
-    """The :class:`DesignResult` of the best start (polished where it was)."""
+    """The :class:`DesignReport` of the best start (polished where it was)."""
     sol, check = (runs[best].sol, runs[best].check) if polished is None else (polished.sol, polished.check)
     reports, n_bad, n_col = check
     crit = _criteria(run.setup.problem, sol.q, run.given)
-    return DesignResult(
+    return DesignReport(
         q=sol.q,
         value=sol.value,
         solver=run.setup.solver,
@@ -363,11 +363,11 @@ def _result(run: _Run, runs: list[_Start], best: int, polished: Polished | None,
 
 
 def _polish_record(p) -> dict:
-    """The ``polish`` field of :class:`DesignResult`."""
+    """The ``polish`` field of :class:`DesignReport`."""
     return {"rounds": p.rounds, "value_before": p.value_before, "solve_s": p.solve_s, "n_evals": p.n_evals}
 
 
-def _finish(res: DesignResult, allow_infeasible: bool) -> DesignResult:
+def _finish(res: DesignReport, allow_infeasible: bool) -> DesignReport:
     """``res``, or :class:`DesignError` naming the failure or the first infeasible pose."""
     if allow_infeasible or (res.success and res.feasible):
         return res

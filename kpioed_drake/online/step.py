@@ -27,7 +27,7 @@ from kpioed_drake.design.approximate.design import kpi_factor
 from kpioed_drake.design.approximate.given import fewest_certified, given_design
 from kpioed_drake.design.approximate.sequential import fewest_new_poses, most_useful
 from kpioed_drake.design.optimize import optimize_design
-from kpioed_drake.design.result import DesignError
+from kpioed_drake.design.report import DesignError
 from kpioed_drake.effects import model_effects
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem, make_problem

@@ -14,7 +14,7 @@ finished study with the bounds, without making the designs again.
 from __future__ import annotations
 
 from kpioed_drake.paper import PAPER
-from kpioed_drake.study.report import make_report
+from kpioed_drake.study.report import StudyReport, make_report
 from kpioed_drake.study.runner import run_tasks
 from kpioed_drake.study.tables import RESULT_COLUMNS, make_tables, per_robot, ratios, results_frame
 from kpioed_drake.study.tasks import (
@@ -30,7 +30,7 @@ from kpioed_drake.study.tasks import (
     study_robots,
 )
 from kpioed_drake.study.variants import DEFAULT, VARIANTS, Variant, get_variant, variant_problem
-from kpioed_drake.study.workflow import StudyResult, regenerate_tables, run_study, write_outputs
+from kpioed_drake.study.workflow import regenerate_tables, run_study, write_outputs
 
 __all__ = [
     "BoundTask",
@@ -40,7 +40,7 @@ __all__ = [
     "PAPER",
     "QUICK_NOTIONAL",
     "RESULT_COLUMNS",
-    "StudyResult",
+    "StudyReport",
     "Task",
     "VARIANTS",
     "Variant",
