@@ -107,6 +107,36 @@ def test_workflows_are_subpackages():
         assert not (PACKAGE / f"{name}.py").exists(), f"kpioed_drake/{name}.py beside the package"
 
 
+def _named_modules(package: Path) -> tuple[list[str], list[str]]:
+    """(modules and subpackages of ``package``, those its docstring does not name as :mod:`.name`,
+    :mod:`~kpioed_drake.pkg.name` or a module inside the subpackage)."""
+    doc = ast.get_docstring(ast.parse((package / "__init__.py").read_text())) or ""
+    dotted = _module_name(package / "__init__.py")
+    names = sorted(
+        [p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")]
+        + [p.name for p in package.iterdir() if (p / "__init__.py").is_file()]
+    )
+    named = re.compile(
+        r":mod:`~?(\.|" + re.escape(dotted) + r"\.)(?P<name>\w+)[`.]",
+    )
+    found = {m.group("name") for m in named.finditer(doc)}
+    return names, [n for n in names if n not in found]
+
+
+@pytest.mark.parametrize(
+    "package",
+    sorted(
+        str(p.parent.relative_to(PACKAGE))
+        for name in WORKFLOWS
+        for p in (PACKAGE / name).rglob("__init__.py")
+    ),
+)
+def test_workflow_package_docstring_names_its_modules(package):
+    """A workflow package's docstring is its map: every module and subpackage is named in it."""
+    names, missing = _named_modules(PACKAGE / package)
+    assert names and not missing, f"kpioed_drake/{package}/__init__.py does not name {missing}"
+
+
 @pytest.mark.parametrize("module", sorted(MODULES))
 def test_module_size(module):
     path, _ = MODULES[module]

@@ -35,6 +35,8 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
+- :mod:`~kpioed_drake.design.polish`: the final exchange on the exact criterion after the optimiser
+  (the optimiser's poses and the approximate design's candidates as one pool);
 - :mod:`~kpioed_drake.design.report`: :class:`DesignReport`, its JSON record and summary;
 - :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
   design; :func:`resolve_start`);

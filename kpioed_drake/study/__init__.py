@@ -8,7 +8,14 @@ A study is a list of :class:`Task` (robot x design method x collision avoidance 
 Per robot a :class:`BoundTask` computes the lower bound on tr(Cs)/3 of any design (the optimality
 certificate's search), joined into the rows and tables as each design's efficiency (:mod:`.bounds`).
 :mod:`.workflow`: :func:`run_study` does all of it; :func:`regenerate_tables` rebuilds the tables of a
-finished study with the bounds, without making the designs again.
+finished study with the bounds, without making the designs again; its outputs are a
+:class:`StudyReport` (:mod:`.report`).
+
+Beside the paper's study: :mod:`.variants`, named variants of the study's problem (the assumptions
+the paper leaves open, one change each) and :mod:`.sensitivity`, Table 6 under each of them;
+:mod:`.synthetic`, the diagnosis's self-test harness (simulated campaigns with hidden effects and a
+known truth); :mod:`.authoring`, writing model files (kinematic rows, capsules, masses, ``q_work`` by
+Drake inverse kinematics).
 """
 
 from __future__ import annotations
