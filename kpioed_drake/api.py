@@ -10,8 +10,8 @@
 | ``kpioed validate`` | :func:`validate` | :func:`kpioed_drake.calibration.validate.validate_file` |
 | ``kpioed diagnose`` | :func:`diagnose` | :func:`kpioed_drake.diagnosis.diagnose_file` |
 | ``kpioed study`` | :func:`study` | :func:`kpioed_drake.study.workflow.run_study` |
-| ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.next_file` |
-| ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.calibration.programs.compensate_file` |
+| ``kpioed next`` | :func:`next` | :func:`kpioed_drake.online.workflow.next_file` |
+| ``kpioed compensate`` | :func:`compensate` | :func:`kpioed_drake.compensation.workflow.compensate_file` |
 
 Example::
 
@@ -42,10 +42,10 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.calibration import CalibrationReport, calibrate_file
-from kpioed_drake.calibration.common import CalibrationOptions
-from kpioed_drake.calibration.programs import compensate_file as compensate
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import validate_file as validate
-from kpioed_drake.design import DesignOptions, DesignResult, run_design
+from kpioed_drake.compensation.workflow import compensate_file as compensate
+from kpioed_drake.design import DesignOptions, DesignReport, run_design
 from kpioed_drake.design import evaluate_file as evaluate
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
@@ -54,7 +54,7 @@ from kpioed_drake.options import options_from
 from kpioed_drake.robot.geometry import beam_targets
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
-from kpioed_drake.simulation.truth import SimulationOptions
+from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.workflow import simulate_file
 from kpioed_drake.study import run_study as study
 from kpioed_drake.tracker.csvio import q_to_file
@@ -128,7 +128,7 @@ def design(
     plot=None,
     html=None,
     **settings,
-) -> DesignResult:
+) -> DesignReport:
     """A design for a robot in the default cell, with its files (``kpioed design``):
     :func:`kpioed_drake.design.run_design`.
 
@@ -145,7 +145,7 @@ def design(
         out, json_path, plot, html: the design CSV, the JSON record, a picture, a 3-D page.
 
     Returns:
-        :class:`~kpioed_drake.design.DesignResult`.
+        :class:`~kpioed_drake.design.DesignReport`.
     """
     return run_design(
         robot,
@@ -177,7 +177,7 @@ def next(  # noqa: A001 (the command's name)
     plan=None,
     force: bool = False,
 ) -> dict:
-    """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.next_file`.
+    """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.workflow.next_file`.
 
     Calibrates on the data so far, evaluates tr(Cs)/3 at the estimate (a-posteriori when the fit
     rejects) and either stops (``done``: nothing written) or plans the poses still needed to reach
@@ -241,7 +241,7 @@ def calibrate(
     """Calibrate from a measurement file (``kpioed calibrate``):
     :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
     ``outlier_alpha``, ``force`` and ``strict`` as its
-    :class:`~kpioed_drake.calibration.common.CalibrationOptions`.
+    :class:`~kpioed_drake.calibration.options.CalibrationOptions`.
 
     Args:
         robot: model name or YAML path.
@@ -300,7 +300,7 @@ def simulate(
     """Simulated laser-tracker data of a design file (``kpioed simulate``):
     :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
     ``geometric_errors`` and ``n_targets`` as its
-    :class:`~kpioed_drake.simulation.truth.SimulationOptions`.
+    :class:`~kpioed_drake.simulation.options.SimulationOptions`.
 
     Args:
         robot: model name or YAML path; design: design CSV; out: measurement CSV to write.

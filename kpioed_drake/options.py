@@ -1,8 +1,8 @@
 """Options records from YAML: the frozen dataclasses that hold a command's settings
 (:class:`~kpioed_drake.design.options.DesignOptions`,
-:class:`~kpioed_drake.calibration.common.CalibrationOptions`,
-:class:`~kpioed_drake.simulation.truth.SimulationOptions`,
-:class:`~kpioed_drake.diagnosis.common.DiagnosisOptions`), read with Drake's ``yaml_load_typed``,
+:class:`~kpioed_drake.calibration.options.CalibrationOptions`,
+:class:`~kpioed_drake.simulation.options.SimulationOptions`,
+:class:`~kpioed_drake.diagnosis.options.DiagnosisOptions`), read with Drake's ``yaml_load_typed``,
 and the check that turns keyword arguments into one of them.
 """
 

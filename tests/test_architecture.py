@@ -19,7 +19,7 @@ from kpioed_drake.cli import build_parser
 
 PACKAGE = Path(__file__).resolve().parents[1] / "kpioed_drake"
 MAX_LINES = 500
-WORKFLOWS = ("design", "simulation", "calibration", "diagnosis", "study")
+WORKFLOWS = ("design", "simulation", "calibration", "compensation", "online", "diagnosis", "study")
 CORE = ("robot", "tracker", "effects", "estimation")
 MAX_ROOT_MODULES = 10
 MAX_FOLDER_MODULES = 12
@@ -39,19 +39,20 @@ RANK = {
     "estimation": 4,
     "arguments": 4.5,
     "scene3d": 4.5,
-    "design.common": 5.0,
+    "design.settings": 5.0,
     "design.heuristic": 5.0,
     "design.exact": 5.1,
     "design.approximate": 5.2,
     "design.polish": 5.25,
     "design.starts": 5.25,
-    "design.result": 5.3,
+    "design.report": 5.3,
     "design.optimize": 5.3,
     "design.discriminate": 5.4,
     "design.target": 5.4,
     "design": 5.6,
     "simulation": 5.8,
     "calibration": 6,
+    "compensation": 6.2,
     "online": 6.5,
     "diagnosis": 7,
     "study": 8,
@@ -104,6 +105,36 @@ def test_workflows_are_subpackages():
     for name in WORKFLOWS + CORE:
         assert (PACKAGE / name / "__init__.py").is_file(), f"kpioed_drake/{name}/ is not a package"
         assert not (PACKAGE / f"{name}.py").exists(), f"kpioed_drake/{name}.py beside the package"
+
+
+def _named_modules(package: Path) -> tuple[list[str], list[str]]:
+    """(modules and subpackages of ``package``, those its docstring does not name as :mod:`.name`,
+    :mod:`~kpioed_drake.pkg.name` or a module inside the subpackage)."""
+    doc = ast.get_docstring(ast.parse((package / "__init__.py").read_text())) or ""
+    dotted = _module_name(package / "__init__.py")
+    names = sorted(
+        [p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")]
+        + [p.name for p in package.iterdir() if (p / "__init__.py").is_file()]
+    )
+    named = re.compile(
+        r":mod:`~?(\.|" + re.escape(dotted) + r"\.)(?P<name>\w+)[`.]",
+    )
+    found = {m.group("name") for m in named.finditer(doc)}
+    return names, [n for n in names if n not in found]
+
+
+@pytest.mark.parametrize(
+    "package",
+    sorted(
+        str(p.parent.relative_to(PACKAGE))
+        for name in WORKFLOWS
+        for p in (PACKAGE / name).rglob("__init__.py")
+    ),
+)
+def test_workflow_package_docstring_names_its_modules(package):
+    """A workflow package's docstring is its map: every module and subpackage is named in it."""
+    names, missing = _named_modules(PACKAGE / package)
+    assert names and not missing, f"kpioed_drake/{package}/__init__.py does not name {missing}"
 
 
 @pytest.mark.parametrize("module", sorted(MODULES))
@@ -166,7 +197,7 @@ def test_checker_sees_a_cycle_and_a_late_import():
     )
     assert _rank("kpioed_drake.design.optimize") > _rank("kpioed_drake.design.approximate.search")
     assert _rank("kpioed_drake.design.approximate.search") > _rank("kpioed_drake.design.exact.program")
-    assert _rank("kpioed_drake.design.exact.program") > _rank("kpioed_drake.design.common")
+    assert _rank("kpioed_drake.design.exact.program") > _rank("kpioed_drake.design.settings")
     lines = 'def f(x):\n    """Doc."""\n\n    # note\n' + "    x += 1\n" * 81 + "    return x\n"
     assert [n for n, _ in _long_functions({"m": (Path("m.py"), ast.parse(lines))}, {"m": lines})] == [82]
 

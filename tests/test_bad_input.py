@@ -18,7 +18,8 @@ import pytest
 
 from kpioed_drake.cli import main
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.csvio import write_design
 
 REPO = Path(__file__).resolve().parents[1]

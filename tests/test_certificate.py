@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kpioed_drake.design import check_design, common, heuristic_design
+from kpioed_drake.design import check_design, heuristic_design, settings
 from kpioed_drake.design.approximate import certcache, certificate
 from kpioed_drake.design.approximate.certificate import (
     certified_design,
@@ -237,7 +237,7 @@ def test_a_large_design_is_refined_only_below_the_efficiency_gate(kr16, small_ap
     # a six-joint 40-pose design (240 joint variables) is small: refined whatever its efficiency
     assert certify(kr16, q0, approx=weak)["refinements"] >= 1
     # counted as large (as the 18-joint twin's 720 variables are), its bound is kept
-    monkeypatch.setattr(common, "LARGE_SOLVE_VARIABLES", 100)
+    monkeypatch.setattr(settings, "LARGE_SOLVE_VARIABLES", 100)
     large = certify(kr16, q0, approx=weak)
     assert large["refinements"] == 0 and large["bound_mm2"] == plain["bound_mm2"]
     monkeypatch.setattr(certificate, "REFINE_BELOW_EFFICIENCY", 2.0 * plain["efficiency"])

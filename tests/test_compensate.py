@@ -1,4 +1,4 @@
-"""``kpioed compensate``: a calibrated model makes the robot accurate (kpioed_drake.calibration.compensate).
+"""``kpioed compensate``: a calibrated model makes the robot accurate (kpioed_drake.compensation.solve).
 
 The must-show case: a simulated kr16 with geometric errors and an elastic joint 2, calibrated with
 the elasticity on a 60-pose KPI design, compensates a 20-pose nominal program so that the true TCP
@@ -22,8 +22,8 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from kpioed_drake import api
 from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
-from kpioed_drake.calibration.compensate import compensate_program, model_pose, rotation_error
 from kpioed_drake.cli import main
+from kpioed_drake.compensation.solve import compensate_program, model_pose, rotation_error
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.effects import augmented_response, parse_effect
@@ -31,7 +31,8 @@ from kpioed_drake.effects.gravity import reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import MODELS_DIR, RobotSpec, load_cell, load_robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate, true_model
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate, true_model
 from kpioed_drake.tracker.csvio import q_columns, q_from_file, read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model

@@ -11,8 +11,8 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import main
 from kpioed_drake.design.discriminate.explanations import parse_pair
-from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.options import DiagnosisOptions
 from kpioed_drake.diagnosis.selection import candidate_effects
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import compliance as cp

@@ -22,9 +22,9 @@ from kpioed_drake.design import (
     incidence_rows,
     optimize_design,
 )
-from kpioed_drake.design.common import INCIDENCE_MARGIN_DEG
 from kpioed_drake.design.exact import solve as design_solve
 from kpioed_drake.design.exact.constraints import restore_incidence
+from kpioed_drake.design.settings import INCIDENCE_MARGIN_DEG
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.tracker.csvio import read_design

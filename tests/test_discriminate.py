@@ -24,8 +24,8 @@ from kpioed_drake.design.discriminate import design as dc
 from kpioed_drake.design.discriminate import explanations as ex
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.options import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import T_REF_C, augmented_jacobian, gravity_torques
 from kpioed_drake.errors import InputError

@@ -28,7 +28,7 @@ from kpioed_drake.design.discriminate.design import discrimination_problem, expl
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.diagnosis.common import DiagnosisOptions
+from kpioed_drake.diagnosis.options import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError

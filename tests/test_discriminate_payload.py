@@ -28,7 +28,7 @@ from kpioed_drake.design.discriminate import plan as plan_mod
 from kpioed_drake.design.discriminate.design import discrimination_problem, explanation_indices
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.diagnosis.common import DiagnosisOptions
+from kpioed_drake.diagnosis.options import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError, param_names

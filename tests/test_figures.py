@@ -16,7 +16,8 @@ from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.accuracy import accuracy
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.data import read_measurements
 
 FIGURE_LINE = re.compile(

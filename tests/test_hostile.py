@@ -25,7 +25,8 @@ from kpioed_drake.cli import build_parser, main
 from kpioed_drake.errors import EXIT_INTERRUPTED, InputError
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.robot.modelspec import EffectSpec, checked_effects
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements
 
@@ -427,7 +428,7 @@ def test_an_unwritable_output_is_refused_before_the_work(command, work, capsys, 
     def no_work(*args, **kwargs):
         raise AssertionError("the work started before the output paths were checked")
 
-    monkeypatch.setattr("kpioed_drake.calibration.common.read_data", no_work)
+    monkeypatch.setattr("kpioed_drake.calibration.inputs.read_data", no_work)
     monkeypatch.setattr("kpioed_drake.design.workflow.load_robot", no_work)
     monkeypatch.setattr("kpioed_drake.simulation.workflow.load_robot", no_work)
     line = _refused(_output_argv(work, command, "/proc/kpioed-out.x"), capsys, work)

@@ -22,7 +22,8 @@ from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.errors import InputError, check_sigma, name_fields, param, param_names
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.data import Measurements
 
 REPO = Path(__file__).resolve().parents[1]

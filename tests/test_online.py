@@ -13,7 +13,7 @@ import pytest
 
 from kpioed_drake import api
 from kpioed_drake.cli import main
-from kpioed_drake.design.result import DesignError
+from kpioed_drake.design.report import DesignError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.online import NextOptions, closed_loop, next_poses, step
 from kpioed_drake.robot.models import load_robot

@@ -13,11 +13,11 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake import calibration, simulation
-from kpioed_drake.calibration.compensate import compensate_program, model_pose
 from kpioed_drake.calibration.modelfile import calibrated_urdf_files
 from kpioed_drake.calibration.validate import validate, validate_file
 from kpioed_drake.calibration.workflow import calibrate_file
 from kpioed_drake.cli import main
+from kpioed_drake.compensation.solve import compensate_program, model_pose
 from kpioed_drake.design import DesignConstraints, DesignObjective, heuristic_design
 from kpioed_drake.design.approximate import search
 from kpioed_drake.diagnosis import DiagnosisOptions

@@ -20,7 +20,8 @@ from kpioed_drake.calibration.validate import validate
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_cell, load_robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.data import Measurements, read_measurements
 from kpioed_drake.tracker.measurement import nominal_model, reflector_world
 

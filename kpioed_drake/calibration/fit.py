@@ -35,8 +35,9 @@ import dataclasses
 
 import numpy as np
 
-from kpioed_drake.calibration.common import CalibrationOptions, kpi_and_covariance, working_pose
 from kpioed_drake.calibration.extended import resolve_extension, undetermined_effects
+from kpioed_drake.calibration.kpi import kpi_and_covariance, working_pose
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import (
     MIN_POSES_FOR_OUTLIER_TEST,

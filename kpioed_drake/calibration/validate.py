@@ -46,7 +46,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import require
-from kpioed_drake.calibration.common import read_inputs
+from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.accuracy import Figures, accuracy
@@ -72,7 +72,7 @@ as moved (a warning): on the calibration's set-up the two agree (the public UR10
 
 
 @dataclasses.dataclass(frozen=True)
-class ValidationResult:
+class ValidationReport:
     """Prediction errors of a model on measured data.
 
     Attributes:
@@ -281,7 +281,7 @@ def validate(
     keep_tracker: bool | None = None,
     cell: Cell | None = None,
     force: bool = False,
-) -> ValidationResult:
+) -> ValidationReport:
     """Prediction errors of ``robot`` (a nominal or calibrated model) on ``data``.
 
     Args:
@@ -296,7 +296,7 @@ def validate(
         force: go on with implausible data, with a warning in the result.
 
     Returns:
-        :class:`ValidationResult`.
+        :class:`ValidationReport`.
 
     Raises:
         InputError: too few poses or collinear points (the tracker frame is undetermined), a kept
@@ -322,7 +322,7 @@ def validate(
         residuals, frames = data.eta @ R_WT.T + p_WT - p_W, ((R_WT, p_WT),)
         if method == "kept":
             warnings += _moved(residuals, p_W, data)
-    return ValidationResult(
+    return ValidationReport(
         robot=robot.name,
         model_source=robot.source,
         data=data,
@@ -401,7 +401,7 @@ def predicted_world(model: TrackerModel, data: Measurements, effects=()) -> np.n
     return h @ model.R_WT.T + model.p_WT
 
 
-def plot_validation(result: ValidationResult, folder: Path) -> list[Path]:
+def plot_validation(result: ValidationReport, folder: Path) -> list[Path]:
     """``validation_errors.png``: the 3-D error per pose (file row) and their histogram."""
     plt = pyplot()
 
@@ -432,7 +432,7 @@ def validate_file(
     plots_dir: str | Path | None = None,
     cell_path=None,
     force: bool = False,
-) -> ValidationResult:
+) -> ValidationReport:
     """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.
 
     Args:

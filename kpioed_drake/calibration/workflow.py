@@ -10,9 +10,10 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import model_effects
@@ -41,7 +42,7 @@ def calibrate_file(
     Args:
         robot: model name or YAML path.
         data_path: the measurement CSV.
-        options: :class:`~kpioed_drake.calibration.common.CalibrationOptions`; without effects, the
+        options: :class:`~kpioed_drake.calibration.options.CalibrationOptions`; without effects, the
             effects of an extended model file are re-estimated.
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
         out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write,

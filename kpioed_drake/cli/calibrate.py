@@ -1,22 +1,16 @@
-"""``kpioed calibrate``: estimate the robot's parameters from measured laser-tracker data; and
-``kpioed next``: online calibration, calibrate on the data so far and either stop or give the next
-poses to measure."""
+"""``kpioed calibrate``: estimate the robot's parameters from measured laser-tracker data."""
 
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import (
+from kpioed_drake.cli import (
     DATA_HELP,
     MODEL_OUT_METAVAR,
     add_data_outputs,
     add_extend,
-    add_format,
-    add_json_out,
     add_q_work,
     add_robot,
     data_outputs,
-    json_file,
-    passed,
     print_json,
 )
 
@@ -55,63 +49,6 @@ def register(sub) -> None:
     )
     add_extend(p)
     p.set_defaults(func=run, api_names=API_NAMES)
-    register_next(sub)
-
-
-NEXT_API_NAMES = {"target_var_mm2": "target_var", "json_path": "json", "data_format": "format"}
-"""``kpioed next``: API parameter -> this parser's dest, where they differ."""
-
-
-def register_next(sub) -> None:
-    p = sub.add_parser(
-        "next",
-        help="online calibration: calibrate on the data so far; stop at the target TCP variance or "
-        "write the next poses to measure",
-    )
-    add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help=f"the measurements so far; {DATA_HELP}")
-    p.add_argument(
-        "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
-    )
-    p.add_argument("--n", type=int, default=5, help="poses to design when not done, at most --max-plan (5)")
-    p.add_argument("--sigma-mm", type=float, default=0.02, help="tracker noise per coordinate [mm] (0.02)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the design's starts and the certificate (0)")
-    p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
-    p.add_argument(
-        "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
-    )
-    p.add_argument("--out", default=None, metavar="NEXT.csv", help="the next poses (not written when done)")
-    p.add_argument(
-        "--plan",
-        default=None,
-        metavar="PLAN.csv",
-        help="the plan carried from step to step: read if it exists, then replaced (removed when done)",
-    )
-    add_json_out(p)
-    add_format(p)
-    p.add_argument(
-        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
-    )
-    p.set_defaults(func=run_next, api_names=NEXT_API_NAMES)
-
-
-def run_next(args) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
-    result = api.next(
-        args.robot,
-        args.data,
-        target_var_mm2=args.target_var,
-        json_path=json_file(args.json),
-        data_format=args.format,
-        **same,
-    )
-    if args.json == "-":
-        print_json(result)
-        return 0
-    print(result["summary"])
-    if args.out and not result["done"]:
-        print(f"  next poses: {args.out}")
-    return 0
 
 
 def run(args) -> int:

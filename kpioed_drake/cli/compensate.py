@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.calibration.programs import ANGLES
-from kpioed_drake.cli.common import add_robot, passed
+from kpioed_drake.cli import add_robot, passed
+from kpioed_drake.compensation.workflow import ANGLES
 
 API_NAMES = {"effects": "effect"}
 """API parameter -> this command's option dest where they differ (messages name the option)."""

@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
+from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
 from kpioed_drake.design import (
     DEFAULT_START,
     DESIGN_METHODS,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import (
+from kpioed_drake.cli import (
     DATA_HELP,
     MODEL_OUT_METAVAR,
     add_data_outputs,

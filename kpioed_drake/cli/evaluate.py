@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import (
+from kpioed_drake.cli import (
     DESIGN_HELP,
     add_extend,
     add_html,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import add_robot, print_json
+from kpioed_drake.cli import add_robot, print_json
 
 
 def register(sub) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import DESIGN_HELP, add_optional_number, add_robot
+from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot
 from kpioed_drake.tracker import csvio
 
 API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}

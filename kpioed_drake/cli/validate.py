@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from kpioed_drake import api
-from kpioed_drake.cli.common import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_json
+from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_json
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""

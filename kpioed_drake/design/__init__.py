@@ -16,7 +16,7 @@ optimum design for each criterion.
 
 Modules, in dependency order:
 
-- :mod:`~kpioed_drake.design.common`: the design methods, solvers and the optimiser's settings;
+- :mod:`~kpioed_drake.design.settings`: the design methods, solvers and the optimiser's settings;
 - :mod:`~kpioed_drake.design.heuristic`: the paper's heuristic (uniform random feasible poses), also
   the optimiser's default start;
 - :mod:`~kpioed_drake.design.exact.objective`: the cost and its closed-form gradient;
@@ -35,8 +35,9 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.approximate.certificate`: the optimality certificate, a lower bound on
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
-- :mod:`~kpioed_drake.design.result`: :class:`DesignResult`, its JSON record and summary;
-- :mod:`~kpioed_drake.design.polish`: the final exchange on the exact criterion after the optimiser;
+- :mod:`~kpioed_drake.design.polish`: the final exchange on the exact criterion after the optimiser
+  (the optimiser's poses and the approximate design's candidates as one pool);
+- :mod:`~kpioed_drake.design.report`: :class:`DesignReport`, its JSON record and summary;
 - :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
   design; :func:`resolve_start`);
 - :mod:`~kpioed_drake.design.optimize`: :func:`optimize_design`, the entry point (also with poses
@@ -68,7 +69,23 @@ from kpioed_drake.design.approximate.certificate import (
     pool_certificate,
 )
 from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_design, approximate_start
-from kpioed_drake.design.common import (
+from kpioed_drake.design.discriminate.design import (
+    DiscriminationReport,
+    discrimination_design,
+    discrimination_lines,
+)
+from kpioed_drake.design.evaluate import evaluate_file
+from kpioed_drake.design.exact.check import DesignCheck, check_design
+from kpioed_drake.design.exact.constraints import DesignConstraints, incidence_rows, update_active_rows
+from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.exact.program import DesignProgram
+from kpioed_drake.design.exact.solve import solver_options
+from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.optimize import min_new_poses, optimize_design
+from kpioed_drake.design.options import DesignOptions
+from kpioed_drake.design.plots import plot_design_poses
+from kpioed_drake.design.report import DesignError, DesignReport, format_summary, json_record
+from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
     CLEARANCE_MARGIN_MM,
     CLEARANCE_ROW_SCALE,
@@ -85,22 +102,6 @@ from kpioed_drake.design.common import (
     SWEEP_RTOL,
     method_label,
 )
-from kpioed_drake.design.discriminate.design import (
-    DiscriminationResult,
-    discrimination_design,
-    discrimination_lines,
-)
-from kpioed_drake.design.evaluate import evaluate_file
-from kpioed_drake.design.exact.check import DesignCheck, check_design
-from kpioed_drake.design.exact.constraints import DesignConstraints, incidence_rows, update_active_rows
-from kpioed_drake.design.exact.objective import DesignObjective
-from kpioed_drake.design.exact.program import DesignProgram
-from kpioed_drake.design.exact.solve import solver_options
-from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.optimize import min_new_poses, optimize_design
-from kpioed_drake.design.options import DesignOptions
-from kpioed_drake.design.plots import plot_design_poses
-from kpioed_drake.design.result import DesignError, DesignResult, format_summary, json_record
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
 from kpioed_drake.design.workflow import demo, read_working_poses, run_design
@@ -133,8 +134,8 @@ __all__ = [
     "DesignError",
     "DesignObjective",
     "DesignProgram",
-    "DesignResult",
-    "DiscriminationResult",
+    "DesignReport",
+    "DiscriminationReport",
     "PoolCertificate",
     "approximate_design",
     "approximate_start",

@@ -5,7 +5,7 @@ couples joints (a joint map with fewer axes than joints) draws its poses on the 
 uniform draw moved onto it, kept if still within the joint limits). A drawn pose is kept if its
 incidence angle is within the cell's limit (paper eq. 4) and, with collision avoidance, every
 capsule clearance of :class:`~kpioed_drake.robot.geometry.ClearanceModel` (robot, obstacles, self pairs,
-laser beam; paper eq. 20-22) is at least :data:`~kpioed_drake.design.common.HEURISTIC_MARGIN_MM`.
+laser beam; paper eq. 20-22) is at least :data:`~kpioed_drake.design.settings.HEURISTIC_MARGIN_MM`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from kpioed_drake.design.common import HEURISTIC_MARGIN_MM
+from kpioed_drake.design.settings import HEURISTIC_MARGIN_MM
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.geometry import ClearanceModel

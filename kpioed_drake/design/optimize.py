@@ -2,11 +2,11 @@
 
 :func:`optimize_design` checks the request, then solves from each start in turn (the start methods
 and poses: :mod:`~kpioed_drake.design.starts`): one solve up to
-:data:`~kpioed_drake.design.common.MAX_BLOCK_POSES` poses, block sweeps above
+:data:`~kpioed_drake.design.settings.MAX_BLOCK_POSES` poses, block sweeps above
 (:mod:`~kpioed_drake.design.exact.solve`), each result checked independently
 (:func:`~kpioed_drake.design.exact.check.check_design`); it keeps the best feasible start, polishes it
 on the exact criterion (:mod:`~kpioed_drake.design.polish`) and records it. A failed or infeasible
-result raises :class:`~kpioed_drake.design.result.DesignError` unless ``allow_infeasible``.
+result raises :class:`~kpioed_drake.design.report.DesignError` unless ``allow_infeasible``.
 
 Sequential re-identification (paper, section 3.1 and Outlook): with ``given`` poses already
 measured, their information ``F1^T F1`` is held fixed and only the new poses are optimised, the
@@ -21,7 +21,13 @@ import time
 import numpy as np
 
 from kpioed_drake.design.approximate.design import ApproximateDesign
-from kpioed_drake.design.common import (
+from kpioed_drake.design.exact.check import DesignCheck, check_design
+from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
+from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
+from kpioed_drake.design.report import DesignError, DesignReport
+from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
     DESIGN_METHODS,
     MAX_BLOCK_POSES,
@@ -29,12 +35,6 @@ from kpioed_drake.design.common import (
     SOLVERS,
     SWEEP_BLOCK_POSES,
 )
-from kpioed_drake.design.exact.check import DesignCheck, check_design
-from kpioed_drake.design.exact.objective import DesignObjective
-from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
-from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
-from kpioed_drake.design.result import DesignError, DesignResult
 from kpioed_drake.design.starts import checked_poses, resolve_start, start_methods, start_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -96,7 +96,7 @@ def _criteria(problem: Problem, q: np.ndarray, given: np.ndarray | None, *, stri
 
 
 def _given_record(problem: Problem, given: np.ndarray | None) -> dict | None:
-    """The ``given`` field of :class:`DesignResult`: the given poses alone."""
+    """The ``given`` field of :class:`DesignReport`: the given poses alone."""
     if given is None:
         return None
     alone = _criteria(problem, given, None)
@@ -110,11 +110,11 @@ def _given_record(problem: Problem, given: np.ndarray | None) -> dict | None:
 
 def _heuristic_result(
     problem: Problem, *, n: int, seed: int, collision: bool, given: np.ndarray | None, base: dict
-) -> DesignResult:
+) -> DesignReport:
     q = heuristic_design(problem, n=n, seed=seed, collision=collision)
     reports, n_bad, n_col = check_design(problem, q, collision=collision)
     crit = _criteria(problem, q, given, strict=given is None)
-    return DesignResult(
+    return DesignReport(
         q=q,
         value=crit["kpi_avg_var_mm2"],
         solver="none",
@@ -152,12 +152,12 @@ def optimize_design(
     start: str | None = None,
     polish: int = POLISH_ROUNDS,
     approx: ApproximateDesign | None = None,
-) -> DesignResult:
+) -> DesignReport:
     """Optimum experimental design (paper eq. 24) or, for ``criterion="heuristic"``, the heuristic.
 
     Args:
         problem: robot, cell, model, ``q_work`` and noise.
-        criterion: the design method, one of :data:`~kpioed_drake.design.common.DESIGN_METHODS`:
+        criterion: the design method, one of :data:`~kpioed_drake.design.settings.DESIGN_METHODS`:
             ``heuristic``, ``kpi`` (tr(Cs)/3), ``param`` (scaled tr(Cp)), ``d`` or ``o1``.
         n: number of poses (at least ``problem.min_poses()``).
         collision: impose collision and laser-beam clearance (paper "CA").
@@ -172,19 +172,19 @@ def optimize_design(
         active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
             rows); see :class:`~kpioed_drake.design.exact.program.DesignProgram`.
         pose_block: poses per constraint binding (default
-            :data:`~kpioed_drake.design.common.POSE_BLOCK`; None: one binding for all poses).
+            :data:`~kpioed_drake.design.settings.POSE_BLOCK`; None: one binding for all poses).
         max_block: most poses one solve varies (default
-            :data:`~kpioed_drake.design.common.MAX_BLOCK_POSES`). A design of more poses is
+            :data:`~kpioed_drake.design.settings.MAX_BLOCK_POSES`). A design of more poses is
             optimised by sweeps over blocks of about ``sweep_block`` poses, each solved with the
             others fixed; ``status`` then reports the sweeps and ``sweeps`` their number. None:
             always one solve over all poses.
         sweep_block: poses per block in sweeps (default
-            :data:`~kpioed_drake.design.common.SWEEP_BLOCK_POSES`).
+            :data:`~kpioed_drake.design.settings.SWEEP_BLOCK_POSES`).
         given: (m, 6) [rad] poses already measured (sequential re-identification): their
             information is held fixed and the ``n`` new poses are optimised (at least
             :func:`min_new_poses`). The given poses are neither moved nor checked.
         start: how the starting poses are made, one of
-            :data:`~kpioed_drake.design.common.START_METHODS`: ``heuristic`` (paper 3.2) or
+            :data:`~kpioed_drake.design.settings.START_METHODS`: ``heuristic`` (paper 3.2) or
             ``approximate`` (``kpi`` only, without ``given``:
             :func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses:
             the approximate design of their weighted mean); None: :func:`resolve_start`.
@@ -199,7 +199,7 @@ def optimize_design(
             :func:`~kpioed_drake.design.polish.polish_design`); 0: none.
 
     Returns:
-        :class:`~kpioed_drake.design.result.DesignResult` of the ``n`` new poses; its criteria
+        :class:`~kpioed_drake.design.report.DesignReport` of the ``n`` new poses; its criteria
         (``value``, ``kpi_avg_var_mm2``, ``param_crit``) are those of the combined design (given
         and new poses), ``given`` records the given poses alone.
 
@@ -332,11 +332,11 @@ def _polish(run: _Run, best: _Start, rounds: int) -> Polished:
 
 
 def _result(run: _Run, runs: list[_Start], best: int, polished: Polished | None, *, start: str, base: dict):
-    """The :class:`DesignResult` of the best start (polished where it was)."""
+    """The :class:`DesignReport` of the best start (polished where it was)."""
     sol, check = (runs[best].sol, runs[best].check) if polished is None else (polished.sol, polished.check)
     reports, n_bad, n_col = check
     crit = _criteria(run.setup.problem, sol.q, run.given)
-    return DesignResult(
+    return DesignReport(
         q=sol.q,
         value=sol.value,
         solver=run.setup.solver,
@@ -363,11 +363,11 @@ def _result(run: _Run, runs: list[_Start], best: int, polished: Polished | None,
 
 
 def _polish_record(p) -> dict:
-    """The ``polish`` field of :class:`DesignResult`."""
+    """The ``polish`` field of :class:`DesignReport`."""
     return {"rounds": p.rounds, "value_before": p.value_before, "solve_s": p.solve_s, "n_evals": p.n_evals}
 
 
-def _finish(res: DesignResult, allow_infeasible: bool) -> DesignResult:
+def _finish(res: DesignReport, allow_infeasible: bool) -> DesignReport:
     """``res``, or :class:`DesignError` naming the failure or the first infeasible pose."""
     if allow_infeasible or (res.success and res.feasible):
         return res

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 from kpioed_drake.arguments import check_count, check_positive, check_seed, require
-from kpioed_drake.design.common import DESIGN_METHODS, SOLVERS
+from kpioed_drake.design.settings import DESIGN_METHODS, SOLVERS
 from kpioed_drake.errors import check_sigma
 
 
@@ -16,7 +16,7 @@ class DesignOptions:
     :func:`kpioed_drake.options.load_options`."""
 
     criterion: str = "kpi"
-    """The design criterion (:data:`~kpioed_drake.design.common.DESIGN_METHODS`): ``kpi`` (the
+    """The design criterion (:data:`~kpioed_drake.design.settings.DESIGN_METHODS`): ``kpi`` (the
     TCP variance at the working poses, paper eq. 24), ``param`` (the standard A-criterion) or
     ``heuristic``."""
     n: int = 60
@@ -26,7 +26,7 @@ class DesignOptions:
     collision: bool = True
     """Avoid collisions of the robot, the cell and the laser beam (paper eq. 25)."""
     solver: str = "snopt"
-    """The nonlinear solver (:data:`~kpioed_drake.design.common.SOLVERS`)."""
+    """The nonlinear solver (:data:`~kpioed_drake.design.settings.SOLVERS`)."""
     seed: int = 0
     """Seed of the random starts."""
     starts: int = 1

@@ -1,6 +1,6 @@
 """Where a design's solves start: the start method of each solve and its starting poses.
 
-Starts (:data:`~kpioed_drake.design.common.START_METHODS`): the paper's heuristic
+Starts (:data:`~kpioed_drake.design.settings.START_METHODS`): the paper's heuristic
 (:mod:`~kpioed_drake.design.heuristic`), or for the ``kpi`` criterion the approximate design
 (column generation over the feasible poses, Clarabel) rounded to n poses
 (:func:`~kpioed_drake.design.approximate.design.approximate_start`); with poses held fixed, the
@@ -21,15 +21,15 @@ from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.design import ApproximateDesign, approximate_start, start_approximation
 from kpioed_drake.design.approximate.given import given_design
 from kpioed_drake.design.approximate.sequential import given_start
-from kpioed_drake.design.common import DEFAULT_START, START_METHODS
 from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.settings import DEFAULT_START, START_METHODS
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
 
 def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: bool = False) -> str:
     """The start method of :func:`~kpioed_drake.design.optimize.optimize_design`: ``start``, or for
-    None :data:`~kpioed_drake.design.common.DEFAULT_START` where it applies (``kpi`` criterion, not
+    None :data:`~kpioed_drake.design.settings.DEFAULT_START` where it applies (``kpi`` criterion, not
     the worst case of several working poses, whose approximate design would be that of their mean)
     and else ``heuristic``.
 

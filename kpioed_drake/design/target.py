@@ -33,7 +33,7 @@ import numpy as np
 from kpioed_drake.design.approximate.certificate import certify
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import min_new_poses, optimize_design
-from kpioed_drake.design.result import DesignError, DesignResult
+from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
@@ -85,7 +85,7 @@ def design_for_target(
     max_poses: int = MAX_TARGET_POSES,
     bound: bool = True,
     **options,
-) -> DesignResult:
+) -> DesignReport:
     """The design of the fewest poses whose KPI reaches ``target_var_mm2`` (warm-started search).
 
     Args:
@@ -99,7 +99,7 @@ def design_for_target(
         **options: further arguments of ``optimize_design`` (``starts``, ``active_rows``, ...).
 
     Returns:
-        :class:`DesignResult` of the N poses found, with ``target``: ``target_var_mm2``,
+        :class:`DesignReport` of the N poses found, with ``target``: ``target_var_mm2``,
         ``n_poses`` (N), ``kpi_avg_var_mm2`` (its KPI) [mm^2], ``bound_mm2`` (lower bound on
         tr(Cs)/3 of N poses [mm^2], None if not computed), ``bound_note``, ``search_s`` (wall time
         [s]) and ``trail``: every design tried (``n_poses``, ``kpi_avg_var_mm2``, ``reached``,
@@ -135,7 +135,7 @@ def design_for_target(
         criterion=criterion, collision=collision, solver=solver, seed=seed, given=given, **options
     )
 
-    def attempt(n: int, q0: np.ndarray | None) -> tuple[DesignResult, bool]:
+    def attempt(n: int, q0: np.ndarray | None) -> tuple[DesignReport, bool]:
         res = optimize_design(problem, n=n, q0=q0, allow_infeasible=True, **settings)
         ok = bool(res.success and res.feasible and res.kpi_avg_var_mm2 <= V)
         trail.append(

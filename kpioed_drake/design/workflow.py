@@ -18,13 +18,13 @@ import numpy as np
 
 from kpioed_drake.arguments import check_paths
 from kpioed_drake.design.approximate import certificate
-from kpioed_drake.design.common import method_label
 from kpioed_drake.design.discriminate.conditions import read_given_conditions
 from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
-from kpioed_drake.design.result import DesignError, DesignResult, json_record
+from kpioed_drake.design.report import DesignError, DesignReport, json_record
+from kpioed_drake.design.settings import method_label
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError
@@ -87,7 +87,7 @@ def run_design(
     json_path: str | Path | None = None,
     plot: str | Path | None = None,
     html: str | Path | None = None,
-) -> DesignResult:
+) -> DesignReport:
     """Compute a design for a robot in the default cell and write its files (what ``kpioed design``
     runs): load the robot and the pose files once, build the problem, design, certify, write.
 
@@ -116,7 +116,7 @@ def run_design(
             smallest clearances and the TCP's 95 % ellipsoid at the (first) working pose.
 
     Returns:
-        :class:`DesignResult` (``certificate``: the bound on tr(Cs)/3 and the efficiency,
+        :class:`DesignReport` (``certificate``: the bound on tr(Cs)/3 and the efficiency,
         :func:`~kpioed_drake.design.approximate.certificate.certify`, of the combined design).
 
     Raises:
@@ -200,7 +200,7 @@ MODES = {"discriminate": _plan, "target": _target, "fixed": _fixed}
 """The modes of :func:`run_design`: a discrimination plan, the fewest poses for a target, n poses."""
 
 
-def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult, object]:
+def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignReport, object]:
     """The design of ``opts`` by its mode (:data:`MODES`) and its problem (a plan's, with the
     conditions it adds)."""
     mode = (
@@ -213,7 +213,7 @@ def _compute(problem, opts: DesignOptions, q_given, given) -> tuple[DesignResult
     return MODES[mode](problem, opts, q_given, given, _common(problem, opts, q_given))
 
 
-def _write(res: DesignResult, problem, *, out, json_path, plot, html) -> None:
+def _write(res: DesignReport, problem, *, out, json_path, plot, html) -> None:
     """Stage the design's files and write them after all succeeded."""
     with Outputs() as staged:
         if out is not None:

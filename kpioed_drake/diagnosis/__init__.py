@@ -14,10 +14,11 @@ One module per concern (method and JSON contract: docs/diagnosis.md):
   selection, a cause);
 - :mod:`.report`: :class:`DiagnosisReport`, its JSON built from the records, and the numbers in it;
 - :mod:`.plots`: residual pictures (``kpioed diagnose --plots``);
-- :mod:`.common`: levels and limits, and :class:`DiagnosisOptions`.
+- :mod:`.options`: levels and limits, and :class:`DiagnosisOptions`.
 """
 
-from kpioed_drake.diagnosis.common import (
+from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import (
     ALPHA,
     FOLD_SEED,
     K_FOLDS,
@@ -26,7 +27,6 @@ from kpioed_drake.diagnosis.common import (
     DiagnosisOptions,
     load_options,
 )
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.diagnosis.selection import candidate_effects, score_tests
 from kpioed_drake.diagnosis.workflow import diagnose, diagnose_file

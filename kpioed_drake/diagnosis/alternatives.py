@@ -51,8 +51,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.common import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp

@@ -27,8 +27,8 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.records import Alternative, Selection
 from kpioed_drake.diagnosis.selection import backward_step, columns
 from kpioed_drake.effects import gravity_basis as gb
@@ -52,7 +52,7 @@ def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[FitProble
     For every ``joint_elasticity_basis`` in ``cands`` (and the ``joints`` whose basis was sized on
     the data's poses), the basis's weighted columns at the geometric fit ``base`` (3 n, r), scaled
     to unit norm, are projected off the span of the model's columns; the right singular vectors
-    whose singular value is below :data:`~kpioed_drake.diagnosis.common.MIN_REMAINING` (the
+    whose singular value is below :data:`~kpioed_drake.diagnosis.options.MIN_REMAINING` (the
     selection's "absorbed") are dropped, the rest orthonormalised in moment space and made the
     joint's basis of the problem's robot (:func:`~kpioed_drake.effects.gravity_basis.store_basis`).
     A direction the joint offsets and frame rotations reproduce (e.g. a torque that depends only on

@@ -11,7 +11,7 @@ The K-fold cross-validation predicts every pose from a fit that did not see it
 ``e_before``) and with it (``e_after``) the gain of pose ``i`` is ``d_i = |e_before_i|^2 -
 |e_after_i|^2`` [mm^2], summed over the rows of the pose (its targets). The candidate predicts better
 when the mean gain exceeds its uncertainty, ``mean(d) > c std(d) / sqrt(n)`` with ``c =``
-:data:`~kpioed_drake.diagnosis.common.GAIN_STANDARD_ERRORS` (2: the half-width of about a 95 %
+:data:`~kpioed_drake.diagnosis.options.GAIN_STANDARD_ERRORS` (2: the half-width of about a 95 %
 interval): the paired comparison of the same poses, so that the spread of the poses' errors,
 common to both models, does not hide a small but consistent gain, and a gain that a few poses make
 is not taken for one.
@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 
-from kpioed_drake.diagnosis.common import FOLD_SEED, GAIN_STANDARD_ERRORS, K_FOLDS
+from kpioed_drake.diagnosis.options import FOLD_SEED, GAIN_STANDARD_ERRORS, K_FOLDS
 from kpioed_drake.estimation import estimator
 from kpioed_drake.estimation.estimator import Conditions, EstimationResult
 from kpioed_drake.robot.models import Cell, Robot, load_cell
@@ -231,7 +231,7 @@ class HeldOutGain:
 
     @property
     def predicts_better(self) -> bool:
-        """Whether the gain exceeds its uncertainty (:data:`~.common.GAIN_STANDARD_ERRORS` standard
+        """Whether the gain exceeds its uncertainty (:data:`~.options.GAIN_STANDARD_ERRORS` standard
         errors)."""
         return bool(self.gain_mm2 > GAIN_STANDARD_ERRORS * self.std_error_mm2)
 

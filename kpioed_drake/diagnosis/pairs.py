@@ -7,7 +7,7 @@ temperature and time both grow over the campaign; the forward selection then nam
 
 When no single candidate qualifies, :func:`correlated_pairs` lists the pairs of candidates whose
 projected bases have a largest canonical correlation of at least
-:data:`~kpioed_drake.diagnosis.common.PAIR_CORRELATION` (fixed by the poses, not by the residuals),
+:data:`~kpioed_drake.diagnosis.options.PAIR_CORRELATION` (fixed by the poses, not by the residuals),
 and :func:`pair_bases` gives each pair's orthonormal basis ``B`` (the span of both). The score
 statistic ``|B^T r|^2`` is chi2(k_a + k_b) under "neither effect"; the selection
 (:func:`~kpioed_drake.diagnosis.selection.select_effects`) takes the family-wise p-value over the
@@ -22,8 +22,8 @@ import dataclasses
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.common import PAIR_CORRELATION
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import PAIR_CORRELATION
 from kpioed_drake.diagnosis.records import PairTest
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.multiplicity import adjusted_p, min_p_null

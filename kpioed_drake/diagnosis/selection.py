@@ -28,8 +28,8 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE, MIN_REMAINING, PAIR_ALPHA_SHARE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain, held_out_gain, pose_groups, stop_reason
+from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING, PAIR_ALPHA_SHARE
 from kpioed_drake.diagnosis.pairs import pair_step
 from kpioed_drake.diagnosis.records import CandidateTest, PairTest, Selection, SelectionStep, StandIn
 from kpioed_drake.diagnosis.sides import side_penalty, side_weights, unit_columns

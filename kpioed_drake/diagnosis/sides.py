@@ -33,8 +33,8 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import BACKLASH_MIN_SIDE
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.multiplicity import effective_tests, min_p_null
 from kpioed_drake.robot.kinematics import subtree_links

@@ -28,11 +28,11 @@ import scipy.stats
 
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import calibrate, hold_undetermined
-from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
+from kpioed_drake.calibration.inputs import read_inputs
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, replace_implausible, settle
-from kpioed_drake.diagnosis.common import DEFAULT_SIGMA_MM, DiagnosisOptions
 from kpioed_drake.diagnosis.elastic_basis import (
     basis_alternatives,
     basis_for,
@@ -40,6 +40,7 @@ from kpioed_drake.diagnosis.elastic_basis import (
     upgrade_elasticity,
 )
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import DEFAULT_SIGMA_MM, DiagnosisOptions
 from kpioed_drake.diagnosis.plots import write_plots
 from kpioed_drake.diagnosis.records import Selection
 from kpioed_drake.diagnosis.selection import candidate_effects, columns, score_tests, select_effects

@@ -22,9 +22,11 @@ from kpioed_drake.design.approximate.given import bound_of, given_design
 from kpioed_drake.design.approximate.search import dual_values
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.online.step import NextOptions, next_poses
+from kpioed_drake.online.options import NextOptions
+from kpioed_drake.online.step import next_poses
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.simulation.truth import SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import kpi_jacobian
 

@@ -16,151 +16,25 @@ from the best they are.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
-from kpioed_drake.arguments import check_count, check_paths, check_positive, check_seed
-from kpioed_drake.calibration.common import CalibrationOptions, read_inputs
 from kpioed_drake.calibration.fit import calibrate
-from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.design import kpi_factor
 from kpioed_drake.design.approximate.given import fewest_certified, given_design
 from kpioed_drake.design.approximate.sequential import fewest_new_poses, most_useful
 from kpioed_drake.design.optimize import optimize_design
-from kpioed_drake.design.result import DesignError
+from kpioed_drake.design.report import DesignError
 from kpioed_drake.effects import model_effects
-from kpioed_drake.errors import InputError, check_sigma
+from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem, make_problem
-from kpioed_drake.outputs import Outputs
+from kpioed_drake.online.options import NextOptions
+from kpioed_drake.online.report import NextReport
 from kpioed_drake.robot.models import Cell, Robot
-from kpioed_drake.tracker import csvio
 from kpioed_drake.tracker.data import Measurements
-
-
-@dataclasses.dataclass(frozen=True)
-class NextOptions:
-    """The settings of one online step (:func:`next_poses`)."""
-
-    target_var_mm2: float = 0.1
-    """The TCP precision to reach: tr(Cs)/3 at the working pose [mm^2]."""
-    n: int = 5
-    """Poses to design when the precision is not reached yet."""
-    sigma_mm: float = 0.02
-    """The tracker's noise per coordinate [mm]; the a-posteriori noise replaces it when the fit
-    rejects."""
-    collision: bool = True
-    """Avoid collisions of the robot, the cell and the laser beam."""
-    seed: int = 0
-    """Seed of the design's starts and of the certificate's search."""
-    certify: bool = True
-    """Add the certificate of the combined design (``bound_mm2``, ``efficiency``)."""
-    max_plan: int = 60
-    """Most poses planned ahead: the step designs the poses still needed to reach the target (at
-    least ``n``, at most this many) and returns the ``n`` of them that help most now; ``n`` may not
-    exceed it."""
-    force: bool = False
-    """Go on with data that fails the plausibility checks (warned in the summary)."""
-
-    def __post_init__(self):
-        check_positive("target_var_mm2", self.target_var_mm2)
-        check_count("n", self.n)
-        check_count("max_plan", self.max_plan)
-        if self.n > self.max_plan:
-            raise InputError(
-                f"n {self.n}: expected at most max_plan ({self.max_plan}), the most poses a step plans ahead",
-                fields=("n", "max_plan"),
-            )
-        check_sigma(self.sigma_mm)
-        check_seed(self.seed)
-
-
-@dataclasses.dataclass
-class NextResult:
-    """Outcome of one step.
-
-    Attributes:
-        done: the precision is reached (``kpi_avg_var_mm2 <= target_var_mm2``): stop measuring.
-        n_measured: poses measured so far (distinct joint values).
-        kpi_avg_var_mm2: tr(Cs)/3 now [mm^2] (a-posteriori when the fit rejects).
-        aposteriori: whether the a-posteriori noise was used.
-        sigma_used_mm: the noise the variance and the design use [mm].
-        target_var_mm2: the precision asked for [mm^2].
-        q_next: (n, n_joints) the next poses [rad] (empty when done).
-        predicted_kpi_avg_var_mm2: tr(Cs)/3 of the measured and the next poses together [mm^2].
-        n_planned: poses the step planned ahead (the next ones are the most useful of them).
-        q_plan: (n_planned, n_joints) the planned poses [rad] (the next ones among them): the
-            ``plan`` of the following step.
-        min_more_poses: fewest more poses with which the target can be reached at all: with
-            fewer, the dual bound of the design with the measured information
-            (:func:`~kpioed_drake.design.approximate.given.fewest_certified`) exceeds it, for any
-            feasible poses the search reached (nominal kinematics, the noise used); 0 when done,
-            ``max_plan + 1`` when not even ``max_plan`` can.
-        certificate: the certificate of the combined design (None when done or not asked).
-        report: the calibration on the data so far.
-    """
-
-    done: bool
-    n_measured: int
-    kpi_avg_var_mm2: float
-    aposteriori: bool
-    sigma_used_mm: float
-    target_var_mm2: float
-    q_next: np.ndarray
-    predicted_kpi_avg_var_mm2: float | None
-    n_planned: int
-    q_plan: np.ndarray
-    min_more_poses: int
-    certificate: dict | None
-    report: CalibrationReport
-
-    def to_dict(self, robot: Robot) -> dict:
-        """The JSON record (mm, deg)."""
-        cert = self.certificate or {}
-        return {
-            "done": self.done,
-            "n_measured": self.n_measured,
-            "kpi_avg_var_mm2": self.kpi_avg_var_mm2,
-            "target_var_mm2": self.target_var_mm2,
-            "aposteriori": self.aposteriori,
-            "sigma_used_mm": self.sigma_used_mm,
-            "chi2_per_dof": self.report.chi2_per_dof,
-            "kpi_mm": np.asarray(self.report.kpi).tolist(),
-            "kpi_cov_mm2": (
-                self.report.kpi_cov * (self.sigma_used_mm / self.report.result.sigma) ** 2
-            ).tolist(),
-            "predicted_kpi_avg_var_mm2": self.predicted_kpi_avg_var_mm2,
-            "bound_mm2": cert.get("bound_mm2"),
-            "efficiency": cert.get("efficiency"),
-            "n_next": int(len(self.q_next)),
-            "n_planned": self.n_planned,
-            "min_more_poses": self.min_more_poses,
-            "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
-        }
-
-    def summary(self) -> str:
-        """A short human-readable summary."""
-        post = " (a-posteriori: the fit rejects)" if self.aposteriori else ""
-        head = (
-            f"{self.n_measured} poses measured: tr(Cs)/3 = {self.kpi_avg_var_mm2:.4g} mm^2{post}, "
-            f"target {self.target_var_mm2:g} mm^2"
-        )
-        forced = [f"  warning: {w}" for w in self.report.warnings if w.startswith("forced:")]
-        if self.done:
-            return "\n".join([head, *forced, "  done: the precision is reached; nothing to measure"])
-        lines = [
-            head,
-            *forced,
-            f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2",
-            f"  planned {self.n_planned} more; at least {self.min_more_poses} more are needed "
-            "(with fewer, the certified bound exceeds the target)",
-        ]
-        if self.certificate is not None:
-            c = self.certificate
-            lines.append(f"  bound {c['bound_mm2']:.4g} mm^2, efficiency {c['efficiency']:.3f}")
-        return "\n".join(lines)
 
 
 def design_problem(robot: Robot, sigma_mm: float, cell: Cell | None) -> Problem:
@@ -190,7 +64,7 @@ def next_poses(
     *,
     cell: Cell | None = None,
     plan: np.ndarray | None = None,
-) -> NextResult:
+) -> NextReport:
     """One online step on the data so far (module docstring).
 
     Args:
@@ -198,7 +72,7 @@ def next_poses(
         data: the measurements so far.
         options: :class:`NextOptions`.
         cell: the measuring cell (default ``models/cell.yaml``).
-        plan: (H, n_joints) [rad] the previous step's plan (:attr:`NextResult.q_plan`), or None:
+        plan: (H, n_joints) [rad] the previous step's plan (:attr:`NextReport.q_plan`), or None:
             its poses not measured yet start one more design of the new plan, kept if better, so
             that a re-plan is never worse than the rest of the plan it replaces (the estimate and
             the noise aside).
@@ -227,7 +101,7 @@ def next_poses(
         report=report,
     )
     if base["done"]:
-        return NextResult(
+        return NextReport(
             q_next=np.zeros((0, robot.n_joints)),
             predicted_kpi_avg_var_mm2=None,
             n_planned=0,
@@ -241,7 +115,7 @@ def next_poses(
     cert = None
     if opts.certify:
         cert = certificate.certify(problem, q_next, collision=opts.collision, seed=opts.seed, given=q_given)
-    return NextResult(
+    return NextReport(
         q_next=q_next,
         predicted_kpi_avg_var_mm2=predicted,
         n_planned=len(q_plan),
@@ -358,43 +232,3 @@ def _continued(problem: Problem, opts: NextOptions, q_given: np.ndarray, previou
     except DesignError:
         return plan
     return alt if alt.kpi_avg_var_mm2 < plan.kpi_avg_var_mm2 else plan
-
-
-def next_file(
-    robot: str,
-    data_path: str | Path,
-    options: NextOptions | None = None,
-    *,
-    out: str | Path | None = None,
-    json_path: str | Path | None = None,
-    data_format: str | Path | None = None,
-    cell_path=None,
-    plan_path: str | Path | None = None,
-) -> tuple[NextResult, Robot]:
-    """``kpioed next``: one step on a measurement file; ``out`` gets the next poses (a design CSV,
-    nothing written when done), ``json_path`` the record; written after all succeeded.
-    ``plan_path``: a design CSV carrying the plan from step to step: read if it exists (the
-    previous plan, :func:`next_poses`), then replaced by this step's plan (removed when done).
-
-    Returns:
-        (result, robot).
-    """
-    check_paths(robot=robot, inputs=[data_path, data_format], outputs=[out, json_path, plan_path])
-    rob, cell, data = read_inputs(
-        robot, data_path, data_format, cell_path=cell_path, outputs=[out, json_path, plan_path]
-    )
-    previous = None
-    if plan_path is not None and Path(plan_path).is_file():
-        previous = csvio.read_design(plan_path, rob)
-    result = next_poses(rob, data, options, cell=cell, plan=previous)
-    with Outputs() as staged:
-        if out is not None and not result.done:
-            staged.add_text(out, csvio.design_csv_text(result.q_next, robot=rob))
-        if plan_path is not None and not result.done:
-            staged.add_text(plan_path, csvio.design_csv_text(result.q_plan, robot=rob))
-        if json_path is not None:
-            staged.add_json(json_path, result.to_dict(rob))
-        staged.commit()
-    if plan_path is not None and result.done:
-        Path(plan_path).unlink(missing_ok=True)
-    return result, rob

@@ -12,7 +12,8 @@ import pandas as pd
 from kpioed_drake.arguments import check_paths, check_positive
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
-from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, SimulationOptions, simulate
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, simulate
 from kpioed_drake.tracker.csvio import read_condition_offsets, read_design
 
 
@@ -63,7 +64,7 @@ def simulate_file(
 
     Args:
         robot: model name or YAML path; design: design CSV; out: measurement CSV to write.
-        options: :class:`~kpioed_drake.simulation.truth.SimulationOptions` (noise, seed, effects,
+        options: :class:`~kpioed_drake.simulation.options.SimulationOptions` (noise, seed, effects,
             geometric errors, targets per pose: one row per pose and target, with a ``target``
             column when several).
         payload_kg: payload at the reflector [kg] (>= 0).

@@ -8,16 +8,20 @@ A study is a list of :class:`Task` (robot x design method x collision avoidance 
 Per robot a :class:`BoundTask` computes the lower bound on tr(Cs)/3 of any design (the optimality
 certificate's search), joined into the rows and tables as each design's efficiency (:mod:`.bounds`).
 :mod:`.workflow`: :func:`run_study` does all of it; :func:`regenerate_tables` rebuilds the tables of a
-finished study with the bounds, without making the designs again. :mod:`.variants` (the problem
-variants of a study), :mod:`.sensitivity` (Table 6 under each variant),
-:mod:`.synthetic` (the diagnosis self-test: simulated campaigns with hidden effects) and
-:mod:`.authoring` (writes the model files: kinematic rows, capsules, ``q_work`` by inverse kinematics).
+finished study with the bounds, without making the designs again; its outputs are a
+:class:`StudyReport` (:mod:`.report`).
+
+Beside the paper's study: :mod:`.variants`, named variants of the study's problem (the assumptions
+the paper leaves open, one change each) and :mod:`.sensitivity`, Table 6 under each of them;
+:mod:`.synthetic`, the diagnosis's self-test harness (simulated campaigns with hidden effects and a
+known truth); :mod:`.authoring`, writing model files (kinematic rows, capsules, masses, ``q_work`` by
+Drake inverse kinematics).
 """
 
 from __future__ import annotations
 
 from kpioed_drake.paper import PAPER
-from kpioed_drake.study.report import make_report
+from kpioed_drake.study.report import StudyReport, make_report
 from kpioed_drake.study.runner import run_tasks
 from kpioed_drake.study.tables import RESULT_COLUMNS, make_tables, per_robot, ratios, results_frame
 from kpioed_drake.study.tasks import (
@@ -33,7 +37,7 @@ from kpioed_drake.study.tasks import (
     study_robots,
 )
 from kpioed_drake.study.variants import DEFAULT, VARIANTS, Variant, get_variant, variant_problem
-from kpioed_drake.study.workflow import StudyResult, regenerate_tables, run_study, write_outputs
+from kpioed_drake.study.workflow import regenerate_tables, run_study, write_outputs
 
 __all__ = [
     "BoundTask",
@@ -43,7 +47,7 @@ __all__ = [
     "PAPER",
     "QUICK_NOTIONAL",
     "RESULT_COLUMNS",
-    "StudyResult",
+    "StudyReport",
     "Task",
     "VARIANTS",
     "Variant",

@@ -1,15 +1,50 @@
-"""The study's report (``report.md``): Tables 6-8 and the ratios beside the paper's numbers, the share
-of colliding poses of designs made without collision avoidance (paper section 3.3.2), the feasibility
-of the designs made with it, failed tasks and the optimiser's status counts and solve times.
+"""The study's report: :class:`StudyReport`, what a run of :func:`~kpioed_drake.study.workflow.run_study`
+wrote, and ``report.md`` (:func:`make_report`): Tables 6-8 and the ratios beside the paper's numbers,
+the share of colliding poses of designs made without collision avoidance (paper section 3.3.2), the
+feasibility of the designs made with it, failed tasks and the optimiser's status counts and solve
+times.
 """
 
 from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from kpioed_drake.paper import COLLIDING_SHARE_NOCA
 from kpioed_drake.study.tables import ratios
+
+
+@dataclasses.dataclass
+class StudyReport:
+    """Outputs of :func:`~kpioed_drake.study.workflow.run_study` (all also written to ``out_dir``)."""
+
+    out_dir: Path
+    """The study folder."""
+    results: pd.DataFrame
+    """One row per task (``results.csv``, :data:`~kpioed_drake.study.tables.RESULT_COLUMNS`)."""
+    table6: pd.DataFrame
+    """Table 6: KUKA robots, ours and the paper's [mm^2]."""
+    table7: pd.DataFrame
+    """Table 7: min and max over the notional robots [mm^2]."""
+    table8: pd.DataFrame
+    """Table 8: means over the notional robots [mm^2]."""
+    report: str
+    """The markdown of ``report.md``."""
+    figures: list[Path]
+    """The figure files written (Figures 7 and 8 when their data exist)."""
+    n_tasks: int
+    """Number of tasks of the study."""
+    n_run: int
+    """Tasks run by this call."""
+    n_skipped: int
+    """Tasks resumed from their result files."""
+    n_errors: int
+    """Tasks that recorded an error."""
+    wall_s: float
+    """Wall time of this call [s]."""
 
 
 def _fmt(v, f: str = "{:.3f}") -> str:

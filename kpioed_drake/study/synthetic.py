@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.common import DiagnosisOptions
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.options import DiagnosisOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY

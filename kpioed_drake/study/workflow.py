@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 import time
@@ -20,41 +19,11 @@ from kpioed_drake.robot.models import list_robots, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.study.bounds import add_efficiency, bound_tasks_of, bounds_frame, rows_from_results
 from kpioed_drake.study.plots import make_figures
-from kpioed_drake.study.report import make_report
+from kpioed_drake.study.report import StudyReport, make_report
 from kpioed_drake.study.runner import run_tasks
 from kpioed_drake.study.tables import make_tables, results_frame
 from kpioed_drake.study.tasks import BoundTask, make_bound_tasks, make_tasks, study_robots
 from kpioed_drake.study.variants import DEFAULT, get_variant
-
-
-@dataclasses.dataclass
-class StudyResult:
-    """Outputs of :func:`run_study` (all also written to ``out_dir``)."""
-
-    out_dir: Path
-    """The study folder."""
-    results: pd.DataFrame
-    """One row per task (``results.csv``, :data:`RESULT_COLUMNS`)."""
-    table6: pd.DataFrame
-    """Table 6: KUKA robots, ours and the paper's [mm^2]."""
-    table7: pd.DataFrame
-    """Table 7: min and max over the notional robots [mm^2]."""
-    table8: pd.DataFrame
-    """Table 8: means over the notional robots [mm^2]."""
-    report: str
-    """The markdown of ``report.md``."""
-    figures: list[Path]
-    """The figure files written (Figures 7 and 8 when their data exist)."""
-    n_tasks: int
-    """Number of tasks of the study."""
-    n_run: int
-    """Tasks run by this call."""
-    n_skipped: int
-    """Tasks resumed from their result files."""
-    n_errors: int
-    """Tasks that recorded an error."""
-    wall_s: float
-    """Wall time of this call [s]."""
 
 
 def write_outputs(
@@ -111,7 +80,7 @@ def run_study(
     design_api=None,
     variant: str = DEFAULT,
     bounds: bool = True,
-) -> StudyResult:
+) -> StudyReport:
     """Run (or resume) the paper's study (``kpioed study``) and write ``results.csv``,
     ``table6/7/8.csv``, ``report.md`` and the figures into ``out_dir``.
 
@@ -166,7 +135,7 @@ def run_study(
         title += f", variant `{var.name}` ({var.description})"
     outputs = write_outputs(out_dir, rows, wall_s=wall, figures=figures, title=title, bound_rows=bound_rows)
     n_errors = int(outputs[0]["error"].notna().sum()) + sum(1 for b in bound_rows if b.get("error"))
-    return _study_result(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), time.perf_counter() - t0)
+    return _study_report(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), time.perf_counter() - t0)
 
 
 def _check(out_dir: Path, robots: list[str], *, n, seed, heuristic_draws, jobs) -> None:
@@ -189,12 +158,12 @@ def _check(out_dir: Path, robots: list[str], *, n, seed, heuristic_draws, jobs) 
             )
 
 
-def _study_result(out_dir: Path, outputs: tuple, counts: tuple, wall_s: float) -> StudyResult:
-    """The :class:`StudyResult` of :func:`write_outputs`' ``outputs`` and the counts (tasks, run,
+def _study_report(out_dir: Path, outputs: tuple, counts: tuple, wall_s: float) -> StudyReport:
+    """The :class:`StudyReport` of :func:`write_outputs`' ``outputs`` and the counts (tasks, run,
     skipped, errors)."""
     df, t6, t7, t8, report, figs = outputs
     n_tasks, n_run, n_skip, n_errors = counts
-    return StudyResult(
+    return StudyReport(
         out_dir=out_dir,
         results=df,
         table6=t6,
@@ -220,7 +189,7 @@ def regenerate_tables(
     progress: bool = True,
     figures: bool = True,
     design_api=None,
-) -> StudyResult:
+) -> StudyReport:
     """Rebuild the tables, report and figures of a finished study in ``out_dir`` with the bounds and
     efficiencies, without making the designs again (``kpioed study --tables-only``).
 
@@ -249,4 +218,4 @@ def regenerate_tables(
     wall_s = float(wall.group(1)) if wall else None
     outputs = write_outputs(out_dir, rows, wall_s=wall_s, figures=figures, title=title, bound_rows=bound_rows)
     n_errors = sum(1 for b in bound_rows if b.get("error"))
-    return _study_result(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), wall_s or math.nan)
+    return _study_report(out_dir, outputs, (len(tasks), n_run, n_skip, n_errors), wall_s or math.nan)

@@ -3,6 +3,6 @@
 :mod:`.search` (local maxima of the pricing function), :mod:`.design` (column generation, rounding:
 the optimiser's approximate start), :mod:`.certificate` (the bound and a design's efficiency) and
 :mod:`.certcache` (the bound's disk cache); with poses already measured, :mod:`.given` (the
-approximate design with their information: the second start and the tight bound) and
-:mod:`.sequential` (the certified design's candidates chosen with their information).
+approximate design added to them and the tight bound it gives) and :mod:`.sequential` (the candidates
+chosen with the measured poses' information, the poses of a plan to measure first).
 """

@@ -56,8 +56,8 @@ from kpioed_drake.design.approximate.search import (
     perturbed_poses,
     pose_rows,
 )
-from kpioed_drake.design.common import is_large
 from kpioed_drake.design.heuristic import heuristic_design
+from kpioed_drake.design.settings import is_large
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
@@ -85,7 +85,7 @@ search (``design_beyond_search > 1 + REFINE_ABOVE``): below it the bound given u
 a refinement (a continued column generation and a broader search) costs more than the design on a
 many-joint robot (docs/certificate.md)."""
 REFINE_BELOW_EFFICIENCY = 0.97
-"""On a large design (more than :data:`~kpioed_drake.design.common.LARGE_SOLVE_VARIABLES` joint
+"""On a large design (more than :data:`~kpioed_drake.design.settings.LARGE_SOLVE_VARIABLES` joint
 variables) :func:`certify` refines only while the design's certified efficiency is below this: on
 the 18-joint twin one refinement costs more than two minutes, several times the design, for about
 1 % of bound. A six-joint design's refinement costs seconds and refines whenever the search missed

@@ -59,7 +59,7 @@ from kpioed_drake.design.discriminate.explanations import (
 )
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import optimize_design
-from kpioed_drake.design.result import DesignError, DesignResult
+from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.effects import extension_columns, gravity_torques, reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -180,8 +180,8 @@ def tests_record(pair, lam, n: int, alpha: float) -> dict:
 
 
 @dataclasses.dataclass
-class DiscriminationResult(DesignResult):
-    """A :class:`DesignResult` of a discrimination design with its ``discrimination`` record
+class DiscriminationReport(DesignReport):
+    """A :class:`DesignReport` of a discrimination design with its ``discrimination`` record
     (pair, assumed sizes, non-centrality and power of both tests before and after)."""
 
     discrimination: dict | None = None
@@ -241,7 +241,7 @@ def heuristic_start(options: dict) -> str:
     return start
 
 
-def optimize_discrimination(dprob: Problem, *, n: int, given, **options) -> DesignResult:
+def optimize_discrimination(dprob: Problem, *, n: int, given, **options) -> DesignReport:
     """:func:`~kpioed_drake.design.optimize.optimize_design` of ``dprob``'s worst case from the
     heuristic start; a failure is reported as the discriminate design's."""
     start = heuristic_start(options)
@@ -263,7 +263,7 @@ def discrimination_design(
     given: np.ndarray | None = None,
     alpha: float = DEFAULT_ALPHA,
     **options,
-) -> tuple[DiscriminationResult, Problem]:
+) -> tuple[DiscriminationReport, Problem]:
     """Poses that tell the two explanations of ``pair_text`` apart (module docstring).
 
     Args:
@@ -313,14 +313,14 @@ def discrimination_design(
         "(kpioed_drake.design.discriminate.design)"
     )
     record = discrimination_record(pair, alpha, criterion, res, before, after)
-    return DiscriminationResult(**fields, discrimination=record), base
+    return DiscriminationReport(**fields, discrimination=record), base
 
 
-def result_fields(res: DesignResult, crit: dict, alone: dict | None) -> dict:
+def result_fields(res: DesignReport, crit: dict, alone: dict | None) -> dict:
     """The fields of a discrimination result from the optimiser's ``res``: criterion
     ``discriminate``, the KPI values ``crit`` of the extended model (combined design) and, with
     given poses, their own (``alone``), not the criterion's."""
-    fields = {f.name: getattr(res, f.name) for f in dataclasses.fields(DesignResult)}
+    fields = {f.name: getattr(res, f.name) for f in dataclasses.fields(DesignReport)}
     fields.update(criterion="discriminate", kpi_vars_mm2=None, **crit)
     if res.given is not None:
         fields["given"] = {
@@ -332,7 +332,7 @@ def result_fields(res: DesignResult, crit: dict, alone: dict | None) -> dict:
 
 
 def discrimination_record(
-    pair, alpha: float, criterion: str, res: DesignResult, before: dict, after: dict
+    pair, alpha: float, criterion: str, res: DesignReport, before: dict, after: dict
 ) -> dict:
     """The ``discrimination`` record: pair, assumed sizes, level, criterion, ``1/v_h`` of the
     optimiser's ``res``, and both tests ``before`` and ``after``."""

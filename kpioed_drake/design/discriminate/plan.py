@@ -8,7 +8,7 @@ payload span, ``--condition-span 10kg``) gets a measurement plan of
 :mod:`~kpioed_drake.design.discriminate.conditions`: ``n`` poses, each measured in block 1 and again in
 block 2 after the span of temperature or time, chosen to maximise the smaller non-centrality (T-optimal) of
 the first data and the plan together. The result's rows are the measurements in order (block 1,
-then block 2: 2n rows) with their block and planned condition offset (:attr:`PlanResult.plan_columns`,
+then block 2: 2n rows) with their block and planned condition offset (:attr:`PlanReport.plan_columns`,
 the design CSV's ``block``, ``temperature_offset_K`` / ``time_offset_s``); its ``discrimination``
 record has ``before``, ``after`` and the ``plan`` (spans, where they come from, the span the designed
 poses need, and the heuristic poses under the same plan for comparison). Its KPI values (tr(Cs)/3,
@@ -41,7 +41,7 @@ from kpioed_drake.design.discriminate.conditions import (
     with_spans,
 )
 from kpioed_drake.design.discriminate.design import (
-    DiscriminationResult,
+    DiscriminationReport,
     checked_pair,
     discrimination_design,
     discrimination_problem,
@@ -59,15 +59,15 @@ from kpioed_drake.design.discriminate.explanations import (
     discriminate_error,
 )
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.result import DesignResult
+from kpioed_drake.design.report import DesignReport
 from kpioed_drake.effects import T_REF_C, extension_columns
 from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.problem import Problem
 
 
 @dataclasses.dataclass
-class PlanResult(DiscriminationResult):
-    """A :class:`DiscriminationResult` whose rows ``q`` (2n, 6) are the planned measurements in
+class PlanReport(DiscriminationReport):
+    """A :class:`DiscriminationReport` whose rows ``q`` (2n, 6) are the planned measurements in
     order, with each row's block and condition offset."""
 
     plan_columns: dict | None = None
@@ -181,7 +181,7 @@ def plan_design(
     condition_span=None,
     alpha: float = DEFAULT_ALPHA,
     **options,
-) -> tuple[DesignResult, Problem]:
+) -> tuple[DesignReport, Problem]:
     """Poses and conditions that tell the two explanations of ``pair_text`` apart (module docstring).
 
     Args:
@@ -201,7 +201,7 @@ def plan_design(
             of :func:`~kpioed_drake.design.optimize.optimize_design`.
 
     Returns:
-        the result (:class:`PlanResult`, or the poses-only result for a pair of joint effects) and
+        the result (:class:`PlanReport`, or the poses-only result for a pair of joint effects) and
         the extended problem (for a plan: its
         :class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem` of the 2n measurements).
 
@@ -307,7 +307,7 @@ def _assessments(
 
 
 def _plan_record(
-    res: DesignResult, plan: PlanProblem, pair, spans: dict, spans_user: dict, conds, tests: dict
+    res: DesignReport, plan: PlanProblem, pair, spans: dict, spans_user: dict, conds, tests: dict
 ) -> dict:
     """The JSON record's ``plan``: the blocks, the spans with where they come from and what the start
     and the designed poses need (``tests`` of :func:`_assessments`), and the heuristic poses under
@@ -338,9 +338,9 @@ def _plan_record(
 
 
 def _result(
-    res: DesignResult, plan: PlanProblem, base: Problem, given, spans: dict, record: dict
-) -> tuple[PlanResult, Problem]:
-    """The :class:`PlanResult` (``res``'s poses as the 2n planned measurements) and the problem of
+    res: DesignReport, plan: PlanProblem, base: Problem, given, spans: dict, record: dict
+) -> tuple[PlanReport, Problem]:
+    """The :class:`PlanReport` (``res``'s poses as the 2n planned measurements) and the problem of
     those measurements (:class:`~kpioed_drake.design.discriminate.conditions.SequenceProblem`)."""
     n = res.n
     rows = plan.sequence_conditions(n)
@@ -357,4 +357,4 @@ def _result(
     columns = {"block": np.repeat([1, 2], n)}
     for c, s in spans.items():
         columns[PLAN_COLUMNS[c]] = np.repeat([0.0, float(s)], n)
-    return PlanResult(**fields, discrimination=record, plan_columns=columns), sequence_problem(base, rows)
+    return PlanReport(**fields, discrimination=record, plan_columns=columns), sequence_problem(base, rows)

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from kpioed_drake.design.common import (
+from kpioed_drake.design.settings import (
     CLEARANCE_MARGIN_MM,
     CLEARANCE_ROW_SCALE,
     INCIDENCE_MARGIN_DEG,
@@ -173,7 +173,7 @@ class DesignConstraints:
 
     def lower_bounds(self, r: int | None = None) -> np.ndarray:
         """(r,) lower bounds of the first ``r`` unscaled rows (default: all; small inward margins,
-        :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG` and ``CLEARANCE_MARGIN_MM``)."""
+        :data:`~kpioed_drake.design.settings.INCIDENCE_MARGIN_DEG` and ``CLEARANCE_MARGIN_MM``)."""
         lb = np.full(self.rows_per_pose if r is None else r, CLEARANCE_MARGIN_MM)
         lb[: self.n_incidence] = incidence_row_beyond(self.problem.cell.max_incidence, -INCIDENCE_MARGIN_DEG)
         return lb
@@ -229,7 +229,7 @@ def restore_incidence(problem: Problem, q) -> np.ndarray:
     """``q`` (n, nj) with every pose whose incidence is beyond the limit by more than the independent
     check's tolerance (:data:`~kpioed_drake.tracker.feasibility.TOL_DEG`) but at most
     :data:`RESTORE_MAX_DEG` moved back to the optimiser's bound (the limit minus
-    :data:`~kpioed_drake.design.common.INCIDENCE_MARGIN_DEG`) by Gauss-Newton steps along the
+    :data:`~kpioed_drake.design.settings.INCIDENCE_MARGIN_DEG`) by Gauss-Newton steps along the
     incidence row's gradient (projected on the motions the joint map's couplings allow), inside the
     joint box. Every other pose is returned unchanged, so a design that passes the check is not
     touched; one that is further out stays as it is."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kpioed_drake.design.common import as_poses
+from kpioed_drake.design.settings import as_poses
 from kpioed_drake.estimation.criteria import Criterion, kpi_each, resolve
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.kinematics import Frames

@@ -3,7 +3,7 @@
 6n decision variables (pose-major: variable ``6k + j`` is joint j+1 of pose k) [rad],
 bounding-box joint limits, ONE vectorised Python cost (:class:`~kpioed_drake.design.exact.objective.
 DesignObjective`, scaled) and Python constraint bindings of ``pose_block`` poses each
-(:data:`~kpioed_drake.design.common.POSE_BLOCK` = 10 by default: six bindings for 60 poses) holding,
+(:data:`~kpioed_drake.design.settings.POSE_BLOCK` = 10 by default: six bindings for 60 poses) holding,
 for every pose, the incidence row and (with collision avoidance) the pose's ``active_rows``
 smallest clearances (:class:`~kpioed_drake.design.exact.constraints.DesignConstraints`). The rows of all
 poses are computed in one vectorised call per iterate and shared by the bindings; cost and
@@ -25,9 +25,9 @@ import numpy as np
 from pydrake.autodiffutils import ExtractValue, InitializeAutoDiff
 from pydrake.solvers import MathematicalProgram
 
-from kpioed_drake.design.common import ACTIVE_ROWS_PER_POSE, POSE_BLOCK
 from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.settings import ACTIVE_ROWS_PER_POSE, POSE_BLOCK
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.kinematics import Frames
@@ -60,7 +60,7 @@ class DesignProgram:
             smallest clearances (:meth:`DesignConstraints.evaluate_active`; the same feasible set
             as all rows, with far fewer rows for the solver). None: every clearance row.
         pose_block: poses per constraint binding (default
-            :data:`~kpioed_drake.design.common.POSE_BLOCK`; None: one binding over all 6n
+            :data:`~kpioed_drake.design.settings.POSE_BLOCK`; None: one binding over all 6n
             variables). The AutoDiffXd gradient of one binding is a dense (b r, 6b) matrix, so its
             conversion grows as b^2: blocks make it grow as n. The rows of all poses
             are computed once per iterate, by the first block evaluated after the cost (the solver

@@ -16,11 +16,11 @@ import time
 import numpy as np
 from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
-from kpioed_drake.design.common import MAX_SWEEPS, SWEEP_RTOL, is_large
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.program import DesignProgram
+from kpioed_drake.design.settings import MAX_SWEEPS, SWEEP_RTOL, is_large
 from kpioed_drake.errors import InputError, raise_if_interrupted
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.jointmap import commandable_projection
@@ -30,7 +30,7 @@ OPTIMALITY_TOLERANCE = 1e-5
 """SNOPT's major optimality tolerance (its default 1e-6): about 30 % fewer evaluations for a
 criterion about 0.1 % higher on average (docs/design.md)."""
 LARGE_OPTIMALITY_TOLERANCE = 1e-4
-"""The tolerance above :data:`~kpioed_drake.design.common.LARGE_SOLVE_VARIABLES` joint variables,
+"""The tolerance above :data:`~kpioed_drake.design.settings.LARGE_SOLVE_VARIABLES` joint variables,
 where SNOPT's work per major iteration (about n nS^2) makes its long flat tail the larger part of a
 solve: on the 40-pose design of the 18-joint twin it took a third of the evaluations of 3e-5 for a
 criterion 0.04-0.07 % higher (docs/design.md)."""
@@ -69,7 +69,7 @@ def solver_options(solver: str, n: int, *, n_joints: int = N_JOINTS) -> dict[str
             "Major step limit": 0.2,
             # Tighter than SNOPT's default 1e-6 (which is relative to the norm of the solution
             # vector, so 1e-6 lets a pose on the incidence limit end beyond the check's tolerance).
-            # With the margins of design.common, 1e-7 passes the independent check and needs fewer
+            # With the margins of design.settings, 1e-7 passes the independent check and needs fewer
             # evaluations than 1e-9 (docs/design.md).
             "Major feasibility tolerance": 1e-7,
             "Minor feasibility tolerance": 1e-7,
@@ -262,9 +262,9 @@ def solve_blocks(
     succeeded, it passes the independent check and it does not increase the criterion; the design
     therefore stays feasible and its criterion never increases. The first sweep takes the poses in
     order, later ones in a random order (seeded by ``seed``). Sweeps stop when one lowers the
-    criterion by less than :data:`~kpioed_drake.design.common.SWEEP_RTOL` of its normalisation
+    criterion by less than :data:`~kpioed_drake.design.settings.SWEEP_RTOL` of its normalisation
     (:meth:`~kpioed_drake.estimation.criteria.Criterion.normalisation`: relative; for ``d``, a log, per
-    parameter), or after :data:`~kpioed_drake.design.common.MAX_SWEEPS`. ``solve_s`` is the wall
+    parameter), or after :data:`~kpioed_drake.design.settings.MAX_SWEEPS`. ``solve_s`` is the wall
     time of all sweeps, including the checks of the block results. ``fixed_information`` (k, k):
     information of further poses held fixed throughout (given poses), added to every block's.
     """

@@ -1,4 +1,4 @@
-"""The result of a design run: :class:`DesignResult`, its JSON record and its printed summary."""
+"""The result of a design run: :class:`DesignReport`, its JSON record and its printed summary."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from kpioed_drake.tracker.csvio import jsonable, q_to_file
 
 
 @dataclasses.dataclass
-class DesignResult:
+class DesignReport:
     """An experimental design and how it was obtained.
 
     Joint angles are in radians here and in degrees in :meth:`summary`; ``reports`` give
@@ -157,17 +157,17 @@ class DesignError(SolverError):
     """The optimiser failed or returned an infeasible design (the CLI exits with status 3).
 
     Attributes:
-        result: the :class:`DesignResult` that was rejected (None if there is none).
+        result: the :class:`DesignReport` that was rejected (None if there is none).
         fields: the API parameters the message names (as :class:`~kpioed_drake.errors.InputError`).
     """
 
-    def __init__(self, message: str, result: DesignResult | None = None, *, fields=()):
+    def __init__(self, message: str, result: DesignReport | None = None, *, fields=()):
         super().__init__(message, fields=fields)
         self.result = result
 
 
-def json_record(res: DesignResult, problem: Problem, *, error: str | None = None) -> dict:
-    """The JSON record of a run (``kpioed design --json``): :meth:`DesignResult.summary` with the
+def json_record(res: DesignReport, problem: Problem, *, error: str | None = None) -> dict:
+    """The JSON record of a run (``kpioed design --json``): :meth:`DesignReport.summary` with the
     working pose [deg] ((K, 6) and ``kpi_weights``, ``kpi_aggregate`` for several), the noise [mm]
     and, for a rejected design, the error message; NaN as null."""
     rec = res.summary()
@@ -183,7 +183,7 @@ def json_record(res: DesignResult, problem: Problem, *, error: str | None = None
     return jsonable(rec)
 
 
-def format_summary(res: DesignResult) -> str:
+def format_summary(res: DesignReport) -> str:
     """A few human-readable lines about a design."""
     ca = "with" if res.collision else "without"
     lines = [
