@@ -43,10 +43,10 @@ import numpy as np
 
 from kpioed_drake.calibration import CalibrationReport, calibrate_file
 from kpioed_drake.calibration.options import CalibrationOptions
-from kpioed_drake.calibration.validate import validate_file as validate
-from kpioed_drake.compensation.workflow import compensate_file as compensate
-from kpioed_drake.design import DesignOptions, DesignReport, run_design
-from kpioed_drake.design import evaluate_file as evaluate
+from kpioed_drake.calibration.validate import ValidationReport, validate_file
+from kpioed_drake.compensation.report import CompensationReport
+from kpioed_drake.compensation.workflow import compensate_file
+from kpioed_drake.design import DesignOptions, DesignReport, evaluate_file, run_design
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.online import NextOptions, next_file
@@ -56,7 +56,7 @@ from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.workflow import simulate_file
-from kpioed_drake.study import run_study as study
+from kpioed_drake.study import StudyReport, run_study
 from kpioed_drake.tracker.csvio import q_to_file
 
 __all__ = [
@@ -361,4 +361,125 @@ def diagnose(
         html=html,
         data_format=data_format,
         out=out,
+    )
+
+
+def evaluate(
+    robot: str,
+    design: str,
+    *,
+    sigma_mm: float | None = None,
+    q_work_deg: str | None = None,
+    extend=(),
+    json_path=None,
+    html=None,
+    cell_path=None,
+    certify: bool = True,
+) -> dict:
+    """KPI variance, standard criterion, feasibility and certified efficiency of a design file
+    (``kpioed evaluate``): :func:`kpioed_drake.design.evaluate_file`, whose docstring details the
+    arguments and the returned record (mm^2, mm, deg)."""
+    return evaluate_file(
+        robot,
+        design,
+        sigma_mm=sigma_mm,
+        q_work_deg=q_work_deg,
+        extend=extend,
+        json_path=json_path,
+        html=html,
+        cell_path=cell_path,
+        certify=certify,
+    )
+
+
+def validate(
+    robot: str,
+    data_path,
+    *,
+    data_format=None,
+    tracker_frame: str | None = None,
+    keep_tracker: bool | None = None,
+    json_path=None,
+    plots_dir=None,
+    cell_path=None,
+    force: bool = False,
+) -> ValidationReport:
+    """A model's prediction errors on measurements (``kpioed validate``), nothing fitted to the poses
+    scored unless ``tracker_frame="in-sample"`` says so (``kept``: the model's tracker frame;
+    ``cross``: registered on one half of the poses, scored on the other):
+    :func:`kpioed_drake.calibration.validate.validate_file`, whose docstring details the arguments."""
+    return validate_file(
+        robot,
+        data_path,
+        data_format=data_format,
+        tracker_frame=tracker_frame,
+        keep_tracker=keep_tracker,
+        json_path=json_path,
+        plots_dir=plots_dir,
+        cell_path=cell_path,
+        force=force,
+    )
+
+
+def study(
+    out_dir,
+    *,
+    quick: bool = False,
+    jobs: int | None = None,
+    scheduler=None,
+    progress: bool = True,
+    robots=None,
+    n: int = 60,
+    heuristic_draws: int | None = None,
+    seed: int = 0,
+    figures: bool = True,
+    variant: str = "default",
+    bounds: bool = True,
+) -> StudyReport:
+    """Run (or resume) the paper's study (``kpioed study``) into ``out_dir``: Tables 6-8, the report
+    and Figures 7-8 (:func:`kpioed_drake.study.workflow.run_study`, whose docstring details the
+    arguments)."""
+    return run_study(
+        out_dir,
+        quick=quick,
+        jobs=jobs,
+        scheduler=scheduler,
+        progress=progress,
+        robots=robots,
+        n=n,
+        heuristic_draws=heuristic_draws,
+        seed=seed,
+        figures=figures,
+        variant=variant,
+        bounds=bounds,
+    )
+
+
+def compensate(
+    robot: str,
+    *,
+    program=None,
+    targets=None,
+    out,
+    nominal: str | None = None,
+    target: int = 1,
+    angles: str = "model",
+    effects=(),
+    allow_unreachable: bool = False,
+    cell_path=None,
+) -> CompensationReport:
+    """The joint values with which a calibrated model reaches a nominal program's poses or given
+    points (``kpioed compensate``): :func:`kpioed_drake.compensation.workflow.compensate_file`,
+    whose docstring details the arguments."""
+    return compensate_file(
+        robot,
+        program=program,
+        targets=targets,
+        out=out,
+        nominal=nominal,
+        target=target,
+        angles=angles,
+        effects=effects,
+        allow_unreachable=allow_unreachable,
+        cell_path=cell_path,
     )

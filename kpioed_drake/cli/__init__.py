@@ -1,6 +1,8 @@
 """The ``kpioed`` command line: a thin layer over :mod:`kpioed_drake.api`.
 
-Each subcommand lives in its own module with ``register(subparsers)``; ``run(args) -> int``.
+Each subcommand lives in its own module with ``register(subparsers)``; ``run(args) -> int``:
+:mod:`.info`, :mod:`.evaluate`, :mod:`.design`, :mod:`.simulate`, :mod:`.calibrate`, :mod:`.next`,
+:mod:`.diagnose`, :mod:`.study`, :mod:`.validate`, :mod:`.compensate`.
 Exit statuses (:mod:`kpioed_drake.errors`): 0 success; 2 bad input (one line naming the file, row
 or field); 3 solver failure or infeasible result; 130 interrupted; 1 an internal error (one line;
 ``kpioed --debug COMMAND ...`` shows the traceback).
