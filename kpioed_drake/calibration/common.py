@@ -21,8 +21,7 @@ from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.urdf.write import check_out_path, sidecar_of
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import Measurements, read_data
 from kpioed_drake.tracker.measurement import kpi_jacobian
 
 

@@ -34,9 +34,10 @@ from kpioed_drake.design.result import DesignError
 from kpioed_drake.effects import model_effects
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.problem import Problem, make_problem
+from kpioed_drake.files import designs
 from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.models import Cell, Robot
-from kpioed_drake.tracker import csvio
 from kpioed_drake.tracker.data import Measurements
 
 
@@ -137,7 +138,7 @@ class NextResult:
             "n_next": int(len(self.q_next)),
             "n_planned": self.n_planned,
             "min_more_poses": self.min_more_poses,
-            "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
+            "next_q_deg": q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
         }
 
     def summary(self) -> str:
@@ -385,13 +386,13 @@ def next_file(
     )
     previous = None
     if plan_path is not None and Path(plan_path).is_file():
-        previous = csvio.read_design(plan_path, rob)
+        previous = designs.read_design(plan_path, rob)
     result = next_poses(rob, data, options, cell=cell, plan=previous)
     with Outputs() as staged:
         if out is not None and not result.done:
-            staged.add_text(out, csvio.design_csv_text(result.q_next, robot=rob))
+            staged.add_text(out, designs.design_csv_text(result.q_next, robot=rob))
         if plan_path is not None and not result.done:
-            staged.add_text(plan_path, csvio.design_csv_text(result.q_plan, robot=rob))
+            staged.add_text(plan_path, designs.design_csv_text(result.q_plan, robot=rob))
         if json_path is not None:
             staged.add_json(json_path, result.to_dict(rob))
         staged.commit()
