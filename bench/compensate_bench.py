@@ -32,11 +32,12 @@ from fits_bench import replace_section, run_command
 from kpioed_drake import api
 from kpioed_drake.calibration import CalibrationOptions, calibrate, calibrated_robot_yaml
 from kpioed_drake.compensation.solve import model_pose
+from kpioed_drake.files.designs import read_design, write_design
 from kpioed_drake.outputs import atomic_write_text
+from kpioed_drake.robot.jointmap import q_columns
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
-from kpioed_drake.tracker.csvio import q_columns, read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model
 

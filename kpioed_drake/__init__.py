@@ -5,8 +5,8 @@ key-performance-indicator-based parameter identification of industrial manipulat
 See ``docs/ARCHITECTURE.md`` for the module map and ``kpioed_drake.api`` for the Python API.
 
 Packages (each docstring names its modules), lowest layer first: :mod:`.robot` (robot and cell
-models, kinematics, the Drake plant), :mod:`.tracker` (the measurement model and the tracker's
-data), :mod:`.effects` (non-geometric effects), :mod:`.estimation` (the estimator, covariance,
+models, kinematics, the Drake plant), :mod:`.files` (the one reader of the tables the package
+reads), :mod:`.tracker` (the measurement model and the tracker's data), :mod:`.effects` (non-geometric effects), :mod:`.estimation` (the estimator, covariance,
 criteria, tests), :mod:`.scene3d` (Meshcat pages), :mod:`.design`, :mod:`.simulation`,
 :mod:`.calibration`, :mod:`.compensation`, :mod:`.online`, :mod:`.diagnosis`, :mod:`.study` (the
 workflows), and :mod:`.cli` (the ``kpioed`` command). Modules: :mod:`.errors` (exit statuses, the errors),

@@ -52,12 +52,12 @@ from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.online import NextOptions, next_file
 from kpioed_drake.options import options_from
 from kpioed_drake.robot.geometry import beam_targets
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.workflow import simulate_file
 from kpioed_drake.study import StudyReport, run_study
-from kpioed_drake.tracker.csvio import q_to_file
 
 __all__ = [
     "calibrate",

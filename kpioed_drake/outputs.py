@@ -66,6 +66,24 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def jsonable(obj):
+    """``obj`` as plain JSON data: numpy arrays and scalars to Python, NaN/inf to None, keys to str.
+
+    JSON has no NaN; every result record of the package goes through this one function.
+    """
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
 def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -26,7 +26,7 @@ from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.outputs import atomic_write_json
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import read_data
 
 REPO = Path(__file__).resolve().parents[1]
 SIGMA_MM = 0.065

@@ -34,6 +34,7 @@ RANK = {
     "paper": 0,
     "options": 0,
     "robot": 1,
+    "files": 1.5,
     "tracker": 2,
     "effects": 3,
     "estimation": 4,

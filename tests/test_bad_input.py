@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from kpioed_drake.cli import main
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
-from kpioed_drake.tracker.csvio import write_design
 
 REPO = Path(__file__).resolve().parents[1]
 KR16_YAML = (REPO / "models" / "robots" / "kr16.yaml").read_text()

@@ -12,9 +12,9 @@ from kpioed_drake import calibration, simulation
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot import models
 from kpioed_drake.tracker import measurement
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements, read_measurements
 
 SIGMA = 0.02

@@ -7,8 +7,8 @@ import pytest
 
 from kpioed_drake.cli import main
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.tracker.csvio import write_design
 
 
 @pytest.fixture(scope="module")

@@ -30,10 +30,11 @@ from kpioed_drake.effects import augmented_response, parse_effect
 from kpioed_drake.effects.gravity import reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import read_design, write_design
+from kpioed_drake.robot.jointmap import q_columns, q_from_file
 from kpioed_drake.robot.models import MODELS_DIR, RobotSpec, load_cell, load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate, true_model
-from kpioed_drake.tracker.csvio import q_columns, q_from_file, read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model
 

@@ -20,10 +20,10 @@ from kpioed_drake.effects.gravity_basis import link_moments, link_regressor
 from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
 from kpioed_drake.study.synthetic import detectability, perturbed_masses, synthetic_case
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import as_measurements
 from kpioed_drake.tracker.measurement import nominal_model
 

@@ -12,7 +12,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import read_data
 
 REPO = Path(__file__).resolve().parents[1]
 KR16_YAML = (REPO / "models" / "robots" / "kr16.yaml").read_text()

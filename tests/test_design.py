@@ -27,7 +27,7 @@ from kpioed_drake.design.exact.constraints import restore_incidence
 from kpioed_drake.design.settings import INCIDENCE_MARGIN_DEG
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.tracker.csvio import read_design
+from kpioed_drake.files.designs import read_design
 from kpioed_drake.tracker.feasibility import TOL_DEG, FeasibilityChecker
 from kpioed_drake.tracker.measurement import incidence_cosine
 

@@ -26,7 +26,7 @@ from kpioed_drake.design.exact import solve as design_solve
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import criteria
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.tracker.csvio import read_design, write_design
+from kpioed_drake.files.designs import read_design, write_design
 
 PATH_OFFSETS_DEG = np.array([[0, 0, 0, 0, 0, 0], [20, 10, -10, 0, 15, 0], [-20, -5, 10, 0, -10, 30]])
 """A working path around kr16's q_work sampled at 3 points [deg] (within the joint limits)."""

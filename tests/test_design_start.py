@@ -13,7 +13,7 @@ from kpioed_drake.cli import main
 from kpioed_drake.design import START_METHODS, approximate_start, check_design, optimize_design, resolve_start
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
-from kpioed_drake.tracker.csvio import write_design
+from kpioed_drake.files.designs import write_design
 
 
 @pytest.fixture(scope="module")

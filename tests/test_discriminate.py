@@ -30,8 +30,8 @@ from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import T_REF_C, augmented_jacobian, gravity_torques
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import design_csv_text
 from kpioed_drake.study.synthetic import random_poses, synthetic_case
-from kpioed_drake.tracker.csvio import design_csv_text
 
 PAIR = "joint_scale:2=300|gear_cyclic:2:1"
 SIGMA = 0.02

@@ -33,10 +33,10 @@ from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.effects import augmented_jacobian
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import design_csv_text
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.study.synthetic import random_poses
-from kpioed_drake.tracker.csvio import design_csv_text
 
 SIGMA = 0.02
 TEMP_PAIR = "thermal_expansion|tracker_scale"

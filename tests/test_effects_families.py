@@ -8,9 +8,9 @@ import pytest
 from kpioed_drake import effects as fx
 from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.designs import read_design
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
-from kpioed_drake.tracker.csvio import read_design
 from kpioed_drake.tracker.data import as_measurements
 from kpioed_drake.tracker.measurement import measure
 

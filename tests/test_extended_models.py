@@ -13,11 +13,11 @@ from kpioed_drake.cli import main
 from kpioed_drake.diagnosis import workflow
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.study.synthetic import random_poses
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model, reflector_world
 

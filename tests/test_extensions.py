@@ -11,11 +11,11 @@ from kpioed_drake.cli import main
 from kpioed_drake.design import DesignObjective
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.study.synthetic import random_poses
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import as_measurements
 
 EXT = ["joint_elasticity:2", "gear_cyclic:4:2"]

@@ -14,8 +14,7 @@ from kpioed_drake import calibration, simulation
 from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import load_robot
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_foreign
+from kpioed_drake.tracker.data import Measurements, read_data
 
 THREE = np.array([[-89.58, -2.84, 327.03], [60.0, 80.0, 300.0], [-40.0, 100.0, 280.0]])
 SIGMA = 0.02
@@ -47,7 +46,7 @@ def export(tmp_path_factory):
 
 def test_an_export_reads_as_the_same_measurements(export):
     robot, data, work = export
-    read = read_foreign(work / "export.txt", robot, work / "format.yaml")
+    read = read_data(work / "export.txt", robot, work / "format.yaml")
     assert read.n == 90 and read.n_targets == 3
     assert_allclose(read.eta, data.eta, atol=1e-6)
     assert_allclose(read.q, data.q, atol=1e-7)
@@ -69,11 +68,11 @@ def test_target_labels_of_the_files_own(export, tmp_path):
         "joints: [J1, J2, J3, J4, J5, J6]\nposition: {x: x, y: y, z: z}\ntarget: smr\n"
         "target_labels: {A: 1, B: 2, C: 3}\n"
     )
-    read = read_foreign(tmp_path / "labels.txt", robot, tmp_path / "f.yaml")
+    read = read_data(tmp_path / "labels.txt", robot, tmp_path / "f.yaml")
     np.testing.assert_array_equal(read.target, data.target)
     (tmp_path / "g.yaml").write_text((tmp_path / "f.yaml").read_text().replace("C: 3", "D: 3"))
     with pytest.raises(InputError, match=r"labels.txt: row 3, column 'smr': label 'C' is not in"):
-        read_foreign(tmp_path / "labels.txt", robot, tmp_path / "g.yaml")
+        read_data(tmp_path / "labels.txt", robot, tmp_path / "g.yaml")
 
 
 def test_a_headerless_file_without_a_format_says_so(export, tmp_path, capsys):

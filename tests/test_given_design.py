@@ -19,10 +19,10 @@ from kpioed_drake.design.approximate.search import pose_rows
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import read_design, write_design
 from kpioed_drake.online import start_bound
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
-from kpioed_drake.tracker.csvio import read_design, write_design
 
 N_NEW = 20
 

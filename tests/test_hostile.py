@@ -23,11 +23,11 @@ import pytest
 from kpioed_drake import api
 from kpioed_drake.cli import build_parser, main
 from kpioed_drake.errors import EXIT_INTERRUPTED, InputError
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.robot.modelspec import EffectSpec, checked_effects
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import simulate
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements
 
 REPO = Path(__file__).resolve().parents[1]

@@ -22,13 +22,12 @@ from kpioed_drake.cli import main
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import estimator, identifiability
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot import models
 from kpioed_drake.study import synthetic
 from kpioed_drake.study.synthetic import run_synthetic_case
 from kpioed_drake.tracker import measurement
-from kpioed_drake.tracker.csvio import write_design
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import Measurements, read_data
 
 SIGMA = 0.02
 ON_AXIS_MM = (0.0, 0.0, 150.0)

@@ -15,8 +15,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.jointmap import CouplingSpec, JointMapSpec, joint_map_from_spec, joint_map_spec
 from kpioed_drake.robot.models import MODELS_DIR, load_robot
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_foreign
+from kpioed_drake.tracker.data import Measurements, read_data
 
 COUPLED = """joint_map:
   controller_axes: [c0, c1, c2, c3, c4, c5]
@@ -87,7 +86,7 @@ def test_a_controller_file_in_axes_reads_as_model_angles(coupled):
         "header: false\ncolumns: [c0, c1, c2, c3, c4, c5, x, y, z]\nseparator: whitespace\n"
         "joints: [c0, c1, c2, c3, c4, c5]\nposition: {x: x, y: y, z: z}\n"
     )
-    read = read_foreign(work / "ctrl.txt", robot, work / "ctrl.yaml")
+    read = read_data(work / "ctrl.txt", robot, work / "ctrl.yaml")
     assert_allclose(read.q, data.q, atol=1e-7)
     assert_allclose(read.eta, data.eta, atol=1e-6)
 

@@ -17,11 +17,11 @@ from kpioed_drake import api
 from kpioed_drake.calibration.validate import predicted_world
 from kpioed_drake.cli import main
 from kpioed_drake.effects import model_effects
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.plant import MM, build_scene
 from kpioed_drake.study.synthetic import random_poses
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.measurement import nominal_model
 
 HUMANOID = "models/robots/humanoid18.urdf"

@@ -15,10 +15,10 @@ from kpioed_drake import api
 from kpioed_drake.cli import main
 from kpioed_drake.design.report import DesignError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import read_design, write_design
 from kpioed_drake.online import NextOptions, closed_loop, next_poses, step
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
-from kpioed_drake.tracker.csvio import read_design, write_design
 from kpioed_drake.tracker.data import Measurements
 
 SIGMA = 0.02

@@ -18,8 +18,8 @@ from kpioed_drake.cli import build_parser, main
 from kpioed_drake.design import DESIGN_METHODS, approximate_design
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import read_design
 from kpioed_drake.robot.geometry import ClearanceModel
-from kpioed_drake.tracker.csvio import read_design
 from kpioed_drake.tracker.feasibility import FeasibilityChecker
 from kpioed_drake.tracker.measurement import incidence_cosine
 

@@ -37,13 +37,13 @@ from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import identifiability
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot import models
 from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.plant import MM, capsule_pose
 from kpioed_drake.scene3d.drawing import clearance_witness
 from kpioed_drake.tracker import measurement
-from kpioed_drake.tracker.csvio import write_design
 from kpioed_drake.tracker.data import Measurements, read_measurements
 from kpioed_drake.tracker.feasibility import FeasibilityChecker
 

@@ -22,7 +22,7 @@ from kpioed_drake.calibration.validate import validate
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.plant import MM, build_scene
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import read_data
 from kpioed_drake.tracker.measurement import nominal_model, reflector_world
 
 REPO = Path(__file__).resolve().parents[1]

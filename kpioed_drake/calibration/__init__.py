@@ -31,7 +31,8 @@ from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import N_CORRELATIONS, CalibrationReport
 from kpioed_drake.calibration.workflow import calibrate_file
-from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, read_measurements
+from kpioed_drake.files.tables import ROW_CONVENTION
+from kpioed_drake.tracker.data import Measurements, read_measurements
 
 __all__ = [
     "MIN_POSES_FOR_OUTLIER_TEST",

@@ -185,7 +185,7 @@ def calibrate(
     Args:
         robot: the nominal model to start from.
         data: :class:`~kpioed_drake.tracker.data.Measurements` (e.g. from
-            :func:`~kpioed_drake.tracker.formats.read_data`).
+            :func:`~kpioed_drake.tracker.data.read_data`).
         options: :class:`CalibrationOptions` (noise, effects, outlier test, holds; default: its
             defaults).
         q_work: (n_joints,) working pose [rad] for the KPI; default: the model file's.

@@ -8,8 +8,7 @@ from pathlib import Path
 from kpioed_drake.arguments import check_paths
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.urdf.write import check_out_path, sidecar_of
-from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.formats import read_data
+from kpioed_drake.tracker.data import Measurements, read_data
 
 
 def read_inputs(

@@ -17,7 +17,7 @@ import numpy as np
 
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.outputs import pyplot
-from kpioed_drake.tracker.csvio import q_to_file
+from kpioed_drake.robot.jointmap import q_to_file
 
 
 def _figure(*args, **kwargs):

@@ -16,10 +16,11 @@ from scipy.stats import chi2 as chi2_dist
 
 from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import EstimationResult
+from kpioed_drake.files.tables import ROW_CONVENTION
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import parameter_joint, parameter_layout
-from kpioed_drake.tracker.csvio import q_to_file
-from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, counted, n_poses
+from kpioed_drake.tracker.data import Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel
 
 N_CORRELATIONS = 10

@@ -52,9 +52,10 @@ from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
+from kpioed_drake.files.tables import ROW_CONVENTION
 from kpioed_drake.outputs import Outputs, pyplot
 from kpioed_drake.robot.models import Cell, Robot, load_cell
-from kpioed_drake.tracker.data import ROW_CONVENTION, Measurements, counted, n_poses
+from kpioed_drake.tracker.data import Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
 
 _NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}

@@ -17,10 +17,10 @@ from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.plots import plot_calibration
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import model_effects
+from kpioed_drake.files.designs import parse_q_work
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.urdf.write import sidecar_of
 from kpioed_drake.scene3d import calibration_page
-from kpioed_drake.tracker.csvio import parse_q_work
 
 
 def calibrate_file(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from kpioed_drake import api
 from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot
-from kpioed_drake.tracker import csvio
+from kpioed_drake.files.designs import OFFSET_COLUMNS
 
 API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -66,7 +66,7 @@ def run(args) -> int:
         f"geometric errors {'on' if truth['geometric_errors'] else 'off'}, effects: {eff}"
     )
     if truth.get("condition_offsets"):
-        cols = " and ".join(csvio.OFFSET_COLUMNS[c] for c in truth["condition_offsets"])
+        cols = " and ".join(OFFSET_COLUMNS[c] for c in truth["condition_offsets"])
         print(f"  measurement plan: the design's {cols} added to the simulated conditions")
     p = truth["p_WT_mm"]
     print(f"  true tracker position in W: ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm (random orientation)")

@@ -48,18 +48,10 @@ from kpioed_drake.compensation.solve import (
 from kpioed_drake.effects import model_effects, parse_effect, resolve
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, SolverError
+from kpioed_drake.files.tables import OPTIONAL_COLUMNS, XYZ_COLUMNS, read_joint_table
 from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.jointmap import q_columns, q_to_file
 from kpioed_drake.robot.models import Robot, load_cell, load_robot
-from kpioed_drake.tracker.csvio import (
-    check_joint_angles,
-    parse_float_column,
-    q_columns,
-    q_from_file,
-    q_to_file,
-    read_csv_table,
-    row_numbers,
-)
-from kpioed_drake.tracker.data import OPTIONAL_COLUMNS, XYZ_COLUMNS
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model
 
 ANGLES = ("model", "controller")
@@ -181,35 +173,19 @@ class _Table:
 
 
 def _read_table(path, robot: Robot, *, program: bool, angles: str) -> _Table:
-    """Read and check a program or target file (joint values to model angles, limits checked)."""
-    qcols = q_columns(robot)
-    header, data = read_csv_table(path, qcols if program else XYZ_COLUMNS)
-    if not data:
-        raise InputError(f"{path}: no data rows (the file has only a header)")
-    rows = np.asarray(row_numbers(data))
-    given = [c for c in qcols if c in header]
-    if given and len(given) < len(qcols):
-        missing = next(c for c in qcols if c not in header)
-        raise InputError(
-            f"{path}: row 1 (header): missing column {missing!r} "
-            f"(start joints need all of {', '.join(qcols)})"
-        )
-    q = None
-    if given:
-        q = q_from_file(robot, np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1))
-        if angles == "controller" and robot.joint_map is not None:
-            q = robot.joint_map.to_model(q)
-        check_joint_angles(path, q_to_file(robot, q), robot, rows=rows)
-    points = (
-        None
-        if program
-        else np.stack([parse_float_column(path, header, data, c) for c in XYZ_COLUMNS], axis=1)
+    """Read and check a program or target file through the one table reader (joint values to model
+    angles, limits checked)."""
+    t = read_joint_table(
+        path,
+        robot,
+        joints="required" if program else "optional",
+        required=() if program else XYZ_COLUMNS,
+        optional=OPTIONAL_COLUMNS,
+        angles=angles,
     )
-    cond = {c: parse_float_column(path, header, data, c) for c in OPTIONAL_COLUMNS if c in header}
-    if "payload_kg" in cond and np.any(cond["payload_kg"] < 0):
-        row = rows[int(np.flatnonzero(cond["payload_kg"] < 0)[0])]
-        raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")
-    return _Table(str(path), header, list(data), rows, q, points, cond)
+    points = None if program else np.stack([t.values[c] for c in XYZ_COLUMNS], axis=1)
+    cond = {c: t.values[c] for c in OPTIONAL_COLUMNS if c in t.values}
+    return _Table(t.path, t.header, list(t.data), t.rows, t.q, points, cond)
 
 
 def _check_conditions(table: _Table, effects) -> None:

@@ -18,10 +18,11 @@ from kpioed_drake.design.approximate.certificate import certificate_fields
 from kpioed_drake.design.approximate.certificate import certify as certify_design
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import parse_q_work, read_design
 from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.models import load_robot
 from kpioed_drake.scene3d import design_page
-from kpioed_drake.tracker.csvio import parse_q_work, q_to_file, read_design
 from kpioed_drake.tracker.feasibility import FeasibilityChecker, summarize
 
 

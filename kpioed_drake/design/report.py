@@ -9,7 +9,8 @@ import numpy as np
 from kpioed_drake.design.approximate.certificate import certificate_fields, certificate_line
 from kpioed_drake.errors import SolverError
 from kpioed_drake.estimation.problem import Problem
-from kpioed_drake.tracker.csvio import jsonable, q_to_file
+from kpioed_drake.outputs import jsonable
+from kpioed_drake.robot.jointmap import q_to_file
 
 
 @dataclasses.dataclass

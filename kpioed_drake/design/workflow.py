@@ -29,10 +29,11 @@ from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files import designs
+from kpioed_drake.files.tables import read_joint_table
 from kpioed_drake.outputs import Outputs, atomic_write_json
 from kpioed_drake.robot.models import Robot, load_robot
 from kpioed_drake.scene3d import design_page
-from kpioed_drake.tracker import csvio
 
 WEIGHT_COLUMN = "weight"
 """Optional column of a working-pose CSV: the pose's weight in the mean KPI."""
@@ -48,11 +49,8 @@ def read_working_poses(path: str | Path, robot: Robot) -> tuple[np.ndarray, np.n
     Raises:
         InputError: missing file or column, bad numbers, angles outside the limits.
     """
-    q = csvio.read_design(path, robot)
-    header, data = csvio.read_csv_table(path, csvio.q_columns(robot))
-    if WEIGHT_COLUMN not in header:
-        return q, None
-    return q, csvio.parse_float_column(path, header, data, WEIGHT_COLUMN)
+    table = read_joint_table(path, robot, optional=(WEIGHT_COLUMN,), empty=designs.NO_POSES)
+    return table.q, table.values.get(WEIGHT_COLUMN)
 
 
 def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -67,11 +65,11 @@ def _working_poses(robot: Robot, q_work_deg, q_work_file) -> tuple[np.ndarray | 
     if q_work_deg is None:
         return None, None
     if isinstance(q_work_deg, str):
-        return csvio.parse_q_work(q_work_deg, robot), None
+        return designs.parse_q_work(q_work_deg, robot), None
     if all(isinstance(v, str) for v in q_work_deg):
-        return np.stack([csvio.parse_q_work(v, robot) for v in q_work_deg]), None
+        return np.stack([designs.parse_q_work(v, robot) for v in q_work_deg]), None
     q = np.asarray(q_work_deg, dtype=float)
-    rows = [csvio.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
+    rows = [designs.parse_q_work(",".join(repr(float(v)) for v in row), robot) for row in np.atleast_2d(q)]
     return (rows[0] if q.ndim == 1 else np.stack(rows)), None
 
 
@@ -134,7 +132,7 @@ def run_design(
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
         kpi_aggregate=opts.kpi_aggregate,
     )
-    q_given = None if given is None else csvio.read_design(given, robot)
+    q_given = None if given is None else designs.read_design(given, robot)
     try:
         res, problem = _compute(problem, opts, q_given, given)
     except DesignError as exc:
@@ -222,7 +220,7 @@ def _write(res: DesignReport, problem, *, out, json_path, plot, html) -> None:
                 "min_clearance_mm": np.array([r["min_clearance_mm"] for r in res.reports]),
                 **(getattr(res, "plan_columns", None) or {}),  # a measurement plan's block and condition
             }
-            staged.add_text(out, csvio.design_csv_text(res.q, extra, robot=problem.robot))
+            staged.add_text(out, designs.design_csv_text(res.q, extra, robot=problem.robot))
         if json_path is not None:
             staged.add_json(json_path, json_record(res, problem))
         if plot is not None:
@@ -287,7 +285,7 @@ def demo(out_dir: str | Path = "out/demo", *, robot: str = "kr16", n: int = 60, 
         compare=("heuristic", hres.q, first_kpi_covariance(problem, hres.q)),
     )
     with Outputs() as staged:
-        staged.add_text(stem.with_suffix(".csv"), csvio.design_csv_text(kres.q, robot=problem.robot))
+        staged.add_text(stem.with_suffix(".csv"), designs.design_csv_text(kres.q, robot=problem.robot))
         plot_design_poses(
             problem.robot,
             problem.cell,

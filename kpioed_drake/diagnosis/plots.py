@@ -21,8 +21,8 @@ import scipy.stats
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.report import DiagnosisReport
 from kpioed_drake.outputs import pyplot
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.kinematics import subtree_links
-from kpioed_drake.tracker.csvio import q_to_file
 from kpioed_drake.tracker.measurement import reflector_world
 
 _BEFORE, _AFTER, _FIT = "tab:orange", "tab:blue", "black"

@@ -42,7 +42,8 @@ from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.records import Alternative, CandidateTest, Cause, PairTest, SelectionStep
 from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import rms
-from kpioed_drake.tracker.csvio import jsonable, q_to_file
+from kpioed_drake.outputs import jsonable
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.tracker.measurement import reflector_world
 
 MAX_FOLLOWS = 6

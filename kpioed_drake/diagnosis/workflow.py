@@ -175,7 +175,7 @@ def diagnose(
 
     Args:
         robot: the robot (:func:`~kpioed_drake.robot.models.load_robot`).
-        data: the measurements (:func:`~kpioed_drake.tracker.formats.read_data`,
+        data: the measurements (:func:`~kpioed_drake.tracker.data.read_data`,
             :meth:`~kpioed_drake.tracker.data.Measurements.from_table`).
         options: noise, levels, folds, candidates (default :class:`DiagnosisOptions`).
         cell: the cell (default: the robot's cell file).

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.calibration.report import CalibrationReport
+from kpioed_drake.robot.jointmap import q_to_file
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.tracker import csvio
 
 
 @dataclasses.dataclass
@@ -71,7 +71,7 @@ class NextReport:
             "n_next": int(len(self.q_next)),
             "n_planned": self.n_planned,
             "min_more_poses": self.min_more_poses,
-            "next_q_deg": csvio.q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
+            "next_q_deg": q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
         }
 
     def summary(self) -> str:

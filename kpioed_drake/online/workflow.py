@@ -7,12 +7,12 @@ from pathlib import Path
 
 from kpioed_drake.arguments import check_paths
 from kpioed_drake.calibration.inputs import read_inputs
+from kpioed_drake.files import designs
 from kpioed_drake.online.options import NextOptions
 from kpioed_drake.online.report import NextReport
 from kpioed_drake.online.step import next_poses
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.tracker import csvio
 
 
 def next_file(
@@ -40,13 +40,13 @@ def next_file(
     )
     previous = None
     if plan_path is not None and Path(plan_path).is_file():
-        previous = csvio.read_design(plan_path, rob)
+        previous = designs.read_design(plan_path, rob)
     result = next_poses(rob, data, options, cell=cell, plan=previous)
     with Outputs() as staged:
         if out is not None and not result.done:
-            staged.add_text(out, csvio.design_csv_text(result.q_next, robot=rob))
+            staged.add_text(out, designs.design_csv_text(result.q_next, robot=rob))
         if plan_path is not None and not result.done:
-            staged.add_text(plan_path, csvio.design_csv_text(result.q_plan, robot=rob))
+            staged.add_text(plan_path, designs.design_csv_text(result.q_plan, robot=rob))
         if json_path is not None:
             staged.add_json(json_path, result.to_dict(rob))
         staged.commit()

@@ -14,9 +14,15 @@ coupled to two others: ``q_t4 = -(J_t2 + J_t3)``) and gives each model joint as 
 times axes (``joints: {torso_3: {t2: -1, t3: -1}}``) plus an offset (``offsets_deg``); ``A`` is then
 (n_joints, n_axes). It is part of the robot model file
 (``models/README.md``, section ``joint_map``) so that measured data go in with the controller's
-angles unchanged; :func:`kpioed_drake.tracker.formats.read_foreign` applies it.
+angles unchanged; the file reader (:mod:`kpioed_drake.files.tables`) applies it through
+:func:`joints_from_file`.
 
 Files hold degrees; the loaded :class:`JointMap` holds radians.
+
+Joint values in files (every CSV the package reads or writes): one column per joint, ``q{i}_deg``
+for a revolute joint [deg] and ``q{i}_mm`` for a prismatic one [mm] (:func:`q_columns`); inside,
+radians and millimetres (:func:`q_from_file`, :func:`q_to_file`). :func:`check_joint_angles` names
+the file, row and column of a value outside the robot's limits.
 """
 
 import dataclasses
@@ -26,6 +32,8 @@ import numpy as np
 from kpioed_drake.errors import InputError
 
 N_JOINTS = 6
+JOINT_COLUMNS = tuple(f"q{i}_deg" for i in range(1, N_JOINTS + 1))
+"""Joint columns of the six-joint (revolute) robots."""
 
 
 @dataclasses.dataclass
@@ -311,3 +319,121 @@ def commandable_motions(robot) -> np.ndarray:
         return np.eye(nj)
     N, _ = robot.joint_map.coupling_equations()
     return np.eye(nj) - N.T @ N
+
+
+def q_columns(robot) -> tuple[str, ...]:
+    """Joint columns of a robot's files: ``q{i}_deg`` (revolute, degrees) or ``q{i}_mm`` (prismatic,
+    millimetres), one per joint; :data:`JOINT_COLUMNS` for None."""
+    if robot is None:
+        return JOINT_COLUMNS
+    return tuple(f"q{i}_{'mm' if p else 'deg'}" for i, p in enumerate(robot.prismatic, start=1))
+
+
+def q_from_file(robot, values) -> np.ndarray:
+    """Joint values in file units (deg; prismatic mm) -> internal units (rad; mm); ``robot`` None:
+    six revolute joints."""
+    values = np.asarray(values, dtype=float)
+    if robot is None:
+        return np.deg2rad(values)
+    return np.where(robot.prismatic, values, np.deg2rad(values))
+
+
+def q_to_file(robot, q) -> np.ndarray:
+    """Joint values in internal units (rad; prismatic mm) -> file units (deg; mm)."""
+    q = np.asarray(q, dtype=float)
+    if robot is None:
+        return np.rad2deg(q)
+    return np.where(robot.prismatic, q, np.rad2deg(q))
+
+
+def check_joint_angles(path, q_deg: np.ndarray, robot, *, rows=None) -> None:
+    """Joint values (n, n_joints) in file units within the robot's limits; a table that looks like
+    radians gets a clear message.
+
+    Args:
+        path: the file (for messages); rows: (n,) its line numbers of the rows (default 2, 3, ...).
+
+    Raises:
+        InputError: naming the file, row and column.
+    """
+    rows = list(range(2, len(q_deg) + 2)) if rows is None else list(rows)
+    lo, up = q_to_file(robot, robot.lower), q_to_file(robot, robot.upper)
+    cols = q_columns(robot)
+    rev = np.asarray(q_deg)[:, ~robot.prismatic]
+    # Joints 4 and 6 range over +-350 deg, i.e. up to 6.1 rad: a table entirely within +-2 pi
+    # (with some spread, more than three poses) is taken for radians.
+    if len(q_deg) > 3 and np.ptp(rev) > 0 and np.all(np.abs(rev) <= 2.0 * np.pi + 1e-9):
+        raise InputError(
+            f"{path}: every joint value is within +-2 pi: the angles look like radians; "
+            "columns q*_deg must hold degrees"
+        )
+    tol, nj = 1e-6, robot.n_joints
+    for k, row in zip(rows, q_deg, strict=True):
+        for j in range(nj):
+            if not lo[j] - tol <= row[j] <= up[j] + tol:
+                raise InputError(
+                    f"{path}: row {k}, column {cols[j]!r}: {row[j]:g} {cols[j][-3:].strip('_')} is "
+                    f"outside the joint range [{lo[j]:g}, {up[j]:g}] of {robot.name}"
+                )
+
+
+@dataclasses.dataclass(frozen=True)
+class FileJoints:
+    """What a file of a robot holds per pose: its joint columns and the targets it may name.
+
+    Attributes:
+        columns: the joint columns of the native files (:func:`q_columns`).
+        n_columns: joint columns of a foreign file (the controller's axes through the joint map).
+        what: ``"joints"`` or ``"controller axes"``, for messages.
+        linear: (n_columns,) True where a column is a length (a prismatic joint, or an axis that
+            drives one).
+        name: the robot's name; label: its file (or name), for messages.
+        n_targets: the targets (reflectors) the model defines.
+    """
+
+    columns: tuple[str, ...]
+    n_columns: int
+    what: str
+    linear: np.ndarray
+    name: str
+    label: str
+    n_targets: int
+
+
+def file_joints(robot, *, controller: bool = False) -> FileJoints:
+    """The :class:`FileJoints` of ``robot``; ``controller``: the columns hold the controller's axes
+    (the joint map's, when the robot has one)."""
+    jmap = robot.joint_map if controller else None
+    prismatic = np.asarray(robot.prismatic)
+    return FileJoints(
+        columns=q_columns(robot),
+        n_columns=robot.n_joints if jmap is None else jmap.n_axes,
+        what="joints" if jmap is None else "controller axes",
+        linear=prismatic if jmap is None else np.any(jmap.A[prismatic] != 0, axis=0),
+        name=robot.name,
+        label=robot.source or robot.name,
+        n_targets=robot.n_targets,
+    )
+
+
+def joints_from_file(
+    robot, values, *, path, rows, scale=None, controller: bool = False, check: bool = True
+) -> np.ndarray:
+    """(n, n_joints) model joint values [rad; mm] of a file's joint columns, checked against the
+    limits.
+
+    Args:
+        values: (n, k) the columns as read: file units (:func:`q_columns`) without ``scale``, else
+            times ``scale`` (k,) in internal units.
+        path, rows: the file and its (n,) row numbers, for messages.
+        controller: the columns are the controller's axes: the joint map (if any) gives the model's.
+        check: check the limits (:func:`check_joint_angles`).
+    """
+    mapped = controller and robot.joint_map is not None
+    q = q_from_file(robot, values) if scale is None else np.asarray(values) * scale
+    if mapped:
+        q = robot.joint_map.to_model(q)
+    if check:
+        as_read = scale is None and not mapped
+        check_joint_angles(path, values if as_read else q_to_file(robot, q), robot, rows=rows)
+    return q

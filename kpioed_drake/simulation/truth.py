@@ -34,15 +34,12 @@ from scipy.spatial.transform import Rotation
 
 from kpioed_drake.effects import model_effects, parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.designs import OFFSET_COLUMNS
+from kpioed_drake.files.tables import TARGET_COLUMN
+from kpioed_drake.robot.jointmap import q_columns, q_from_file, q_to_file
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.simulation.options import SimulationOptions
-from kpioed_drake.tracker.csvio import (
-    OFFSET_COLUMNS,
-    q_columns,
-    q_from_file,
-    q_to_file,
-)
-from kpioed_drake.tracker.data import TARGET_COLUMN, per_pose
+from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel, measure, nominal_model
 
 LENGTH_ERROR_MM = 0.5
@@ -132,7 +129,7 @@ def simulate(
         condition_offsets: a measurement plan's offsets per pose added to them,
             ``{"temperature_C": [K], "time_s": [s], "payload_kg": [kg]}`` (any of them; a design
             CSV's ``temperature_offset_K`` / ``time_offset_s`` / ``payload_offset_kg``,
-            :func:`~kpioed_drake.tracker.csvio.read_condition_offsets`).
+            :func:`~kpioed_drake.files.designs.read_condition_offsets`).
         cell: the measuring cell (default ``models/cell.yaml``).
 
     Returns:

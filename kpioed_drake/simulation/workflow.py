@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 
 from kpioed_drake.arguments import check_paths, check_positive
+from kpioed_drake.files.designs import read_condition_offsets, read_design
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, simulate
-from kpioed_drake.tracker.csvio import read_condition_offsets, read_design
 
 
 def table_csv_text(table: pd.DataFrame) -> str:

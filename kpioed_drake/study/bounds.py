@@ -28,8 +28,8 @@ import pandas as pd
 
 from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.designs import read_design
 from kpioed_drake.study.tasks import BoundTask, Task, _problem_and_checker
-from kpioed_drake.tracker.csvio import read_design
 
 BOUND_COLUMNS = [
     "robot",

@@ -11,10 +11,10 @@ import numpy as np
 import pandas as pd
 
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.files.designs import read_design
 from kpioed_drake.outputs import pyplot
 from kpioed_drake.paper import TABLE8
 from kpioed_drake.study.tasks import Task
-from kpioed_drake.tracker.csvio import read_design
 
 CHI2_2D_95 = 5.991  # chi-square quantile, 2 degrees of freedom, 95 %
 

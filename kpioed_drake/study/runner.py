@@ -20,9 +20,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.outputs import atomic_write_json
 from kpioed_drake.study.tasks import BoundTask, Task, run_task
-from kpioed_drake.tracker import csvio
 
 OnDone = Callable[[Task, dict], None]
 
@@ -52,7 +52,7 @@ def _load_done(out_dir: Path, task: Task) -> dict | None:
 def _save(out_dir: Path, task: Task, row: dict) -> None:
     """Write the design (if any) and then the row, each atomically."""
     if not row.get("error") and task.design_name is not None:
-        csvio.write_design(out_dir / "designs" / task.design_name, np.deg2rad(np.asarray(row["q_deg"])))
+        write_design(out_dir / "designs" / task.design_name, np.deg2rad(np.asarray(row["q_deg"])))
     atomic_write_json(_task_path(out_dir, task), row)
 
 

@@ -1,21 +1,11 @@
-"""Measured laser-tracker data: one type, its file format, reading and validation.
+"""Measured laser-tracker data: the one :class:`Measurements` type, its validation, and the read of a
+measurement file into it.
 
-The measurement file of SPEC ("Measured data and model discrepancy") is a CSV with one pose per
-row: the commanded joint angles ``q1_deg`` ... ``q6_deg`` [deg], the reflector position ``x_mm``,
-``y_mm``, ``z_mm`` in the tracker frame T [mm] (the measurements eta of paper eq. 3), and optional
-``temperature_C``, ``time_s``, ``payload_kg``. Inside, angles are radians.
-
-Several targets (SMRs) per pose: an optional integer ``target`` column numbers the targets 1..T
-in the file (no gaps; the robot model file's ``targets_mm`` defines them, target 1 being its
-reflector); a pose measuring T targets has T rows with the same joint angles. Inside, targets are
-0-based (:attr:`Measurements.target`); without the column every row measures target 1.
-
-Files of other layouts (other column names, units, separators, base-frame positions, controller
-angles through the robot's joint map) are read by :mod:`kpioed_drake.tracker.formats` into the same
-:class:`Measurements` type, with ``frame`` saying in which frame the positions are given.
-
-Row numbers in messages and reports are CSV record numbers, header = row 1, so the k-th data row
-is row k + 1 (blank lines are skipped and not counted).
+The file formats (the native CSV of SPEC, files of other layouts through a format file) and their
+row/column messages are the file layer's (:mod:`kpioed_drake.files.tables`): :func:`read_data` takes
+its arrays, checks that the poses are enough for the parameters, and validates them as
+:class:`Measurements` (reflector positions eta of paper eq. 3 [mm], joint values [rad; mm]).
+Inside, targets are 0-based; row numbers follow :data:`~kpioed_drake.files.tables.ROW_CONVENTION`.
 """
 
 from __future__ import annotations
@@ -27,27 +17,18 @@ import numpy as np
 import pandas as pd
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.formats import FRAMES, DataFormat, as_format
+from kpioed_drake.files.tables import (
+    OPTIONAL_COLUMNS,
+    TARGET_COLUMN,
+    XYZ_COLUMNS,
+    parse_targets,
+    read_measurement_table,
+)
+from kpioed_drake.robot.jointmap import check_joint_angles, q_columns, q_from_file, q_to_file
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import parameter_layout
-from kpioed_drake.tracker.csvio import (
-    Q_COLUMNS,
-    check_joint_angles,
-    parse_float_column,
-    q_columns,
-    q_from_file,
-    q_to_file,
-    read_csv_table,
-    row_numbers,
-)
 
-XYZ_COLUMNS = ("x_mm", "y_mm", "z_mm")
-REQUIRED_COLUMNS = Q_COLUMNS + XYZ_COLUMNS
-OPTIONAL_COLUMNS = ("temperature_C", "time_s", "payload_kg")
-TARGET_COLUMN = "target"
-"""Optional integer column: the target (SMR) of the row, 1..T in files, 0-based inside."""
-FRAMES = ("tracker", "base")
-"""Frames measured positions can be given in: the tracker frame T, or the robot base frame W."""
-ROW_CONVENTION = "CSV record number, header = row 1 (data row k is row k + 1; blank lines not counted)"
 PLAUSIBLE = {
     "x_mm": (-1e6, 1e6, "mm"),
     "y_mm": (-1e6, 1e6, "mm"),
@@ -184,7 +165,9 @@ class Measurements:
         target = None
         if TARGET_COLUMN in table:
             rows = np.arange(2, len(q_deg) + 2)
-            target = parse_targets(source, np.asarray(table[TARGET_COLUMN], dtype=float), rows, robot=robot)
+            values = np.asarray(table[TARGET_COLUMN], dtype=float)
+            n_targets, model = (None, "") if robot is None else (robot.n_targets, robot.source or robot.name)
+            target = parse_targets(source, values, rows, n_targets=n_targets, model=model)
         known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN}
         extra = {}
         for c in table.columns:
@@ -283,67 +266,6 @@ def per_pose(value, n: int, name: str) -> np.ndarray:
     return arr
 
 
-def _near_name(a: str, b: str) -> bool:
-    """Case/underscore-insensitive equality or one edit apart (a likely misspelling)."""
-    a2, b2 = a.lower().replace(" ", "").replace("-", "_"), b.lower()
-    if a2 == b2:
-        return True
-    if abs(len(a2) - len(b2)) > 1:
-        return False
-    if len(a2) == len(b2):
-        return sum(x != y for x, y in zip(a2, b2, strict=True)) <= 1
-    short, long_ = (a2, b2) if len(a2) < len(b2) else (b2, a2)
-    return any(long_[:i] + long_[i + 1 :] == short for i in range(len(long_)))
-
-
-def parse_targets(path, values: np.ndarray, rows, *, column: str = TARGET_COLUMN, robot: Robot | None = None):
-    """(n,) 0-based target indices of a file's target column (numbered 1..T without gaps).
-
-    Args:
-        path: the file (for messages); values: (n,) the column as read; rows: (n,) row numbers.
-        column: the column's name in the file; robot: the model whose targets the rows must name.
-
-    Raises:
-        InputError: naming the file, row and column: a value that is not a whole number >= 1, a
-            gap in the numbering, or a target beyond the model's ``targets_mm``.
-    """
-    values = np.asarray(values, dtype=float)
-    bad = np.flatnonzero(~np.isfinite(values) | (values != np.round(values)) | (values < 1))
-    if bad.size:
-        k = int(bad[0])
-        raise InputError(
-            f"{path}: row {rows[k]}, column {column!r}: {values[k]:g} is not a target number "
-            "(whole numbers 1, 2, ..., T)"
-        )
-    t = values.astype(int)
-    missing = sorted(set(range(1, int(t.max()) + 1)) - set(t.tolist())) if t.size else []
-    if missing:
-        k = int(np.flatnonzero(t > missing[0])[0])
-        raise InputError(
-            f"{path}: row {rows[k]}, column {column!r}: target {t[k]} is used but target {missing[0]} "
-            f"is not: targets are numbered 1..T without gaps"
-        )
-    if robot is not None and t.size and t.max() > robot.n_targets:
-        k = int(np.argmax(t))
-        raise InputError(
-            f"{path}: row {rows[k]}, column {column!r}: target {t[k]}, but the robot model "
-            f"{robot.source or robot.name} defines {robot.n_targets} target(s) (field targets_mm)"
-        )
-    return t - 1
-
-
-def _check_header(path: Path, header: list[str]) -> None:
-    for h in header:
-        if h in REQUIRED_COLUMNS or h in OPTIONAL_COLUMNS or h == TARGET_COLUMN:
-            continue
-        for known in OPTIONAL_COLUMNS:
-            if _near_name(h, known):
-                raise InputError(
-                    f"{path}: row 1 (header): unknown column {h!r}; did you mean {known!r}? "
-                    f"(optional columns: {', '.join(OPTIONAL_COLUMNS)})"
-                )
-
-
 def check_pose_count(path, n: int, robot: Robot) -> None:
     """Enough rows (poses x targets) for the robot's estimated parameters (27 parameters: 9 rows).
 
@@ -360,47 +282,29 @@ def check_pose_count(path, n: int, robot: Robot) -> None:
         )
 
 
-def read_measurements(path: str | Path, robot: Robot) -> Measurements:
-    """Read and validate a measurement CSV.
+def read_data(
+    path: str | Path, robot: Robot, data_format: DataFormat | str | Path | None = None
+) -> Measurements:
+    """Read and validate a measurement file: the native CSV (no ``data_format``) or a file of another
+    layout (``data_format``: a :class:`~kpioed_drake.files.formats.DataFormat` or a format file).
 
     Raises:
-        InputError: naming the file, row (header = row 1) and column: missing file, empty file,
-            duplicated or missing (misspelled) column, text/NaN/infinity in a number field, joint
-            angles that look like radians or lie outside the robot's limits, negative payload,
-            a target column that is not numbered 1..T without gaps or names a target the robot
-            model does not define, fewer poses than the estimated parameters need (27
-            parameters: 9 poses).
+        InputError: naming the file, row (header = row 1) and column, or the format field: missing
+            file, empty file, duplicated or missing (misspelled) column, text/NaN/infinity in a
+            number field, joint angles that look like radians or lie outside the robot's limits,
+            negative payload, a target column that is not numbered 1..T without gaps or names a
+            target the robot model does not define, fewer poses than the estimated parameters need
+            (27 parameters: 9 poses), a measured value no measurement gives.
     """
-    path = Path(path)
-    qcols = q_columns(robot)
-    header, data = read_csv_table(path, qcols + XYZ_COLUMNS)
-    _check_header(path, header)
-    if not data:
-        raise InputError(f"{path}: no data rows (the file has only a header)")
-    rows = np.asarray(row_numbers(data))
-    q_deg = np.stack([parse_float_column(path, header, data, c) for c in qcols], axis=1)
-    eta = np.stack([parse_float_column(path, header, data, c) for c in XYZ_COLUMNS], axis=1)
-    opt = {c: parse_float_column(path, header, data, c) if c in header else None for c in OPTIONAL_COLUMNS}
-    if TARGET_COLUMN in header:
-        opt["target"] = parse_targets(
-            path, parse_float_column(path, header, data, TARGET_COLUMN), rows, robot=robot
-        )
-    if opt["payload_kg"] is not None and np.any(opt["payload_kg"] < 0):
-        row = rows[int(np.flatnonzero(opt["payload_kg"] < 0)[0])]
-        raise InputError(f"{path}: row {row}, column 'payload_kg': a payload cannot be negative")
-    check_joint_angles(path, q_deg, robot, rows=rows)
-    check_pose_count(path, len(data), robot)
-    known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN}
-    extra = {}
-    for c in header:
-        if c not in known:
-            try:  # a numeric column the model does not read is kept; a text column is not data
-                extra[c] = parse_float_column(path, header, data, c)
-            except InputError:
-                continue
-    return Measurements.from_arrays(
-        q_from_file(robot, q_deg), eta, source=str(path), rows=rows, extra=extra, **opt
-    )
+    fmt = None if data_format is None else as_format(data_format)
+    arrays = read_measurement_table(path, robot, fmt)
+    check_pose_count(Path(path), len(np.unique(arrays["rows"])), robot)
+    return Measurements.from_arrays(**arrays)
+
+
+def read_measurements(path: str | Path, robot: Robot) -> Measurements:
+    """Read and validate a native measurement CSV (:func:`read_data` without a format)."""
+    return read_data(path, robot)
 
 
 def as_measurements(data, robot: Robot) -> Measurements:

@@ -56,7 +56,8 @@ from kpioed_drake.effects import COMPLIANCE_FAMILIES, T_REF_C, extension_columns
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
-from kpioed_drake.tracker import csvio
+from kpioed_drake.files.designs import OFFSET_COLUMNS
+from kpioed_drake.files.tables import read_joint_table
 from kpioed_drake.tracker.measurement import measurement_jacobian
 
 SPAN_OPTION = "condition_span"
@@ -74,7 +75,7 @@ not the pose's, so it can separate them from a joint effect that looks alike ove
 poses (opt-in: ``--condition-span 10kg``)."""
 UNITS = {"temperature_C": "K", "time_s": "s", PAYLOAD: "kg"}
 """Unit of each condition's span."""
-PLAN_COLUMNS = csvio.OFFSET_COLUMNS
+PLAN_COLUMNS = OFFSET_COLUMNS
 """Column of the design CSV with each row's planned condition, from block 1's."""
 _SPAN_UNITS = {
     "k": ("temperature_C", 1.0),
@@ -182,8 +183,7 @@ def read_given_conditions(path, n: int) -> dict[str, np.ndarray]:
     ((n,) each; a measurement CSV has them, a design CSV not)."""
     if path is None:
         return {}
-    header, data = csvio.read_csv_table(path, ())
-    out = {c: csvio.parse_float_column(path, header, data, c) for c in UNITS if c in header}
+    out = read_joint_table(path, None, joints="none", optional=tuple(UNITS), empty=None).values
     for c, x in out.items():
         if len(x) != n:
             raise InputError(f"{path}: column {c!r} has {len(x)} values for {n} poses")

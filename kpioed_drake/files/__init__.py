@@ -1,0 +1,13 @@
+"""The file layer: every table the package reads, the files a design is written to, format files.
+
+- :mod:`.tables`: the one reader of tables of joint columns and optional columns (CSV text ->
+  arrays, with row/column messages); measurement files in two formats of it, the native CSV and a
+  layout a format file describes;
+- :mod:`.formats`: format files (the layout of another tool's measurement file) and their checks;
+- :mod:`.designs`: design files (read through :mod:`.tables`, written atomically), a measurement
+  plan's condition offsets, working poses given as text.
+
+Joint units of files (``q{i}_deg``, prismatic ``q{i}_mm``) are the robot's
+(:mod:`kpioed_drake.robot.jointmap`); the :class:`~kpioed_drake.tracker.data.Measurements` type that
+a measurement file is read into is the tracker's.
+"""
