@@ -28,9 +28,10 @@ test: setup   ## the default test run (slow studies excluded), one worker per co
 test-slow: setup   ## the slow tests only (full-size checks)
 	$(PY) -m pytest -q -m slow
 
-lint: setup
+lint: setup   ## ruff, and the type checker (mypy) on the modules pyproject.toml lists
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
 
 format: setup
 	$(VENV)/bin/ruff format .
