@@ -232,6 +232,29 @@ def _as_elasticity(name: str) -> str:
     return f"joint_elasticity:{rest}" if family == BASIS_FAMILY else name
 
 
+def _hard_case(
+    robot: Robot, rng: np.random.Generator, effect_seed: list, texts: list, kw: dict, near_threshold: bool
+) -> SyntheticCase:
+    """A case of the harder harness: the effects ``texts`` drawn from their own stream (seeded by
+    ``effect_seed``: rescaling them leaves every other draw of ``rng`` alone), and with
+    ``near_threshold`` rescaled to a log-uniform lambda in :data:`NEAR_THRESHOLD` and simulated again
+    from the same state of ``rng`` (``kw``: :func:`synthetic_case`'s keywords)."""
+    state = rng.bit_generator.state
+    erng = np.random.default_rng(effect_seed)
+    effs = [fx.parse_effect(t, erng) for t in texts]
+    case = synthetic_case(robot, rng, effs, **kw)
+    if near_threshold and effs:
+        lam = np.maximum(detectability(case), 1e-30)
+        target = np.exp(erng.uniform(*np.log(NEAR_THRESHOLD), size=len(lam)))
+        effs = [
+            e.with_values(e.value_array() * np.sqrt(t / x))
+            for e, t, x in zip(case.effects, target, lam, strict=True)
+        ]
+        rng.bit_generator.state = state
+        case = synthetic_case(robot, rng, effs, **kw)
+    return case
+
+
 def run_synthetic_case(
     kind: str,
     seed: int,
@@ -273,20 +296,8 @@ def run_synthetic_case(
     kw = {"n_poses": n_poses, "sigma": sigma, "mass_spread": mass_spread, "payload_kg": pay}
     if not hard:
         case = synthetic_case(robot, rng, texts, **kw)
-    else:  # effects drawn from their own stream: rescaling them leaves every other draw alone
-        state = rng.bit_generator.state
-        erng = np.random.default_rng([seed, CASE_KINDS.index(kind) + 1, 7])
-        effs = [fx.parse_effect(t, erng) for t in texts]
-        case = synthetic_case(robot, rng, effs, **kw)
-        if near_threshold and effs:
-            lam = np.maximum(detectability(case), 1e-30)
-            target = np.exp(erng.uniform(*np.log(NEAR_THRESHOLD), size=len(lam)))
-            effs = [
-                e.with_values(e.value_array() * np.sqrt(t / x))
-                for e, t, x in zip(case.effects, target, lam, strict=True)
-            ]
-            rng.bit_generator.state = state
-            case = synthetic_case(robot, rng, effs, **kw)
+    else:
+        case = _hard_case(robot, rng, [seed, CASE_KINDS.index(kind) + 1, 7], texts, kw, near_threshold)
     t0 = time.perf_counter()
     rep = diagnose(robot, case.data, DiagnosisOptions(sigma_mm=sigma))
     seconds = time.perf_counter() - t0
