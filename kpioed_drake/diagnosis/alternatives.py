@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.stats
@@ -58,6 +59,7 @@ from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.effects.physical import BasisSize, plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
@@ -177,7 +179,7 @@ def _refit(
 
 
 def competing(
-    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool, *, alpha: float, k_folds: int
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence[Effect], *, alpha: float, k_folds: int
 ) -> list[tuple[object, Fit, dict]]:
     """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
 
@@ -292,7 +294,7 @@ def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: in
     )
 
 
-def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selection, dict]:
+def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int) -> tuple[Selection, dict]:
     """Swap causes for competing candidates that explain the data significantly better given the
     other causes.
 
@@ -322,7 +324,15 @@ def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selecti
     return sel, out
 
 
-def replace_implausible(sel: Selection, causes, settled: dict, pool, *, alpha: float, k_folds: int):
+def replace_implausible(
+    sel: Selection,
+    causes: Sequence[Cause],
+    settled: dict,
+    pool: Sequence[Effect],
+    *,
+    alpha: float,
+    k_folds: int,
+) -> tuple[Selection, dict, list[str]]:
     """Each named cause whose value is implausible replaced by the effect it stands for: its best
     plausible alternative that explains the data as well (not a nested one), recorded as a swap
     step; then :func:`settle` again. A cause without such an alternative stays (the report says so).
@@ -436,7 +446,9 @@ def child_links(robot: Robot) -> tuple[str, ...]:
     )
 
 
-def describe(effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None) -> dict:
+def describe(
+    effect: Effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None
+) -> dict:
     """The words and sizes of one named cause.
 
     Args:
@@ -471,7 +483,7 @@ def describe(effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...]
     return out | {"text": text}
 
 
-def describe_causes(causes, robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
+def describe_causes(causes: Sequence[Cause], robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
     """``causes`` (:class:`~kpioed_drake.diagnosis.records.Cause`, the effects of ``fit`` in order)
     with their ``description``: each one's contribution at ``fit`` on every row of ``prob``."""
     _, _, E = prob.response(fit.model, fit.effects, np.arange(prob.data.n))

@@ -101,7 +101,7 @@ def _joint_panels(grid, report: DiagnosisReport, prob, r, g, cols: int) -> None:
             ax.axhline(0, color="0.7", lw=0.8)
 
 
-def plot_residual_structure(report: DiagnosisReport, path) -> Path:
+def plot_residual_structure(report: DiagnosisReport, path: Path | str) -> Path:
     """Baseline residuals against every candidate variable: per joint its angle and its gravity
     torque (six joints a row pair, 3 x 6 panels for six joints), then the conditions."""
     plt = pyplot()
@@ -216,7 +216,7 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     return d.time_s / 60.0, y, ys, "time [min]", "residual along the drift direction [mm]"
 
 
-def plot_before_after(report: DiagnosisReport, path) -> Path:
+def plot_before_after(report: DiagnosisReport, path: Path | str) -> Path:
     """Residuals before and after the extension against the variable that revealed each cause."""
     plt = pyplot()
     prob, base, ext = report.details["prob"], report.details["base"], report.details["ext"]
@@ -279,7 +279,7 @@ def plot_before_after(report: DiagnosisReport, path) -> Path:
     return _save(plt, fig, path)
 
 
-def write_plots(report: DiagnosisReport, folder) -> list[Path]:
+def write_plots(report: DiagnosisReport, folder: Path | str) -> list[Path]:
     """``residual_structure.png`` and ``before_after.png`` in ``folder``."""
     folder = Path(folder)
     return [

@@ -15,10 +15,12 @@ inputs are plain arrays (millimetres, radians), so the pages depend on the core 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 import scipy.stats
+from numpy.typing import ArrayLike
 from pydrake.geometry import Rgba
 
 from kpioed_drake.outputs import atomic_write_text
@@ -101,10 +103,10 @@ def _finish(
 def design_page(
     robot: Robot,
     cell: Cell,
-    q,
+    q: ArrayLike,
     *,
     reports: list[PoseReport] | None = None,
-    q_work=None,
+    q_work: ArrayLike | None = None,
     Cs: np.ndarray | None = None,
     compare: tuple | None = None,
     title: str | None = None,
@@ -203,11 +205,11 @@ def calibration_page(
     robot: Robot,
     cell: Cell,
     model: TrackerModel,
-    q,
-    measured_xyz_T,
-    predicted_xyz_T,
+    q: ArrayLike,
+    measured_xyz_T: ArrayLike,
+    predicted_xyz_T: ArrayLike,
     *,
-    outliers=None,
+    outliers: Iterable[int] | None = None,
     scale: float | None = None,
     title: str | None = None,
 ) -> str:
@@ -258,9 +260,9 @@ def diagnosis_page(
     robot: Robot,
     cell: Cell,
     model: TrackerModel,
-    q,
-    residual_before,
-    residual_after,
+    q: ArrayLike,
+    residual_before: ArrayLike,
+    residual_after: ArrayLike,
     *,
     label: str = "extension",
     scale: float | None = None,
