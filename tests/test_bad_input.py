@@ -124,6 +124,7 @@ def _snapshot(root: Path) -> dict:
 
 
 # (id, argv with {names} of files, expected exit status, regex the message must match)
+# fmt: off
 CASES = [
     # info / evaluate
     ("info-unknown-robot", "info --robot kr17", 2, r"unknown robot 'kr17'"),
@@ -141,19 +142,9 @@ CASES = [
     ("evaluate-sigma-negative", "evaluate --robot kr16 --design {design} --sigma-mm -1", 2, r"sigma"),
     ("evaluate-sigma-nan", "evaluate --robot kr16 --design {design} --sigma-mm nan", 2, r"sigma"),
     ("evaluate-q-work-short", "evaluate --robot kr16 --design {design} --q-work 1,2,3", 2, r"q-work|q_work"),
-    (
-        "evaluate-q-work-text",
-        "evaluate --robot kr16 --design {design} --q-work a,b,c,d,e,f",
-        2,
-        r"q-work|q_work",
-    ),
+    ("evaluate-q-work-text", "evaluate --robot kr16 --design {design} --q-work a,b,c,d,e,f", 2, r"q-work|q_work"),
     ("evaluate-extend-unknown", "evaluate --robot kr16 --design {design} --extend warp:2", 2, r"warp"),
-    (
-        "evaluate-extend-joint9",
-        "evaluate --robot kr16 --design {design} --extend joint_elasticity:9",
-        2,
-        r"joint",
-    ),
+    ("evaluate-extend-joint9", "evaluate --robot kr16 --design {design} --extend joint_elasticity:9", 2, r"joint"),
     ("evaluate-robot-nan-radius", "evaluate --robot {robot_nan_radius} --design {design}", 2, r"radius_mm"),
     ("evaluate-json-folder", "evaluate --robot kr16 --design {design} --json {dir}", 2, r"a_folder"),
     ("evaluate-json-is-input", "evaluate --robot kr16 --design {design} --json {design}", 2, r"design\.csv"),
@@ -165,71 +156,25 @@ CASES = [
     ("design-criterion", "design --robot kr16 --criterion e --out {root}/o.csv", 2, r"criterion"),
     ("design-solver", "design --robot kr16 --criterion kpi --solver cplex --out {root}/o.csv", 2, r"solver"),
     ("design-out-folder", "design --robot kr16 --criterion heuristic --out {dir}", 2, r"a_folder"),
-    (
-        "design-plot-xyz",
-        "design --robot kr16 --criterion heuristic --out {root}/o.csv --plot {root}/p.xyz",
-        2,
-        r"p\.xyz",
-    ),
-    (
-        "design-out-below-file",
-        "design --robot kr16 --criterion heuristic --out {design}/o.csv",
-        2,
-        r"design\.csv",
-    ),
-    (
-        "design-robot-nan-radius",
-        "design --robot {robot_nan_radius} --criterion kpi --out {root}/o.csv",
-        2,
-        r"radius_mm",
-    ),
+    ("design-plot-xyz", "design --robot kr16 --criterion heuristic --out {root}/o.csv --plot {root}/p.xyz", 2, r"p\.xyz"),
+    ("design-out-below-file", "design --robot kr16 --criterion heuristic --out {design}/o.csv", 2, r"design\.csv"),
+    ("design-robot-nan-radius", "design --robot {robot_nan_radius} --criterion kpi --out {root}/o.csv", 2, r"radius_mm"),
     ("design-sigma-zero", "design --robot kr16 --criterion kpi --sigma-mm 0 --out {root}/o.csv", 2, r"sigma"),
     # simulate
-    (
-        "simulate-seed-negative",
-        "simulate --robot kr16 --design {design} --seed -1 --out {root}/s.csv",
-        2,
-        r"seed",
-    ),
-    (
-        "simulate-payload-negative",
-        "simulate --robot kr16 --design {design} --payload-kg -5 --out {root}/s.csv",
-        2,
-        r"payload",
-    ),
-    (
-        "simulate-sigma-negative",
-        "simulate --robot kr16 --design {design} --sigma-mm -0.1 --out {root}/s.csv",
-        2,
-        r"sigma",
-    ),
-    (
-        "simulate-effect-unknown",
-        "simulate --robot kr16 --design {design} --effect warp:1 --out {root}/s.csv",
-        2,
-        r"warp",
-    ),
+    ("simulate-seed-negative", "simulate --robot kr16 --design {design} --seed -1 --out {root}/s.csv", 2, r"seed"),
+    ("simulate-payload-negative", "simulate --robot kr16 --design {design} --payload-kg -5 --out {root}/s.csv", 2, r"payload"),
+    ("simulate-sigma-negative", "simulate --robot kr16 --design {design} --sigma-mm -0.1 --out {root}/s.csv", 2, r"sigma"),
+    ("simulate-effect-unknown", "simulate --robot kr16 --design {design} --effect warp:1 --out {root}/s.csv", 2, r"warp"),
     ("simulate-out-is-input", "simulate --robot kr16 --design {design} --out {design}", 2, r"design\.csv"),
     ("simulate-out-folder", "simulate --robot kr16 --design {design} --out {dir}", 2, r"a_folder"),
-    (
-        "simulate-missing-design",
-        "simulate --robot kr16 --design {root}/none.csv --out {root}/s.csv",
-        2,
-        r"none\.csv",
-    ),
+    ("simulate-missing-design", "simulate --robot kr16 --design {root}/none.csv --out {root}/s.csv", 2, r"none\.csv"),
     # calibrate
     ("calibrate-missing", "calibrate --robot kr16 {root}/none.csv", 2, r"none\.csv"),
     ("calibrate-folder", "calibrate --robot kr16 {dir}", 2, r"a_folder"),
     ("calibrate-empty", "calibrate --robot kr16 {empty}", 2, r"empty\.csv"),
     ("calibrate-header-only", "calibrate --robot kr16 {header_only}", 2, r"header_only\.csv"),
     ("calibrate-nine-poses", "calibrate --robot kr16 {nine_poses}", 2, r"nine_poses\.csv.*poses"),
-    (
-        "calibrate-nine-poses-extended",
-        "calibrate --robot kr16 {nine_poses} --extend joint_elasticity:2 "
-        "--extend gear_cyclic:4:2 --extend joint_elasticity:3",
-        2,
-        r"nine_poses\.csv",
-    ),
+    ("calibrate-nine-poses-extended", "calibrate --robot kr16 {nine_poses} --extend joint_elasticity:2 --extend gear_cyclic:4:2 --extend joint_elasticity:3", 2, r"nine_poses\.csv"),
     ("calibrate-nan", "calibrate --robot kr16 {nan_value}", 2, r"nan_value\.csv.*row 2"),
     ("calibrate-text", "calibrate --robot kr16 {text_value}", 2, r"text_value\.csv.*row 2"),
     ("calibrate-no-xyz", "calibrate --robot kr16 {no_xyz}", 2, r"x_mm"),
@@ -245,12 +190,7 @@ CASES = [
     ("calibrate-sigma-negative", "calibrate --robot kr16 {data} --sigma-mm -1", 2, r"sigma"),
     ("calibrate-outlier-alpha", "calibrate --robot kr16 {data} --outlier-alpha 2", 2, r"outlier"),
     ("calibrate-extend-unknown", "calibrate --robot kr16 {data} --extend warp:1", 2, r"warp"),
-    (
-        "calibrate-thermal-constant",
-        "calibrate --robot kr16 {const_temp} --extend thermal_expansion",
-        2,
-        r"temperature",
-    ),
+    ("calibrate-thermal-constant", "calibrate --robot kr16 {const_temp} --extend thermal_expansion", 2, r"temperature"),
     # diagnose
     ("diagnose-missing", "diagnose --robot kr16 {root}/none.csv", 2, r"none\.csv"),
     ("diagnose-nine-poses", "diagnose --robot kr16 {nine_poses}", 2, r"nine_poses\.csv"),
@@ -261,25 +201,10 @@ CASES = [
     ("calibrate-degenerate", "calibrate --robot kr16 {degenerate}", 2, r"degenerate\.csv.*do not determine"),
     ("diagnose-degenerate", "diagnose --robot kr16 {degenerate}", 2, r"degenerate\.csv.*do not determine"),
     ("info-robot-nan-mass", "info --robot {robot_nan_mass}", 2, r"mass_kg"),
-    (
-        "evaluate-html-suffix",
-        "evaluate --robot kr16 --design {design} --html {root}/page.png",
-        2,
-        r"page\.png",
-    ),
+    ("evaluate-html-suffix", "evaluate --robot kr16 --design {design} --html {root}/page.png", 2, r"page\.png"),
     # study
-    (
-        "study-heuristic-draws-zero",
-        "study --robots kr16 --heuristic-draws 0 --out {root}/st",
-        2,
-        r"--heuristic-draws",
-    ),
-    (
-        "study-scheduler-unreachable",
-        "study --robots kr16 --n 20 --heuristic-draws 1 --no-progress --scheduler tcp://127.0.0.1:9 --out {root}/st",
-        2,
-        r"scheduler",
-    ),
+    ("study-heuristic-draws-zero", "study --robots kr16 --heuristic-draws 0 --out {root}/st", 2, r"--heuristic-draws"),
+    ("study-scheduler-unreachable", "study --robots kr16 --n 20 --heuristic-draws 1 --no-progress --scheduler tcp://127.0.0.1:9 --out {root}/st", 2, r"scheduler"),
     ("study-robots-empty", "study --robots , --out {root}/st", 2, r"robots"),
     ("study-n-too-few", "study --robots kr16 --n 5 --out {root}/st", 2, r"poses|--n"),
     ("study-seed-negative", "study --robots kr16 --seed -1 --out {root}/st", 2, r"seed"),
@@ -287,6 +212,7 @@ CASES = [
     ("study-unknown-robot", "study --robots kr17 --out {root}/st", 2, r"kr17"),
     ("study-out-is-file", "study --robots kr16 --out {design}", 2, r"design\.csv"),
 ]
+# fmt: on
 
 
 @pytest.mark.parametrize(("argv", "status", "pattern"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])

@@ -140,28 +140,15 @@ def test_cable_drive_widens_the_ratio_bound(tmp_path, kr16):
 
 def test_follower_coupling_bound_is_a_share_of_the_map_factor(tree):
     tau, std = np.ones((5, 18)), np.array([1e-4])
-    assert physical.plausibility(
-        fx.Effect("joint_coupling", 4, coupled=2).with_values(np.array([-0.02])),
-        std,
-        tau=tau,
-        time_s=None,
-        robot=tree,
-    )[0]
-    assert not physical.plausibility(
-        fx.Effect("joint_coupling", 4, coupled=2).with_values(np.array([-0.08])),
-        std,
-        tau=tau,
-        time_s=None,
-        robot=tree,
-    )[0]
+
+    def plausible(joint: int, coupled: int, value: float) -> bool:
+        e = fx.Effect("joint_coupling", joint, coupled=coupled).with_values(np.array([value]))
+        return physical.plausibility(e, std, tau=tau, time_s=None, robot=tree)[0]
+
+    assert plausible(4, 2, -0.02)
+    assert not plausible(4, 2, -0.08)
     # a drive-train pair of the arm keeps the gear's 1 %
-    assert not physical.plausibility(
-        fx.Effect("joint_coupling", 11, coupled=10).with_values(np.array([0.02])),
-        std,
-        tau=tau,
-        time_s=None,
-        robot=tree,
-    )[0]
+    assert not plausible(11, 10, 0.02)
 
 
 def test_a_basis_far_too_large_for_the_robot_is_implausible(tree):

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.stats
@@ -58,6 +59,7 @@ from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.effects.physical import BasisSize, plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
@@ -89,8 +91,95 @@ def _nested(outside: float, Q0: np.ndarray, C0: np.ndarray) -> bool:
     return outside < NESTED_REMAINING and outside <= NESTED_SHARE * _outside(Q0, C0)
 
 
+class _Beside:
+    """How much of each candidate B stays outside the causes' and the geometry's span
+    (:func:`_outside` beside every cause of ``ext``), built at the first nested check."""
+
+    def __init__(self, prob: FitProblem, ext: Fit, others: list) -> None:
+        self.prob, self.ext, self.others, self.outside = prob, ext, others, {}
+
+    def __call__(self, b) -> float:
+        if not self.outside:
+            Jx, cols_x = columns(self.prob, self.ext, self.others)
+            Qx, _ = np.linalg.qr(Jx)
+            self.outside.update({e.name: _outside(Qx, Cx) for e, Cx in zip(self.others, cols_x, strict=True)})
+        return self.outside[b.name]
+
+
+def _screen(
+    Q: np.ndarray,
+    r: np.ndarray,
+    others: list,
+    cols: list,
+    lr_a: float,
+    c: float,
+    alpha: float,
+    beside: _Beside,
+) -> list[tuple]:
+    """The candidates worth a refit, ``(score, b, C, U_b, nested)`` (score: the linearised ``LR_B``):
+    those within ``c + max(c, 20 % of LR_A)`` of ``LR_A``, or nested ones of a fair score; the best
+    ``MAX_ALTERNATIVES + REFIT_MARGIN`` of each kind, best first."""
+    screened = []
+    for b, C in zip(others, cols, strict=True):
+        U_b = projected_basis(Q, C)
+        if U_b.shape[1] == 0:
+            continue
+        proj = U_b.T @ r
+        score = float(proj @ proj)
+        nested = False
+        if score < lr_a - c - max(c, 0.2 * lr_a):
+            if score < 0.5 * scipy.stats.chi2.isf(alpha, b.n_params):
+                continue
+            nested = _nested(beside(b), Q, C)
+            if not nested:
+                continue
+        screened.append((score, b, C, U_b, nested))
+    # the refits: the best-scoring REFIT_MARGIN more than are listed, of each kind (the score is the
+    # linearised LR_B, close to the refitted one)
+    screened.sort(key=lambda t: -t[0])
+    keep = [t for t in screened if not t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
+    return keep + [t for t in screened if t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
+
+
+def _refit(
+    prob: FitProblem,
+    f0: Fit,
+    cand: tuple,
+    U_a: np.ndarray,
+    Q: np.ndarray,
+    lr_a: float,
+    c: float,
+    *,
+    alpha: float,
+    beside: _Beside,
+) -> tuple[object, Fit, dict] | None:
+    """A screened candidate ``cand`` (:func:`_screen`'s) refitted beside ``f0``: ``(B with its fitted
+    values, fit of R + B, evidence)``, or None when B is no alternative."""
+    _, b, C, U_b, nested = cand
+    f = prob.fit(list(f0.effects) + [b], start=f0, max_iter=ALTERNATIVE_MAX_ITER)
+    lr_b = max(f0.cost - f.cost, 0.0)
+    p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
+    if lr_b < lr_a - c and not nested:
+        nested = _nested(beside(b), Q, C)
+    if p_b >= alpha or (lr_b < lr_a - c and not nested):
+        return None
+    corr = np.linalg.svd(U_a.T @ U_b, compute_uv=False) if U_a.shape[1] else np.zeros(1)
+    ev = {
+        "lr_stat": lr_b,
+        "lr_stat_cause": lr_a,
+        "dof": b.n_params,
+        "p_value": p_b,
+        "delta_bic": lr_b - b.n_params * np.log(3 * prob.data.n),
+        "canonical_correlation": float(min(1.0, corr.max())),
+    }
+    if lr_b < lr_a - c:  # B explains less than A, but all of it lies within A's signature
+        ev["nested"] = True
+        ev["remaining_given_causes"] = beside(b)
+    return f.effects[-1], f, ev
+
+
 def competing(
-    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool, *, alpha: float, k_folds: int
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence[Effect], *, alpha: float, k_folds: int
 ) -> list[tuple[object, Fit, dict]]:
     """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
 
@@ -118,61 +207,10 @@ def competing(
     Q, _ = np.linalg.qr(Jm)
     r = (f0.residuals / prob.sigma).reshape(-1)
     U_a = projected_basis(Q, cols[0])
-    ln_n = np.log(3 * prob.data.n)
-    beside: dict = {}  # B's columns beside every cause, built at the first nested check
-
-    def outside_causes(b) -> float:
-        """How much of B stays outside the causes' and the geometry's span (:func:`_outside`)."""
-        if not beside:
-            Jx, cols_x = columns(prob, ext, others)
-            Qx, _ = np.linalg.qr(Jx)
-            beside.update({e.name: _outside(Qx, Cx) for e, Cx in zip(others, cols_x, strict=True)})
-        return beside[b.name]
-
-    screened = []  # (score, b, C, U_b, nested) of the candidates worth a refit
-    for b, C in zip(others, cols[1:], strict=True):
-        U_b = projected_basis(Q, C)
-        if U_b.shape[1] == 0:
-            continue
-        proj = U_b.T @ r
-        score = float(proj @ proj)
-        nested = False
-        if score < lr_a - c - max(c, 0.2 * lr_a):
-            if score < 0.5 * scipy.stats.chi2.isf(alpha, b.n_params):
-                continue
-            nested = _nested(outside_causes(b), Q, C)
-            if not nested:
-                continue
-        screened.append((score, b, C, U_b, nested))
-    # the refits: the best-scoring REFIT_MARGIN more than are listed, of each kind (the score is the
-    # linearised LR_B, close to the refitted one)
-    screened.sort(key=lambda t: -t[0])
-    keep = [t for t in screened if not t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
-    keep += [t for t in screened if t[4]][: MAX_ALTERNATIVES + REFIT_MARGIN]
-    found = []
-    for _, b, C, U_b, nested in keep:
-        f = prob.fit(list(f0.effects) + [b], start=f0, max_iter=ALTERNATIVE_MAX_ITER)
-        lr_b = max(f0.cost - f.cost, 0.0)
-        p_b = float(scipy.stats.chi2.sf(lr_b, b.n_params))
-        if lr_b < lr_a - c and not nested:
-            nested = _nested(outside_causes(b), Q, C)
-        if p_b >= alpha or (lr_b < lr_a - c and not nested):
-            continue
-        corr = np.linalg.svd(U_a.T @ U_b, compute_uv=False) if U_a.shape[1] else np.zeros(1)
-        ev = {
-            "lr_stat": lr_b,
-            "lr_stat_cause": lr_a,
-            "dof": b.n_params,
-            "p_value": p_b,
-            "delta_bic": lr_b - b.n_params * ln_n,
-            "canonical_correlation": float(min(1.0, corr.max())),
-        }
-        if lr_b < lr_a - c:  # B explains less than A, but all of it lies within A's signature
-            ev["nested"] = True
-            ev["remaining_given_causes"] = outside_causes(b)
-        found.append((f.effects[-1], f, ev))
-    found.sort(key=lambda t: -t[2]["lr_stat"])
-    found = found[:MAX_ALTERNATIVES]
+    beside = _Beside(prob, ext, others)
+    keep = _screen(Q, r, others, cols[1:], lr_a, c, alpha, beside)
+    found = [_refit(prob, f0, t, U_a, Q, lr_a, c, alpha=alpha, beside=beside) for t in keep]
+    found = sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
     for _, f, ev in found:
         ev["holdout_rms_mm"] = rms(prob.holdout(f, k=k_folds))
     return found
@@ -256,7 +294,7 @@ def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: in
     )
 
 
-def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selection, dict]:
+def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int) -> tuple[Selection, dict]:
     """Swap causes for competing candidates that explain the data significantly better given the
     other causes.
 
@@ -286,7 +324,15 @@ def settle(sel: Selection, pool, *, alpha: float, k_folds: int) -> tuple[Selecti
     return sel, out
 
 
-def replace_implausible(sel: Selection, causes, settled: dict, pool, *, alpha: float, k_folds: int):
+def replace_implausible(
+    sel: Selection,
+    causes: Sequence[Cause],
+    settled: dict,
+    pool: Sequence[Effect],
+    *,
+    alpha: float,
+    k_folds: int,
+) -> tuple[Selection, dict, list[str]]:
     """Each named cause whose value is implausible replaced by the effect it stands for: its best
     plausible alternative that explains the data as well (not a nested one), recorded as a swap
     step; then :func:`settle` again. A cause without such an alternative stays (the report says so).
@@ -400,7 +446,9 @@ def child_links(robot: Robot) -> tuple[str, ...]:
     )
 
 
-def describe(effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None) -> dict:
+def describe(
+    effect: Effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None
+) -> dict:
     """The words and sizes of one named cause.
 
     Args:
@@ -435,7 +483,7 @@ def describe(effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...]
     return out | {"text": text}
 
 
-def describe_causes(causes, robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
+def describe_causes(causes: Sequence[Cause], robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
     """``causes`` (:class:`~kpioed_drake.diagnosis.records.Cause`, the effects of ``fit`` in order)
     with their ``description``: each one's contribution at ``fit`` on every row of ``prob``."""
     _, _, E = prob.response(fit.model, fit.effects, np.arange(prob.data.n))

@@ -22,12 +22,13 @@ elasticity is a further candidate (:func:`_add_basis_if_unexplained`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.fit import FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.records import Alternative, Selection
 from kpioed_drake.diagnosis.selection import backward_step, columns
@@ -46,7 +47,9 @@ ABSORBED_MARGIN = 2.0
 the model's span at the geometric fit (the columns move a little as effects are added)."""
 
 
-def reduce_absorbed(prob: FitProblem, base, cands, joints=()) -> tuple[FitProblem, list, list[str]]:
+def reduce_absorbed(
+    prob: FitProblem, base: Fit, cands: list[fx.Effect], joints: Iterable[int] = ()
+) -> tuple[FitProblem, list, list[str]]:
     """Drop from each gravity basis the deflections the geometric model absorbs on these poses.
 
     For every ``joint_elasticity_basis`` in ``cands`` (and the ``joints`` whose basis was sized on
@@ -175,7 +178,7 @@ def _upgrade_one(sel: Selection, e, *, alpha: float, k_folds: int, ln_n: float):
     return dataclasses.replace(sel, fit=trial.fit, holdout=trial.holdout, evidence=evidence), note, {}
 
 
-def upgrade_elasticity(sel: Selection, *, alpha: float, k_folds: int):
+def upgrade_elasticity(sel: Selection, *, alpha: float, k_folds: int) -> tuple[Selection, list[str], dict]:
     """Replace named elasticities by their gravity basis where the data demand it.
 
     For each named ``joint_elasticity:j`` (and ``backlash:j``, :func:`_upgradable`): the basis in its

@@ -22,11 +22,13 @@ is not taken for one.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
 import scipy.linalg
 
 from kpioed_drake.diagnosis.options import FOLD_SEED, GAIN_STANDARD_ERRORS, K_FOLDS
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.estimation import estimator
 from kpioed_drake.estimation.estimator import Conditions, EstimationResult
 from kpioed_drake.robot.models import Cell, Robot, load_cell
@@ -112,12 +114,21 @@ class FitProblem:
         bases were sized on these poses carries the robot of then)."""
         return model if model.robot is self.robot else dataclasses.replace(model, robot=self.robot)
 
-    def response(self, model, effects, idx):
+    def response(
+        self, model: TrackerModel, effects: Iterable[Effect], idx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """h (m, 3), H (m, 3, n_full), E (m, 3, k) at poses ``idx`` (``model`` with this robot)."""
         cond = self.conditions.subset(idx)
         return estimator.response(self.own(model), list(effects), self.data.q[idx], cond)
 
-    def fit(self, effects, *, start: Fit | None = None, idx=None, max_iter: int = 100) -> Fit:
+    def fit(
+        self,
+        effects: Iterable[Effect],
+        *,
+        start: Fit | None = None,
+        idx: np.ndarray | None = None,
+        max_iter: int = 100,
+    ) -> Fit:
         """Fit the geometric parameters and the effects' values on poses ``idx`` (default all).
 
         Starts from ``start`` (its model's parameters, this problem's robot, and the values of

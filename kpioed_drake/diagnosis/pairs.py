@@ -25,6 +25,7 @@ import scipy.stats
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.options import PAIR_CORRELATION
 from kpioed_drake.diagnosis.records import PairTest
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.multiplicity import adjusted_p, min_p_null
 
@@ -51,7 +52,7 @@ def correlated_pairs(bases: list[np.ndarray], *, min_corr: float) -> list[tuple[
     return out
 
 
-def pair_bases(bases: list[np.ndarray], pairs) -> list[np.ndarray]:
+def pair_bases(bases: list[np.ndarray], pairs: list[tuple[int, int, float]]) -> list[np.ndarray]:
     """Orthonormal basis (m, <= k_a + k_b) of the span of each pair's two bases."""
     out = []
     for i, j, _ in pairs:
@@ -66,7 +67,14 @@ def scores(joint: list[np.ndarray], r: np.ndarray) -> np.ndarray:
 
 
 def pair_step(
-    prob: FitProblem, current: Fit, tested, r: np.ndarray, *, alpha: float, ln_n: float, k_folds: int
+    prob: FitProblem,
+    current: Fit,
+    tested: list[tuple[Effect, np.ndarray, np.ndarray | None]],
+    r: np.ndarray,
+    *,
+    alpha: float,
+    ln_n: float,
+    k_folds: int,
 ) -> tuple[list[PairTest], PairTest | None, FitProblem]:
     """The joint test of correlated pairs, after a selection step that added nothing.
 

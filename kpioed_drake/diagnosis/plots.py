@@ -58,6 +58,19 @@ def _score_title(report, name: str) -> str:
     return ""
 
 
+def _labels(ax, title: str, xlabel: str, ylabel: str) -> None:
+    """A panel's title (the pictures' size) and axis labels."""
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+
+
+def _no_data(ax, text: str) -> None:
+    """A panel without data: ``text`` in its middle, no axes."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes)
+    ax.set_axis_off()
+
+
 def _joint_panels(grid, report: DiagnosisReport, prob, r, g, cols: int) -> None:
     """Per joint j, in row pair ``j // cols``: the apparent joint-angle error against q_j and
     against its gravity torque (or why there is none: no masses in the file, or a vertical axis)."""
@@ -77,8 +90,7 @@ def _joint_panels(grid, report: DiagnosisReport, prob, r, g, cols: int) -> None:
         ax = axes[1, j % cols]
         if not loaded[j]:
             why = "no link masses in the file" if massless[j] else "vertical axis,\nno gravity torque"
-            ax.text(0.5, 0.5, f"joint {j + 1}: {why}", ha="center", va="center", transform=ax.transAxes)
-            ax.set_axis_off()
+            _no_data(ax, f"joint {j + 1}: {why}")
         else:
             ax.scatter(prob.tau[:, j], a, s=8, color=_BEFORE)
             ax.set_title(
@@ -89,7 +101,7 @@ def _joint_panels(grid, report: DiagnosisReport, prob, r, g, cols: int) -> None:
             ax.axhline(0, color="0.7", lw=0.8)
 
 
-def plot_residual_structure(report: DiagnosisReport, path) -> Path:
+def plot_residual_structure(report: DiagnosisReport, path: Path | str) -> Path:
     """Baseline residuals against every candidate variable: per joint its angle and its gravity
     torque (six joints a row pair, 3 x 6 panels for six joints), then the conditions."""
     plt = pyplot()
@@ -111,24 +123,21 @@ def plot_residual_structure(report: DiagnosisReport, path) -> Path:
     ax = axes[2, 0]
     if d.temperature_C is not None:
         ax.scatter(d.temperature_C, 1e6 * _apparent(r, u), s=8, color=_BEFORE)
-        ax.set_title(f"scale vs temperature\n{_score_title(report, 'thermal_expansion')}", fontsize=9)
-        ax.set_xlabel("temperature [C]")
-        ax.set_ylabel("apparent scale error [ppm]")
+        title = f"scale vs temperature\n{_score_title(report, 'thermal_expansion')}"
+        _labels(ax, title, "temperature [C]", "apparent scale error [ppm]")
     else:
-        ax.text(0.5, 0.5, "no temperature_C", ha="center", va="center", transform=ax.transAxes)
-        ax.set_axis_off()
+        _no_data(ax, "no temperature_C")
     ax = axes[2, 1]
     if d.time_s is not None:
         rW = r @ R_TW
         for c, lab in enumerate("xyz"):
             ax.plot(d.time_s / 60.0, rW[:, c], ".", ms=3, label=f"{lab} (W)")
         ax.legend(fontsize=7)
-        ax.set_title(f"residual vs time\n{_score_title(report, 'tracker_drift')}", fontsize=9)
-        ax.set_xlabel("time [min]")
-        ax.set_ylabel("residual [mm]")
+        _labels(
+            ax, f"residual vs time\n{_score_title(report, 'tracker_drift')}", "time [min]", "residual [mm]"
+        )
     else:
-        ax.text(0.5, 0.5, "no time_s", ha="center", va="center", transform=ax.transAxes)
-        ax.set_axis_off()
+        _no_data(ax, "no time_s")
     _norm_hist(axes[2, 2], report, which=("base",))
     ax = axes[2, 3]
     top = report.residual_structure[:8]
@@ -207,7 +216,7 @@ def _cause_view(prob, fit, effect, residual, g, u, R_TW, partial: bool):
     return d.time_s / 60.0, y, ys, "time [min]", "residual along the drift direction [mm]"
 
 
-def plot_before_after(report: DiagnosisReport, path) -> Path:
+def plot_before_after(report: DiagnosisReport, path: Path | str) -> Path:
     """Residuals before and after the extension against the variable that revealed each cause."""
     plt = pyplot()
     prob, base, ext = report.details["prob"], report.details["base"], report.details["ext"]
@@ -232,9 +241,7 @@ def plot_before_after(report: DiagnosisReport, path) -> Path:
         ax = axes[k, 0]
         ax.scatter(x, y, s=9, color=_BEFORE)
         ax.axhline(0, color="0.7", lw=0.8)
-        ax.set_title(f"before: geometric model, projected on {e.name}", fontsize=9)
-        ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
+        _labels(ax, f"before: geometric model, projected on {e.name}", xl, yl)
         x, yp, ys, _, _ = _cause_view(prob, ext, e, ext.residuals, g_e, u_e, R_e, partial=True)
         _, ya, _, _, _ = _cause_view(prob, ext, e, ext.residuals, g_e, u_e, R_e, partial=False)
         ax = axes[k, 1]
@@ -272,7 +279,7 @@ def plot_before_after(report: DiagnosisReport, path) -> Path:
     return _save(plt, fig, path)
 
 
-def write_plots(report: DiagnosisReport, folder) -> list[Path]:
+def write_plots(report: DiagnosisReport, folder: Path | str) -> list[Path]:
     """``residual_structure.png`` and ``before_after.png`` in ``folder``."""
     folder = Path(folder)
     return [

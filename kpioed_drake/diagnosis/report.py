@@ -44,6 +44,7 @@ from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.outputs import jsonable
 from kpioed_drake.robot.jointmap import q_to_file
+from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import reflector_world
 
 MAX_FOLLOWS = 6
@@ -420,7 +421,7 @@ def structure(prob: FitProblem, fit: Fit) -> list[dict]:
     return sorted(out, key=lambda x: -x["strength"])
 
 
-def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float, robot=None) -> dict | None:
+def unexplained_rest(prob: FitProblem, fit: Fit, *, alpha: float, robot: Robot | None = None) -> dict | None:
     """None when ``fit`` explains the data to the noise level, else the rest and what it follows.
 
     The data file's numeric columns that the model does not read (``Measurements.extra``) are among
@@ -458,7 +459,7 @@ UNUSED = "column"
 """Prefix of a data file's column the model does not read, among the rest's variables."""
 
 
-def unused_advice(columns: list[str], robot=None) -> str:
+def unused_advice(columns: list[str], robot: Robot | None = None) -> str:
     """What to do when the rest follows data columns the model does not use: joints of the robot's
     file off the measured chain (another branch's load acts on this one) -> describe the whole tree;
     joint-like columns of a table robot -> the same; other columns -> make them a variable."""

@@ -108,14 +108,10 @@ def candidate_effects(
     if data.temperature_C is not None and np.ptp(data.temperature_C) > 0.5:
         cands += [fx.Effect("thermal_expansion"), fx.Effect("tracker_scale")]
     else:
+        why = "no temperature_C column" if data.temperature_C is None else "the temperature varies by < 0.5 K"
         notes.append(
-            "thermal_expansion and tracker_scale are not candidates: "
-            + (
-                "no temperature_C column"
-                if data.temperature_C is None
-                else "the temperature varies by < 0.5 K"
-            )
-            + " (a constant temperature only rescales lengths, which the geometric parameters absorb)"
+            f"thermal_expansion and tracker_scale are not candidates: {why} (a constant temperature only "
+            "rescales lengths, which the geometric parameters absorb)"
         )
     if data.time_s is not None and np.ptp(data.time_s) > 0:
         cands.append(fx.Effect("tracker_drift"))
@@ -128,7 +124,7 @@ def candidate_effects(
     return cands, notes
 
 
-def columns(prob: FitProblem, fit: Fit, cands) -> tuple[np.ndarray, list[np.ndarray]]:
+def columns(prob: FitProblem, fit: Fit, cands: list[fx.Effect]) -> tuple[np.ndarray, list[np.ndarray]]:
     """Weighted columns at ``fit`` over all poses: the model's (3 n, n_params) and each candidate's."""
     n = prob.data.n
     _, H, E = prob.response(fit.model, list(fit.effects) + list(cands), np.arange(n))
@@ -141,7 +137,7 @@ def columns(prob: FitProblem, fit: Fit, cands) -> tuple[np.ndarray, list[np.ndar
     return Jm, out
 
 
-def score_tests(prob: FitProblem, fit: Fit, cands) -> list:
+def score_tests(prob: FitProblem, fit: Fit, cands: list[fx.Effect]) -> list:
     """Residual structure: score statistic of each candidate's columns against ``fit``'s residuals."""
     r = (fit.residuals / prob.sigma).reshape(-1)
     Jm, cols = columns(prob, fit, cands)
@@ -306,7 +302,9 @@ def _test_step(prob: FitProblem, current: Fit, pool, sides, *, alpha: float, ln_
     return tests, best, prob
 
 
-def backward_step(sel: Selection, added, *, alpha: float, ln_n: float, k_folds: int):
+def backward_step(
+    sel: Selection, added: fx.Effect, *, alpha: float, ln_n: float, k_folds: int
+) -> tuple[Selection, list[str]]:
     """Remove every chosen effect (but ``added``, the one just added) that no longer earns its place.
 
     An effect whose Wald statistic ``v^T C^-1 v`` (its values and their covariance in the current
@@ -433,10 +431,10 @@ def _accept(
 def select_effects(
     prob: FitProblem,
     base: Fit,
-    base_holdout,
-    cands,
+    base_holdout: np.ndarray,
+    cands: list[fx.Effect],
     *,
-    sides,
+    sides: dict,
     alpha: float,
     k_folds: int,
     max_effects: int | None = None,

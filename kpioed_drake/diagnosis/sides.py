@@ -30,6 +30,8 @@ the file's masses get wrong can look like a backlash with a chosen side.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+
 import numpy as np
 
 from kpioed_drake import effects as fx
@@ -38,6 +40,7 @@ from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.estimation.multiplicity import effective_tests, min_p_null
 from kpioed_drake.robot.kinematics import subtree_links
+from kpioed_drake.robot.models import Robot
 
 N_PRIOR_DRAWS = 50
 """Draws of the link moments from the mass prior per joint (distinct sign patterns are kept)."""
@@ -46,8 +49,8 @@ SEED = 7
 
 
 def prior_moments(
-    robot, joint: int, rng: np.random.Generator, n: int, *, spread: float = gb.MASS_PRIOR_SPREAD
-):
+    robot: Robot, joint: int, rng: np.random.Generator, n: int, *, spread: float = gb.MASS_PRIOR_SPREAD
+) -> np.ndarray:
     """(n, 4 (N - j + 1)) first moments ``m_k, m_k c_k`` of links j..N drawn from the mass prior."""
     ks = subtree_links(robot, joint)
     m0, c0 = robot.masses[ks], robot.coms[ks]
@@ -77,7 +80,9 @@ def with_expected_sides(prob: FitProblem) -> FitProblem:
     return prob.with_sides(backlash_sides(prob))
 
 
-def side_patterns(prob: FitProblem, joints, *, n_draws: int = N_PRIOR_DRAWS, seed: int = SEED) -> dict:
+def side_patterns(
+    prob: FitProblem, joints: Iterable[int], *, n_draws: int = N_PRIOR_DRAWS, seed: int = SEED
+) -> dict:
     """Candidate sides of a backlash per joint: ``{j: (K_j, n)}``, row 0 the current (expected) side
     of ``prob.conditions.side``, then the distinct sign patterns of prior draws of the torque
     (a pattern and its negative are one: the backlash's value takes the sign)."""
@@ -95,7 +100,7 @@ def side_patterns(prob: FitProblem, joints, *, n_draws: int = N_PRIOR_DRAWS, see
     return out
 
 
-def unit_columns(prob: FitProblem, fit: Fit, joints) -> dict:
+def unit_columns(prob: FitProblem, fit: Fit, joints: Sequence[int]) -> dict:
     """Weighted (3 n,) column of a backlash of each joint with side +1 at every pose, at ``fit``: a
     side pattern's column is this one times the pattern (per pose)."""
     if not joints:
@@ -109,7 +114,7 @@ def unit_columns(prob: FitProblem, fit: Fit, joints) -> dict:
     return {j: E[:, :, k0 + i].reshape(-1) / prob.sigma for i, j in enumerate(joints)}
 
 
-def side_penalty(bases, *, level: float = 0.01) -> float:
+def side_penalty(bases: Sequence[np.ndarray], *, level: float = 0.01) -> float:
     """``2 ln K_eff``: what choosing the best of a backlash's sides adds to its likelihood ratio under
     "no effect", ``K_eff = level / q`` with ``q`` the ``level`` quantile of the smallest p-value over
     the sides' (correlated) columns ``bases`` (:func:`~kpioed_drake.estimation.multiplicity.min_p_null`;
@@ -126,7 +131,7 @@ one, together (the expected side, row 0 of :func:`side_patterns`, has weight 1 l
 candidate): choosing the side from the data is one more test, paid by the backlash's other sides."""
 
 
-def side_weights(bases, *, level: float = 0.01) -> np.ndarray:
+def side_weights(bases: Sequence[np.ndarray], *, level: float = 0.01) -> np.ndarray:
     """(K,) weights of one candidate's K sides in a selection step's weighted min-p test
     (:func:`~kpioed_drake.estimation.multiplicity.min_p_null`): the expected side (``bases[0]``) 1,
     each other side :data:`SIDE_SEARCH_WEIGHT` divided by the effective number of tests of the other

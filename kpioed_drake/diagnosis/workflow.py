@@ -30,6 +30,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.calibration import calibrate, hold_undetermined
 from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.options import CalibrationOptions
+from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
 from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, replace_implausible, settle
@@ -168,6 +169,22 @@ def _closing_notes(sel: Selection, test: dict, causes, extended: dict, alpha: fl
     return notes
 
 
+def _named_causes(
+    sel: Selection, cands: list, robot: Robot, *, alpha: float, k_folds: int
+) -> tuple[Selection, tuple, list[str]]:
+    """The selection's effects as named causes: the elasticities upgraded to a mass-free basis where the
+    masses are off, swaps for better competitors (:func:`settle`), implausible causes replaced where a
+    plausible alternative explains as much, each described in words; with the notes of these steps."""
+    sel, notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
+    sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
+    causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    sel, settled, replaced = replace_implausible(sel, causes, settled, cands, alpha=alpha, k_folds=k_folds)
+    if replaced:
+        causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    notes += replaced + _implausible_notes(causes)
+    return sel, describe_causes(causes, robot, sel.problem, sel.fit), notes
+
+
 def diagnose(
     robot: Robot, data: Measurements, options: DiagnosisOptions | None = None, *, cell: Cell | None = None
 ) -> rp.DiagnosisReport:
@@ -210,14 +227,7 @@ def diagnose(
         k_folds=k_folds,
         max_effects=opts.max_effects,
     )
-    sel, basis_notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
-    sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
-    causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
-    sel, settled, replaced = replace_implausible(sel, causes, settled, cands, alpha=alpha, k_folds=k_folds)
-    if replaced:
-        causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
-    basis_notes += replaced + _implausible_notes(causes)
-    causes = describe_causes(causes, robot, sel.problem, sel.fit)
+    sel, causes, basis_notes = _named_causes(sel, cands, robot, alpha=alpha, k_folds=k_folds)
     final = sel.problem
     baseline = rp.fit_summary(base, base_hold)
     extended = rp.fit_summary(sel.fit, sel.holdout)
@@ -309,7 +319,7 @@ def diagnose_file(
 
 def extended_calibration(
     robot: Robot, data: Measurements, report: rp.DiagnosisReport, opts: DiagnosisOptions
-):
+) -> CalibrationReport:
     """The calibration of the diagnosed extended model: the geometry with the named causes (started
     from their fitted values), as ``calibrate`` with ``effects`` runs it, at the sigma the diagnosis
     rested on: the model the report's figures describe. A cause flagged implausible that no plausible

@@ -17,6 +17,7 @@ import logging
 import re
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pydrake.geometry import (
     Box,
     Cylinder,
@@ -125,17 +126,17 @@ class Canvas:
         self.meshcat.SetObject(path, shape, rgba)
         self.meshcat.SetTransform(path, X_WG)
 
-    def sphere(self, path: str, p_W, radius: float, rgba: Rgba) -> None:
+    def sphere(self, path: str, p_W: ArrayLike, radius: float, rgba: Rgba) -> None:
         """Sphere of ``radius`` [mm] at ``p_W`` (3,) [mm]."""
         self.shape(path, Sphere(radius * MM), RigidTransform(np.asarray(p_W, float) * MM), rgba)
 
-    def rod(self, path: str, a, b, radius: float, rgba: Rgba) -> None:
+    def rod(self, path: str, a: ArrayLike, b: ArrayLike, radius: float, rgba: Rgba) -> None:
         """Cylinder from ``a`` to ``b`` (3,) [mm] of ``radius`` [mm] (nothing if a == b)."""
         X, length = capsule_pose(a, b)
         if length > 1e-6:
             self.shape(path, Cylinder(radius * MM, length), X, rgba)
 
-    def arrow(self, path: str, a, b, radius: float, rgba: Rgba) -> None:
+    def arrow(self, path: str, a: ArrayLike, b: ArrayLike, radius: float, rgba: Rgba) -> None:
         """Arrow from ``a`` to ``b`` [mm]: a rod and a cone head of length 4 radii (up to half)."""
         a, b = np.asarray(a, float), np.asarray(b, float)
         length = float(np.linalg.norm(b - a))
@@ -148,7 +149,7 @@ class Canvas:
         cone = MeshcatCone(head * MM, 2.0 * radius * MM, 2.0 * radius * MM)
         self.shape(f"{path}/head", cone, RigidTransform(R, b * MM), rgba)
 
-    def ellipsoid(self, path: str, centre, C: np.ndarray, k: float, rgba: Rgba) -> np.ndarray:
+    def ellipsoid(self, path: str, centre: ArrayLike, C: np.ndarray, k: float, rgba: Rgba) -> np.ndarray:
         """Ellipsoid ``x^T C^-1 x = k^2`` around ``centre`` [mm]; returns its semi-axes (3,) [mm]."""
         w, V = np.linalg.eigh(0.5 * (C + C.T))
         V = V * np.sign(np.linalg.det(V))  # proper rotation
@@ -157,7 +158,7 @@ class Canvas:
         self.shape(path, shape, RigidTransform(RotationMatrix(V), np.asarray(centre, float) * MM), rgba)
         return semi
 
-    def box(self, path: str, lo, hi, rgba: Rgba) -> None:
+    def box(self, path: str, lo: ArrayLike, hi: ArrayLike, rgba: Rgba) -> None:
         """Axis-aligned box between corners ``lo`` and ``hi`` (3,) [mm]."""
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
         self.shape(path, Box(*((hi - lo) * MM)), RigidTransform(0.5 * (lo + hi) * MM), rgba)
@@ -165,7 +166,7 @@ class Canvas:
     def hide(self, path: str) -> None:
         self.meshcat.SetProperty(path, "visible", False)
 
-    def camera(self, p_WC, p_WTarget) -> None:
+    def camera(self, p_WC: ArrayLike, p_WTarget: ArrayLike) -> None:
         """Initial camera at ``p_WC`` looking at ``p_WTarget`` [mm]."""
         self.meshcat.SetCameraPose(np.asarray(p_WC, float) * MM, np.asarray(p_WTarget, float) * MM)
 

@@ -13,7 +13,10 @@ Units: millimetres in W (robot base frame, z up).
 
 from __future__ import annotations
 
+from collections.abc import Container
+
 import numpy as np
+from numpy.typing import ArrayLike
 from pydrake.geometry import Box, Rgba
 
 from kpioed_drake.robot.geometry import beam_targets, segment_distance
@@ -78,7 +81,9 @@ def draw_cell(canvas: Canvas, scene: Scene, robot: Robot, cell: Cell) -> None:
         canvas.rod(f"/cell/tracker/axis {'xyz'[i]}", p, p + 350.0 * cell.R_WT[:, i], 10.0, colour)
 
 
-def draw_robot(canvas: Canvas, path: str, scene: Scene, q, rgba: Rgba, *, links=None) -> None:
+def draw_robot(
+    canvas: Canvas, path: str, scene: Scene, q: ArrayLike, rgba: Rgba, *, links: Container[int] | None = None
+) -> None:
     """The geometry of the robot links ``links`` (default: every moving link) at joint angles
     ``q`` (nj,) [rad], under ``path``."""
     links = range(1, len(scene.bodies)) if links is None else links
@@ -91,7 +96,7 @@ def draw_robot(canvas: Canvas, path: str, scene: Scene, q, rgba: Rgba, *, links=
             canvas.shape(f"{path}/{name}", inspector.GetShape(gid), qo.GetPoseInWorld(gid), rgba)
 
 
-def reflector_point(robot: Robot, cell: Cell, q) -> np.ndarray:
+def reflector_point(robot: Robot, cell: Cell, q: ArrayLike) -> np.ndarray:
     """(3,) reflector position p_WQ [mm] of the nominal robot at ``q`` (6,) [rad]."""
     return flange_point(forward_kinematics(robot, np.asarray(q, float)[None, :]), cell.p_FQ)[0]
 
@@ -109,7 +114,9 @@ def _capsule_in_world(robot: Robot, cell: Cell, q, name: str):
     raise KeyError(f"no capsule or obstacle named {name!r}")
 
 
-def clearance_witness(scene: Scene, robot: Robot, cell: Cell, q, pair: str) -> tuple[np.ndarray, np.ndarray]:
+def clearance_witness(
+    scene: Scene, robot: Robot, cell: Cell, q: ArrayLike, pair: str
+) -> tuple[np.ndarray, np.ndarray]:
     """Witness points (p_WA, p_WB) (3,) [mm] on the two surfaces of a clearance pair at ``q``.
 
     Args:
@@ -146,7 +153,7 @@ def draw_pose(
     scene: Scene,
     robot: Robot,
     cell: Cell,
-    q,
+    q: ArrayLike,
     *,
     rgba: Rgba = ROBOT,
     witness: tuple[np.ndarray, np.ndarray] | None = None,
@@ -173,7 +180,7 @@ def draw_pose(
     return p_Q
 
 
-def default_camera(canvas: Canvas, robot: Robot, cell: Cell, p_WQ) -> None:
+def default_camera(canvas: Canvas, robot: Robot, cell: Cell, p_WQ: ArrayLike) -> None:
     """Camera in front of the robot, to its right and above, looking between the robot base and the
     mean of the reflector points ``p_WQ`` (n, 3) [mm], at 700 mm height."""
     lo, hi = extent(robot, cell)

@@ -15,10 +15,12 @@ inputs are plain arrays (millimetres, radians), so the pages depend on the core 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 import scipy.stats
+from numpy.typing import ArrayLike
 from pydrake.geometry import Rgba
 
 from kpioed_drake.outputs import atomic_write_text
@@ -87,13 +89,24 @@ def _start(robot: Robot, cell: Cell, title: str, q, colours, *, pairs=None, show
     return canvas, scene, np.array(p_Q)
 
 
+def _finish(
+    canvas: Canvas, robot: Robot, cell: Cell, points: np.ndarray, note: str, header: list, rows: list
+) -> str:
+    """The page of ``canvas`` with the ``note``, the per-pose table (``header``, ``rows``) and the
+    camera on the ``points`` (n, 3) [mm]."""
+    canvas.notes.append(note)
+    canvas.table = (header, rows)
+    default_camera(canvas, robot, cell, points)
+    return canvas.html()
+
+
 def design_page(
     robot: Robot,
     cell: Cell,
-    q,
+    q: ArrayLike,
     *,
     reports: list[PoseReport] | None = None,
-    q_work=None,
+    q_work: ArrayLike | None = None,
     Cs: np.ndarray | None = None,
     compare: tuple | None = None,
     title: str | None = None,
@@ -145,22 +158,19 @@ def design_page(
         q_work = robot.q_work if q_work is None else np.asarray(q_work, dtype=float)
         if q_work is not None:
             _kpi(canvas, scene, robot, cell, q_work, Cs, compare, ellipsoid_scale)
-        canvas.notes.append(f"Shown: pose {shown + 1}, the one with the smallest clearance. {STEP_NOTE}")
-        canvas.table = (
-            ["pose", "feasible", "min clearance [mm]", "pair", "incidence [deg]"],
+        note = f"Shown: pose {shown + 1}, the one with the smallest clearance. {STEP_NOTE}"
+        header = ["pose", "feasible", "min clearance [mm]", "pair", "incidence [deg]"]
+        rows = [
             [
-                [
-                    str(k + 1),
-                    "yes" if r.feasible else "NO",
-                    f"{r.min_clearance_mm:.1f}",
-                    r.min_clearance_pair,
-                    f"{r.incidence_deg:.1f}",
-                ]
-                for k, r in enumerate(reports)
-            ],
-        )
-        default_camera(canvas, robot, cell, p_Q)
-        return canvas.html()
+                str(k + 1),
+                "yes" if r.feasible else "NO",
+                f"{r.min_clearance_mm:.1f}",
+                r.min_clearance_pair,
+                f"{r.incidence_deg:.1f}",
+            ]
+            for k, r in enumerate(reports)
+        ]
+        return _finish(canvas, robot, cell, p_Q, note, header, rows)
 
 
 def _kpi(canvas, scene, robot, cell, q_work, Cs, compare, scale) -> None:
@@ -195,11 +205,11 @@ def calibration_page(
     robot: Robot,
     cell: Cell,
     model: TrackerModel,
-    q,
-    measured_xyz_T,
-    predicted_xyz_T,
+    q: ArrayLike,
+    measured_xyz_T: ArrayLike,
+    predicted_xyz_T: ArrayLike,
     *,
-    outliers=None,
+    outliers: Iterable[int] | None = None,
     scale: float | None = None,
     title: str | None = None,
 ) -> str:
@@ -242,22 +252,17 @@ def calibration_page(
             (css(INFEASIBLE), f"outlier ({len(out)}): arrow, halo and robot in red"),
             (css(BEAM), "laser beam"),
         ]
-        canvas.notes.append(STEP_NOTE)
-        canvas.table = (
-            ["pose", "|residual| [mm]", "outlier"],
-            [[str(k + 1), f"{norms[k]:.3f}", "yes" if k in out else ""] for k in range(len(q))],
-        )
-        default_camera(canvas, robot, cell, p_pred)
-        return canvas.html()
+        rows = [[str(k + 1), f"{norms[k]:.3f}", "yes" if k in out else ""] for k in range(len(q))]
+        return _finish(canvas, robot, cell, p_pred, STEP_NOTE, ["pose", "|residual| [mm]", "outlier"], rows)
 
 
 def diagnosis_page(
     robot: Robot,
     cell: Cell,
     model: TrackerModel,
-    q,
-    residual_before,
-    residual_after,
+    q: ArrayLike,
+    residual_before: ArrayLike,
+    residual_after: ArrayLike,
     *,
     label: str = "extension",
     scale: float | None = None,
@@ -293,10 +298,5 @@ def diagnosis_page(
             (css(AFTER), f"residual with {label} (RMS {rms_a:.3f} mm), x{scale:g}"),
             (css(BEAM), "laser beam"),
         ]
-        canvas.notes.append(STEP_NOTE)
-        canvas.table = (
-            ["pose", "before [mm]", "after [mm]"],
-            [[str(k + 1), f"{nb[k]:.3f}", f"{na[k]:.3f}"] for k in range(len(q))],
-        )
-        default_camera(canvas, robot, cell, p_pred)
-        return canvas.html()
+        rows = [[str(k + 1), f"{nb[k]:.3f}", f"{na[k]:.3f}"] for k in range(len(q))]
+        return _finish(canvas, robot, cell, p_pred, STEP_NOTE, ["pose", "before [mm]", "after [mm]"], rows)

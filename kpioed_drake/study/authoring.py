@@ -13,8 +13,10 @@ run time calls these functions.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.solvers import Solve
 
@@ -31,7 +33,16 @@ from kpioed_drake.robot.models import (
 from kpioed_drake.robot.plant import MM, build_scene
 
 
-def kinematic_rows(*, d1, a1, a2, a3, d4, d6, limits_deg) -> list[JointSpec]:
+def kinematic_rows(
+    *,
+    d1: float,
+    a1: float,
+    a2: float,
+    a3: float,
+    d4: float,
+    d6: float,
+    limits_deg: Iterable[tuple[float, float]],
+) -> list[JointSpec]:
     """The six rows [mm, deg] for an arm with a spherical wrist.
 
     Joint 2 uses Hayati (its axis is parallel to joint 3's). With these rows q = 0 has the upper
@@ -68,7 +79,7 @@ def _local(R, o, p_W):
     return (R.T @ (np.asarray(p_W, float) - o)).round(3).tolist()
 
 
-def envelope_links(rows: list[JointSpec], size: EnvelopeSize, p_FQ) -> list[LinkSpec]:
+def envelope_links(rows: list[JointSpec], size: EnvelopeSize, p_FQ: ArrayLike) -> list[LinkSpec]:
     """Capsules that nearly surround each link, and link masses with centres of mass.
 
     Computed at q = 0 in world coordinates and stored in the link frames:
@@ -138,7 +149,7 @@ def work_target(cell: Cell) -> np.ndarray:
 
 def solve_q_work(
     robot: Robot, cell: Cell, *, seed: int = 0, n_starts: int = 30, min_clearance_mm: float = 20.0
-):
+) -> tuple[np.ndarray, float, float]:
     """The working configuration of SPEC by Drake inverse kinematics.
 
     Reflector at :func:`work_target`; reflector axis as close as possible to the line of sight to

@@ -28,6 +28,7 @@ import pandas as pd
 
 from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.files.designs import read_design
 from kpioed_drake.study.tasks import BoundTask, Task, _problem_and_checker
 
@@ -55,7 +56,7 @@ def _key(robot: str, variant: str, n: int) -> tuple[str, str, int]:
     return str(robot), str(variant), int(n)
 
 
-def design_bound(bound_row: dict, problem, q: np.ndarray) -> float:
+def design_bound(bound_row: dict, problem: Problem, q: np.ndarray) -> float:
     """The bound on tr(Cs)/3 of any design of ``len(q)`` poses that also covers the design ``q``
     (n, 6) [rad] (module docstring) [mm^2]."""
     Y = np.asarray(bound_row["Y"], dtype=float)

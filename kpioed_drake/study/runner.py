@@ -15,6 +15,7 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import as_completed as pool_completed
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -23,6 +24,9 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.outputs import atomic_write_json
 from kpioed_drake.study.tasks import BoundTask, Task, run_task
+
+if TYPE_CHECKING:  # an optional dependency (extra "dask")
+    from distributed import Client
 
 OnDone = Callable[[Task, dict], None]
 
@@ -115,9 +119,9 @@ def run_tasks(
     out_dir: str | Path,
     *,
     jobs: int | None = None,
-    scheduler=None,
+    scheduler: str | Client | None = None,
     progress: bool = True,
-    design_api=None,
+    design_api: str | object | None = None,
 ) -> tuple[list[dict], int, int]:
     """Run the tasks whose result file is missing (or recorded an error).
 

@@ -11,9 +11,11 @@ from __future__ import annotations
 import dataclasses
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
@@ -23,7 +25,7 @@ from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.robot.drivetrain import coupling_pairs
 from kpioed_drake.robot.geometry import ClearanceModel
-from kpioed_drake.robot.models import Robot, load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.simulation.truth import true_model
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel, kpi_jacobian, nominal_model
@@ -51,7 +53,7 @@ class SyntheticCase:
         return {e.name for e in self.effects}
 
 
-def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell=None) -> np.ndarray:
+def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell: Cell | None = None) -> np.ndarray:
     """(n, 6) poses uniform within the joint limits whose capsules clear the floor, the wall and
     the cell's obstacles (:class:`~kpioed_drake.robot.geometry.ClearanceModel`, no beam/incidence check)."""
     cell = load_cell(robot=robot) if cell is None else cell
@@ -69,14 +71,14 @@ def random_poses(robot: Robot, n: int, rng: np.random.Generator, *, cell=None) -
 def synthetic_case(
     robot: Robot,
     rng: np.random.Generator,
-    effects=(),
+    effects: Iterable[str | fx.Effect] = (),
     *,
     n_poses: int = 80,
     sigma: float = 0.02,
     seconds_per_pose: float = 20.0,
-    payload_kg=None,
-    cell=None,
-    q=None,
+    payload_kg: float | Sequence[float] | None = None,
+    cell: Cell | None = None,
+    q: ArrayLike | None = None,
     mass_spread: float = 0.0,
 ) -> SyntheticCase:
     """Simulate a measurement campaign with hidden effects (texts or :class:`Effect`).
@@ -159,7 +161,9 @@ def _urdf_masses(robot: Robot, masses: np.ndarray, coms: np.ndarray):
     return dataclasses.replace(robot.urdf, text=ET.tostring(root, encoding="unicode"))
 
 
-def draw_effect_text(rng: np.random.Generator, exclude=(), families=fx.FAMILIES) -> str:
+def draw_effect_text(
+    rng: np.random.Generator, exclude: Iterable[str] = (), families: Sequence[str] = fx.FAMILIES
+) -> str:
     """A random effect (family, joint, harmonic uniform; a coupling among the diagnosis's candidates
     of a six-joint arm, :func:`~kpioed_drake.robot.drivetrain.coupling_pairs`), without a value. A
     family given with its joint (``column_compliance:1``: a robot's lift) is taken as it is."""
@@ -232,14 +236,37 @@ def _as_elasticity(name: str) -> str:
     return f"joint_elasticity:{rest}" if family == BASIS_FAMILY else name
 
 
+def _hard_case(
+    robot: Robot, rng: np.random.Generator, effect_seed: list, texts: list, kw: dict, near_threshold: bool
+) -> SyntheticCase:
+    """A case of the harder harness: the effects ``texts`` drawn from their own stream (seeded by
+    ``effect_seed``: rescaling them leaves every other draw of ``rng`` alone), and with
+    ``near_threshold`` rescaled to a log-uniform lambda in :data:`NEAR_THRESHOLD` and simulated again
+    from the same state of ``rng`` (``kw``: :func:`synthetic_case`'s keywords)."""
+    state = rng.bit_generator.state
+    erng = np.random.default_rng(effect_seed)
+    effs = [fx.parse_effect(t, erng) for t in texts]
+    case = synthetic_case(robot, rng, effs, **kw)
+    if near_threshold and effs:
+        lam = np.maximum(detectability(case), 1e-30)
+        target = np.exp(erng.uniform(*np.log(NEAR_THRESHOLD), size=len(lam)))
+        effs = [
+            e.with_values(e.value_array() * np.sqrt(t / x))
+            for e, t, x in zip(case.effects, target, lam, strict=True)
+        ]
+        rng.bit_generator.state = state
+        case = synthetic_case(robot, rng, effs, **kw)
+    return case
+
+
 def run_synthetic_case(
     kind: str,
     seed: int,
-    robot="kr16",
+    robot: str | Path | Robot = "kr16",
     *,
     n_poses: int = 80,
     sigma: float = 0.02,
-    families=fx.FAMILIES,
+    families: Sequence[str] = fx.FAMILIES,
     mass_spread: float = 0.0,
     payload: str | None = None,
     near_threshold: bool = False,
@@ -273,20 +300,8 @@ def run_synthetic_case(
     kw = {"n_poses": n_poses, "sigma": sigma, "mass_spread": mass_spread, "payload_kg": pay}
     if not hard:
         case = synthetic_case(robot, rng, texts, **kw)
-    else:  # effects drawn from their own stream: rescaling them leaves every other draw alone
-        state = rng.bit_generator.state
-        erng = np.random.default_rng([seed, CASE_KINDS.index(kind) + 1, 7])
-        effs = [fx.parse_effect(t, erng) for t in texts]
-        case = synthetic_case(robot, rng, effs, **kw)
-        if near_threshold and effs:
-            lam = np.maximum(detectability(case), 1e-30)
-            target = np.exp(erng.uniform(*np.log(NEAR_THRESHOLD), size=len(lam)))
-            effs = [
-                e.with_values(e.value_array() * np.sqrt(t / x))
-                for e, t, x in zip(case.effects, target, lam, strict=True)
-            ]
-            rng.bit_generator.state = state
-            case = synthetic_case(robot, rng, effs, **kw)
+    else:
+        case = _hard_case(robot, rng, [seed, CASE_KINDS.index(kind) + 1, 7], texts, kw, near_threshold)
     t0 = time.perf_counter()
     rep = diagnose(robot, case.data, DiagnosisOptions(sigma_mm=sigma))
     seconds = time.perf_counter() - t0

@@ -147,32 +147,35 @@ def make_tables(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFr
     return t6, t7, t8, pr
 
 
+def _ours_and_paper(ratios: dict) -> dict[str, float]:
+    """Each ratio ``name: ((row, column), (row, column))``: ours and, as ``paper name``, the paper's
+    (the columns with ``paper_``)."""
+    out = {}
+    for name, ((ra, a), (rb, b)) in ratios.items():
+        out[name] = ra[a] / rb[b]
+        out[f"paper {name}"] = ra[f"paper_{a}"] / rb[f"paper_{b}"]
+    return out
+
+
 def ratios(t6: pd.DataFrame, t8: pd.DataFrame) -> pd.DataFrame:
     """kpi/heuristic, kpi/param, param/heuristic and ca/noca: ours and the paper's."""
     rows = {}
     for robot, r in t6.iterrows():
-        rows[robot] = {
-            "kpi/heuristic": r["kpi_ca"] / r["heuristic"],
-            "paper kpi/heuristic": r["paper_kpi_ca"] / r["paper_heuristic"],
-            "kpi/param": r["kpi_ca"] / r["param_ca"],
-            "paper kpi/param": r["paper_kpi_ca"] / r["paper_param_ca"],
-            "param/heuristic": r["param_ca"] / r["heuristic"],
-            "paper param/heuristic": r["paper_param_ca"] / r["paper_heuristic"],
-        }
+        kpi, param, heur = (r, "kpi_ca"), (r, "param_ca"), (r, "heuristic")
+        rows[robot] = _ours_and_paper(
+            {"kpi/heuristic": (kpi, heur), "kpi/param": (kpi, param), "param/heuristic": (param, heur)}
+        )
     if "kpi" in t8.index and np.isfinite(t8.loc["kpi", "ca_mean"]):
-        h, p, k = (t8.loc[c] for c in ("heuristic", "param", "kpi"))
-        rows["notional (means)"] = {
-            "kpi/heuristic": k["ca_mean"] / h["ca_mean"],
-            "paper kpi/heuristic": k["paper_ca_mean"] / h["paper_ca_mean"],
-            "kpi/param": k["ca_mean"] / p["ca_mean"],
-            "paper kpi/param": k["paper_ca_mean"] / p["paper_ca_mean"],
-            "param/heuristic": p["ca_mean"] / h["ca_mean"],
-            "paper param/heuristic": p["paper_ca_mean"] / h["paper_ca_mean"],
-            "kpi ca/noca": k["ca_mean"] / k["noca_mean"],
-            "paper kpi ca/noca": k["paper_ca_mean"] / k["paper_noca_mean"],
-            "param ca/noca": p["ca_mean"] / p["noca_mean"],
-            "paper param ca/noca": p["paper_ca_mean"] / p["paper_noca_mean"],
-        }
+        h, p, k = ((t8.loc[c], "ca_mean") for c in ("heuristic", "param", "kpi"))
+        rows["notional (means)"] = _ours_and_paper(
+            {
+                "kpi/heuristic": (k, h),
+                "kpi/param": (k, p),
+                "param/heuristic": (p, h),
+                "kpi ca/noca": (k, (k[0], "noca_mean")),
+                "param ca/noca": (p, (p[0], "noca_mean")),
+            }
+        )
     out = pd.DataFrame.from_dict(rows, orient="index")
     out.index.name = "case"
     return out

@@ -286,7 +286,7 @@ def _make_design(api, problem: Problem, task: Task) -> tuple[np.ndarray, float, 
     return np.asarray(res.q), solve_s, info
 
 
-def run_task(task: Task | BoundTask, design_api=None) -> dict:
+def run_task(task: Task | BoundTask, design_api: str | object | None = None) -> dict:
     """Make, evaluate and check one design (or compute a :class:`BoundTask`'s bound).
 
     Args:

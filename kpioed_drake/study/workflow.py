@@ -9,6 +9,7 @@ import re
 import time
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 
@@ -24,6 +25,9 @@ from kpioed_drake.study.runner import run_tasks
 from kpioed_drake.study.tables import make_tables, results_frame
 from kpioed_drake.study.tasks import BoundTask, make_bound_tasks, make_tasks, study_robots
 from kpioed_drake.study.variants import DEFAULT, get_variant
+
+if TYPE_CHECKING:  # an optional dependency (extra "dask")
+    from distributed import Client
 
 
 def write_outputs(
@@ -70,14 +74,14 @@ def run_study(
     *,
     quick: bool = False,
     jobs: int | None = None,
-    scheduler=None,
+    scheduler: str | Client | None = None,
     progress: bool = True,
     robots: Iterable[str] | None = None,
     n: int = 60,
     heuristic_draws: int | None = None,
     seed: int = 0,
     figures: bool = True,
-    design_api=None,
+    design_api: str | object | None = None,
     variant: str = DEFAULT,
     bounds: bool = True,
 ) -> StudyReport:
@@ -188,7 +192,7 @@ def regenerate_tables(
     jobs: int | None = None,
     progress: bool = True,
     figures: bool = True,
-    design_api=None,
+    design_api: str | object | None = None,
 ) -> StudyReport:
     """Rebuild the tables, report and figures of a finished study in ``out_dir`` with the bounds and
     efficiencies, without making the designs again (``kpioed study --tables-only``).
