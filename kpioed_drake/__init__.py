@@ -6,10 +6,11 @@ See ``docs/ARCHITECTURE.md`` for the module map and ``kpioed_drake.api`` for the
 
 Packages (each docstring names its modules), lowest layer first: :mod:`.robot` (robot and cell
 models, kinematics, the Drake plant), :mod:`.files` (the one reader of the tables the package
-reads), :mod:`.tracker` (the measurement model and the tracker's data), :mod:`.effects` (non-geometric effects), :mod:`.estimation` (the estimator, covariance,
-criteria, tests), :mod:`.scene3d` (Meshcat pages), :mod:`.design`, :mod:`.simulation`,
-:mod:`.calibration`, :mod:`.compensation`, :mod:`.online`, :mod:`.diagnosis`, :mod:`.study` (the
-workflows), and :mod:`.cli` (the ``kpioed`` command). Modules: :mod:`.errors` (exit statuses, the errors),
+reads), :mod:`.tracker` (the measurement model and the tracker's data), :mod:`.effects`
+(non-geometric effects), :mod:`.estimation` (the estimator, covariance, criteria, tests),
+:mod:`.scene3d` (Meshcat pages), :mod:`.design`, :mod:`.simulation`, :mod:`.calibration`,
+:mod:`.compensation`, :mod:`.online`, :mod:`.diagnosis`, :mod:`.study` (the workflows), and
+:mod:`.cli` (the ``kpioed`` command). Modules: :mod:`.errors` (exit statuses, the errors),
 :mod:`.outputs` (atomic writes, output paths), :mod:`.arguments` (checks of command arguments),
 :mod:`.options` (options records from YAML), :mod:`.paper` (the paper's numbers), :mod:`.api`
 (one function per command).
