@@ -140,20 +140,14 @@ def targets_lines(summary: dict) -> list[str]:
 def section_lines(rows: list[str], summary: dict) -> list[str]:
     """The whole Markdown section."""
     load = os.getloadavg()[0]
-    return [
-        SECTION,
-        "",
-        *rows,
-        "",
+    note = (
         "Models from simulated kr16 data (60-pose KPI design, seed 0, elastic joint 2); 1000 program poses "
         "uniform within 90 % of the joint ranges (seed 1), singular ones included (those the calibrated arm "
         "cannot reach are written marked). `kpioed` rows: a fresh process as in section 4 (Python and "
         "Drake imports included); the API row: this process, the extended fit's geometry and elasticity. "
-        f"Load average after these rows: {load:.2f}.",
-        "",
-        *targets_lines(summary),
-        "",
-    ]
+        f"Load average after these rows: {load:.2f}."
+    )
+    return [SECTION, "", *rows, "", note, "", *targets_lines(summary), ""]
 
 
 def update_results(out: str | Path) -> list[str]:

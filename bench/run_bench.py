@@ -487,26 +487,18 @@ def main(argv=None) -> int:
         sizes = [int(s) for s in args.sizes.split(",")]
         rows, summary["sizes"] = bench_sizes(problem, sizes)
         sections += ["## 3. Solve time vs number of poses (KPI with CA, seed 0)", "", *rows, ""]
-    if "fits" not in skip:
-        print("fits ...", file=sys.stderr, flush=True)
-        rows, summary["fits"] = bench_fits()
-        sections += section_lines(rows, summary["fits"])
-    if "compensate" not in skip:
-        print("compensate ...", file=sys.stderr, flush=True)
-        rows, summary["compensate"] = compensate_bench.bench_compensate()
-        sections += compensate_bench.section_lines(rows, summary["compensate"])
-    if "humanoid" not in skip:
-        print("humanoid ...", file=sys.stderr, flush=True)
-        rows, summary["humanoid"] = humanoid.bench_section()
-        sections += humanoid.section_lines(rows, summary["humanoid"])
-    if "online" not in skip:
-        print("online ...", file=sys.stderr, flush=True)
-        rows, summary["online"] = online_bench.bench_section()
-        sections += online_bench.section_lines(rows, summary["online"])
-    if "twin" not in skip:
-        print("twin ...", file=sys.stderr, flush=True)
-        rows, summary["twin"] = twin_bench.bench_section()
-        sections += twin_bench.section_lines(rows, summary["twin"])
+    later = {
+        "fits": (bench_fits, section_lines),
+        "compensate": (compensate_bench.bench_compensate, compensate_bench.section_lines),
+        "humanoid": (humanoid.bench_section, humanoid.section_lines),
+        "online": (online_bench.bench_section, online_bench.section_lines),
+        "twin": (twin_bench.bench_section, twin_bench.section_lines),
+    }
+    for name, (run, lines) in later.items():
+        if name not in skip:
+            print(f"{name} ...", file=sys.stderr, flush=True)
+            rows, summary[name] = run()
+            sections += lines(rows, summary[name])
     load1 = os.getloadavg()
     targets = ["## Targets", ""]
     if "solvers" in summary:

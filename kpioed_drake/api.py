@@ -39,21 +39,27 @@ millimetres and degrees in and out.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
 import numpy as np
+import pandas as pd
 
 from kpioed_drake.calibration import CalibrationReport, calibrate_file
 from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import ValidationReport, validate_file
 from kpioed_drake.compensation.report import CompensationReport
-from kpioed_drake.compensation.workflow import compensate_file
+from kpioed_drake.compensation.workflow import EffectsArgument, compensate_file
 from kpioed_drake.design import DesignOptions, DesignReport, evaluate_file, run_design
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.online import NextOptions, next_file
 from kpioed_drake.options import options_from
 from kpioed_drake.robot.geometry import beam_targets
 from kpioed_drake.robot.jointmap import q_to_file
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import Robot, load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.simulation.workflow import simulate_file
@@ -72,8 +78,13 @@ __all__ = [
     "validate",
 ]
 
+MaybePath = str | Path | None
+"""A file argument that may be left out: its path (text or :class:`~pathlib.Path`), or None."""
+Poses = str | Sequence[float] | Sequence[Sequence[float]] | np.ndarray | None
+"""Working poses or weights as text (``"q1,...,q6"``) or numbers."""
 
-def info(robot: str, *, cell_path=None) -> dict:
+
+def info(robot: str, *, cell_path: MaybePath = None) -> dict:
     """What the tool knows about a robot (``kpioed info``).
 
     Returns:
@@ -111,7 +122,7 @@ def info(robot: str, *, cell_path=None) -> dict:
     }
 
 
-def _parents(rob) -> np.ndarray:
+def _parents(rob: Robot) -> np.ndarray:
     return rob.chain.parents if rob.chain is not None else np.arange(rob.n_joints) - 1
 
 
@@ -119,15 +130,15 @@ def design(
     robot: str,
     *,
     options: DesignOptions | None = None,
-    q_work_deg=None,
-    q_work_file=None,
-    kpi_weights=None,
-    given=None,
-    out=None,
-    json_path=None,
-    plot=None,
-    html=None,
-    **settings,
+    q_work_deg: Poses = None,
+    q_work_file: str | Path | None = None,
+    kpi_weights: Poses = None,
+    given: MaybePath = None,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    plot: str | Path | None = None,
+    html: str | Path | None = None,
+    **settings: Any,
 ) -> DesignReport:
     """A design for a robot in the default cell, with its files (``kpioed design``):
     :func:`kpioed_drake.design.run_design`.
@@ -163,7 +174,7 @@ def design(
 
 def next(  # noqa: A001 (the command's name)
     robot: str,
-    data_path,
+    data_path: str | Path,
     *,
     target_var_mm2: float,
     n: int = 5,
@@ -171,10 +182,10 @@ def next(  # noqa: A001 (the command's name)
     seed: int = 0,
     certify: bool = True,
     max_plan: int = 60,
-    out=None,
-    json_path=None,
-    data_format=None,
-    plan=None,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    data_format: MaybePath = None,
+    plan: str | Path | None = None,
     force: bool = False,
 ) -> dict:
     """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.workflow.next_file`.
@@ -206,15 +217,8 @@ def next(  # noqa: A001 (the command's name)
         ``next_q_deg``, ...) and
         ``summary``.
     """
-    options = NextOptions(
-        target_var_mm2=target_var_mm2,
-        n=n,
-        sigma_mm=sigma_mm,
-        seed=seed,
-        certify=certify,
-        max_plan=max_plan,
-        force=force,
-    )
+    settings = dict(n=n, sigma_mm=sigma_mm, seed=seed, certify=certify, max_plan=max_plan, force=force)
+    options = NextOptions(target_var_mm2=target_var_mm2, **settings)
     result, rob = next_file(
         robot, data_path, options, out=out, json_path=json_path, data_format=data_format, plan_path=plan
     )
@@ -223,19 +227,19 @@ def next(  # noqa: A001 (the command's name)
 
 def calibrate(
     robot: str,
-    data_path,
+    data_path: str | Path,
     *,
     sigma_mm: float = 0.02,
     q_work_deg: str | None = None,
-    extend=(),
+    extend: Sequence[str] = (),
     outlier_alpha: float = 0.01,
-    out=None,
-    json_path=None,
-    plots_dir=None,
-    html=None,
-    cell_path=None,
+    out: str | Path | None = None,
+    json_path: str | Path | None = None,
+    plots_dir: str | Path | None = None,
+    html: str | Path | None = None,
+    cell_path: MaybePath = None,
     force: bool = False,
-    data_format=None,
+    data_format: MaybePath = None,
     strict: bool = False,
 ) -> CalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``):
@@ -290,13 +294,13 @@ def simulate(
     *,
     sigma_mm: float = 0.02,
     seed: int = 0,
-    effects=(),
+    effects: Sequence[str | Effect] = (),
     geometric_errors: bool = True,
     payload_kg: float = 0.0,
     truth_path: str | None = None,
-    cell_path=None,
+    cell_path: MaybePath = None,
     n_targets: int | None = None,
-):
+) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``):
     :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
     ``geometric_errors`` and ``n_targets`` as its
@@ -326,15 +330,15 @@ def simulate(
 
 def diagnose(
     robot: str,
-    data_path,
+    data_path: str | Path,
     *,
     sigma_mm: float | None = None,
-    json_path=None,
-    plots_dir=None,
-    html=None,
+    json_path: MaybePath = None,
+    plots_dir: str | Path | None = None,
+    html: str | Path | None = None,
     force: bool = False,
-    data_format=None,
-    out=None,
+    data_format: MaybePath = None,
+    out: str | Path | None = None,
 ) -> DiagnosisReport:
     """Diagnose a measurement file (``kpioed diagnose``): :func:`kpioed_drake.diagnosis.diagnose_file`
     with ``sigma_mm`` [mm] and ``force`` as its :class:`~kpioed_drake.diagnosis.DiagnosisOptions`.
@@ -370,10 +374,10 @@ def evaluate(
     *,
     sigma_mm: float | None = None,
     q_work_deg: str | None = None,
-    extend=(),
-    json_path=None,
-    html=None,
-    cell_path=None,
+    extend: Sequence[str] = (),
+    json_path: str | Path | None = None,
+    html: str | Path | None = None,
+    cell_path: MaybePath = None,
     certify: bool = True,
 ) -> dict:
     """KPI variance, standard criterion, feasibility and certified efficiency of a design file
@@ -394,14 +398,14 @@ def evaluate(
 
 def validate(
     robot: str,
-    data_path,
+    data_path: str | Path,
     *,
-    data_format=None,
+    data_format: MaybePath = None,
     tracker_frame: str | None = None,
     keep_tracker: bool | None = None,
-    json_path=None,
-    plots_dir=None,
-    cell_path=None,
+    json_path: str | Path | None = None,
+    plots_dir: str | Path | None = None,
+    cell_path: MaybePath = None,
     force: bool = False,
 ) -> ValidationReport:
     """A model's prediction errors on measurements (``kpioed validate``), nothing fitted to the poses
@@ -422,13 +426,13 @@ def validate(
 
 
 def study(
-    out_dir,
+    out_dir: str | Path,
     *,
     quick: bool = False,
     jobs: int | None = None,
-    scheduler=None,
+    scheduler: Any = None,
     progress: bool = True,
-    robots=None,
+    robots: list[str] | tuple[str, ...] | None = None,
     n: int = 60,
     heuristic_draws: int | None = None,
     seed: int = 0,
@@ -458,15 +462,15 @@ def study(
 def compensate(
     robot: str,
     *,
-    program=None,
-    targets=None,
-    out,
+    program: str | Path | None = None,
+    targets: str | Path | None = None,
     nominal: str | None = None,
     target: int = 1,
     angles: str = "model",
-    effects=(),
+    out: str | Path,
+    effects: EffectsArgument = (),
     allow_unreachable: bool = False,
-    cell_path=None,
+    cell_path: MaybePath = None,
 ) -> CompensationReport:
     """The joint values with which a calibrated model reaches a nominal program's poses or given
     points (``kpioed compensate``): :func:`kpioed_drake.compensation.workflow.compensate_file`,

@@ -8,6 +8,7 @@ command line maps it to exit status 2.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,19 +23,19 @@ HTML_SUFFIXES = (".html", ".htm")
 """Endings of 3-D page outputs."""
 
 
-def require(ok: bool, message: str, *, fields=()) -> None:
+def require(ok: bool, message: str, *, fields: tuple[str, ...] = ()) -> None:
     """Raise InputError(message, fields=fields) unless ``ok``."""
     if not ok:
         raise InputError(message, fields=fields)
 
 
-def check_seed(seed) -> None:
+def check_seed(seed: object) -> None:
     """A random seed: an integer >= 0."""
     ok = isinstance(seed, int | np.integer) and not isinstance(seed, bool) and seed >= 0
     require(ok, f"seed: expected an integer >= 0, got {seed!r}", fields=("seed",))
 
 
-def check_count(name: str, value, *, at_least: int = 1, allow_none: bool = False) -> None:
+def check_count(name: str, value: object, *, at_least: int = 1, allow_none: bool = False) -> None:
     """An integer >= ``at_least`` (None allowed with ``allow_none``)."""
     if value is None and allow_none:
         return
@@ -42,7 +43,7 @@ def check_count(name: str, value, *, at_least: int = 1, allow_none: bool = False
     require(ok, f"{name}: expected an integer >= {at_least}, got {value!r}", fields=(name,))
 
 
-def check_positive(name: str, value, *, allow_none: bool = False, zero_ok: bool = False) -> None:
+def check_positive(name: str, value: object, *, allow_none: bool = False, zero_ok: bool = False) -> None:
     """A finite number > 0 (>= 0 with ``zero_ok``; None allowed with ``allow_none``)."""
     if value is None and allow_none:
         return
@@ -57,7 +58,15 @@ def robot_file(robot: str) -> str | None:
     return str(robot_path(robot)) if Path(str(robot)).suffix in (".yaml", ".yml", ".urdf") else None
 
 
-def check_paths(*, robot: str, inputs=(), outputs=(), folders=(), plot=None, html=None) -> None:
+def check_paths(
+    *,
+    robot: str,
+    inputs: Sequence[str | Path | None] = (),
+    outputs: Sequence[str | Path | None] = (),
+    folders: Sequence[str | Path | None] = (),
+    plot: str | Path | None = None,
+    html: str | Path | None = None,
+) -> None:
     """Output paths checked against the inputs (the robot file among them) and their endings.
 
     Args:

@@ -28,7 +28,7 @@ import signal
 import sys
 import threading
 import types
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -62,7 +62,7 @@ class SolverError(RuntimeError):
         self.fields: tuple[str, ...] = tuple(fields)
 
 
-def check_sigma(sigma_mm, *, zero_ok: bool = False, allow_none: bool = False) -> float | None:
+def check_sigma(sigma_mm: object, *, zero_ok: bool = False, allow_none: bool = False) -> float | None:
     """The noise standard deviation per coordinate [mm] as a float: a finite number > 0 (>= 0 with
     ``zero_ok``: noise-free simulated data; None with ``allow_none``: the cell's); else InputError
     naming ``sigma_mm``."""
@@ -91,7 +91,7 @@ def param(field: str) -> str:
 
 
 @contextlib.contextmanager
-def param_names(names: Mapping[str, str]):
+def param_names(names: Mapping[str, str]) -> Iterator[None]:
     """Within the block, :func:`param` gives ``names[field]`` (API parameter -> option string)."""
     token = _PARAM_NAMES.set(types.MappingProxyType(dict(names)))
     try:
@@ -137,7 +137,7 @@ def raise_if_interrupted() -> None:
 
 
 @contextlib.contextmanager
-def catch_interrupts():
+def catch_interrupts() -> Iterator[None]:
     """Within the block, SIGINT is remembered (see :func:`interrupted`) and raises KeyboardInterrupt.
 
     Only the main thread can install signal handlers; elsewhere the block changes nothing.
@@ -159,7 +159,7 @@ def catch_interrupts():
 
 
 @contextlib.contextmanager
-def exit_on_interrupt(line: str):
+def exit_on_interrupt(line: str) -> Iterator[None]:
     """Within the block, SIGINT ends the process at once: ``line`` on stderr and status 130.
 
     For a command's start-up, while its imports (Drake, numpy, scipy) take their seconds: nothing

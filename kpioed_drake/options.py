@@ -12,11 +12,15 @@ import dataclasses
 import math
 import typing
 from pathlib import Path
+from typing import Any, TypeVar
 
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
+
+T = TypeVar("T")
+"""An options record type (a dataclass)."""
 
 
 def _yaml_schema(cls) -> type:
@@ -45,7 +49,7 @@ def _default(field: dataclasses.Field):
     return field.default
 
 
-def load_options(cls, *, filename: str | Path | None = None, data: str | None = None):
+def load_options(cls: type[T], *, filename: str | Path | None = None, data: str | None = None) -> T:
     """An options record ``cls`` from a YAML file or text: a field left out keeps its default; an
     unknown field is an error. Lists in the YAML become the record's tuples.
 
@@ -70,7 +74,7 @@ def load_options(cls, *, filename: str | Path | None = None, data: str | None = 
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
 
 
-def options_from(cls, options=None, **fields):
+def options_from(cls: type[T], options: T | None = None, **fields: Any) -> T:
     """``options`` (a ``cls`` record, default ``cls()``) with ``fields`` replaced: the keyword
     arguments of a command function that are settings, not inputs or outputs.
 
@@ -114,7 +118,7 @@ def _scalar_ok(kind: type, value) -> bool:
     return isinstance(value, kind)
 
 
-def yaml_mismatch(data, schema, field: str = "") -> str | None:
+def yaml_mismatch(data: Any, schema: Any, field: str = "") -> str | None:
     """Where the parsed YAML ``data`` does not fit the type ``schema`` (a dataclass as the YAML
     loaders take it): ``"field: expected ..., got ..."`` naming the first field that does not
     (``effects[0].values[2]``), or None when all fit. Numbers must be finite.

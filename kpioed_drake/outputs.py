@@ -17,7 +17,10 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +69,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def jsonable(obj):
+def jsonable(obj: Any) -> Any:
     """``obj`` as plain JSON data: numpy arrays and scalars to Python, NaN/inf to None, keys to str.
 
     JSON has no NaN; every result record of the package goes through this one function.
@@ -92,12 +95,12 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def json_text(data) -> str:
+def json_text(data: Any) -> str:
     """``data`` as indented JSON text with a final newline."""
     return json.dumps(data, indent=2, default=_json_default) + "\n"
 
 
-def atomic_write_json(path: str | Path, data) -> None:
+def atomic_write_json(path: str | Path, data: Any) -> None:
     """Write ``data`` as indented JSON to ``path`` atomically."""
     atomic_write_text(path, json_text(data))
 
@@ -106,7 +109,13 @@ def _same(a: str | Path, b: str | Path) -> bool:
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def check_output_paths(*, inputs=(), outputs=(), folders=(), suffixes: dict | None = None) -> None:
+def check_output_paths(
+    *,
+    inputs: Sequence[str | Path | None] = (),
+    outputs: Sequence[str | Path | None] = (),
+    folders: Sequence[str | Path | None] = (),
+    suffixes: dict | None = None,
+) -> None:
     """Refuse output paths that cannot be right, before any work is done.
 
     Args:
@@ -162,7 +171,7 @@ def _check_writable(path, folder: Path) -> None:
     os.unlink(probe)
 
 
-def pyplot():
+def pyplot() -> ModuleType:
     """matplotlib's ``pyplot`` with the Agg backend (pictures to files, no display).
 
     The backend is selected on first use, before ``pyplot`` is imported, so that importing a
@@ -202,7 +211,7 @@ class Outputs:
     def add_text(self, path: str | Path, text: str) -> None:
         self.add_bytes(path, text.encode("utf-8"))
 
-    def add_json(self, path: str | Path, data) -> None:
+    def add_json(self, path: str | Path, data: Any) -> None:
         self.add_text(path, json_text(data))
 
     def folder(self, dest: str | Path) -> Path:

@@ -36,6 +36,12 @@ def simulated(robot, q, seed, sigma=SIGMA):
     return table, truth
 
 
+def calibrate_cli(data, out, js, plots):
+    """``kpioed calibrate`` of kr16 on ``data``, writing the model, the JSON report and the plots."""
+    args = ["--out", str(out), "--json", str(js), "--plots", str(plots)]
+    return main(["calibrate", "--robot", "kr16", str(data), *args])
+
+
 def z_scores(report, truth_model):
     """(27,) (estimate - truth) / reported std; the tracker rotation as a rotation vector."""
     res = report.result
@@ -188,20 +194,7 @@ def test_calibrate_cli_outputs(robot, design, tmp_path, capsys):
     data = tmp_path / "data.csv"
     data.write_text(simulation.table_csv_text(table))
     out, js, plots = tmp_path / "cal.yaml", tmp_path / "rep.json", tmp_path / "plots"
-    rc = main(
-        [
-            "calibrate",
-            "--robot",
-            "kr16",
-            str(data),
-            "--out",
-            str(out),
-            "--json",
-            str(js),
-            "--plots",
-            str(plots),
-        ]
-    )
+    rc = calibrate_cli(data, out, js, plots)
     assert rc == 0
     text = capsys.readouterr().out
     assert "chi2/dof" in text and "rows 5" in text
@@ -386,20 +379,7 @@ def test_bad_input_cli_exit_2_without_output(robot, design, tmp_path, capsys):
         path = tmp_path / f"{name}.csv"
         path.write_text(text)
         out, js, plots = tmp_path / f"{name}.yaml", tmp_path / f"{name}.json", tmp_path / f"{name}_plots"
-        rc = main(
-            [
-                "calibrate",
-                "--robot",
-                "kr16",
-                str(path),
-                "--out",
-                str(out),
-                "--json",
-                str(js),
-                "--plots",
-                str(plots),
-            ]
-        )
+        rc = calibrate_cli(path, out, js, plots)
         err = capsys.readouterr().err
         assert rc == 2, name
         assert err.startswith("kpioed: error:") and needles[0] in err, (name, err)

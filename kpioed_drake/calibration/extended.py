@@ -11,6 +11,7 @@ per-pose conditions the effects need (temperature, time, gravity torques with th
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.effects import lateral_basis
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_all, size_on_poses
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import Conditions, data_conditions
 from kpioed_drake.estimation.identifiability import trades_against, undetermined_parameters
@@ -29,7 +31,7 @@ _MIN_SIDE = 3
 
 
 def resolve_extension(
-    effects, nominal: TrackerModel, data: Measurements
+    effects: Sequence[str | Effect], nominal: TrackerModel, data: Measurements
 ) -> tuple[list, Conditions, TrackerModel]:
     """The effects to estimate with the geometry, and the conditions of the data they need.
 
@@ -131,7 +133,9 @@ class UndeterminedEffect:
         return f"{self.effect.name} (it trades against {within}{what})"
 
 
-def undetermined_effects(J: np.ndarray, free_names, held, effects) -> list[UndeterminedEffect]:
+def undetermined_effects(
+    J: np.ndarray, free_names: Sequence[str], held: Sequence[str], effects: Sequence[Effect]
+) -> list[UndeterminedEffect]:
     """The effects a fit's weighted Jacobian does not determine beside the geometry.
 
     The effects are taken in their order: each is tested (:func:`undetermined_parameters`, the

@@ -32,6 +32,7 @@ refused).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -41,11 +42,13 @@ from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import (
     MIN_POSES_FOR_OUTLIER_TEST,
+    Screening,
     non_geometric_warning,
     screen_outliers,
 )
 from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.estimator import (
+    Conditions,
     EstimationResult,
     covariance,
     estimate,
@@ -176,7 +179,7 @@ def calibrate(
     data: Measurements,
     options: CalibrationOptions | None = None,
     *,
-    q_work=None,
+    q_work: np.ndarray | None = None,
     cell: Cell | None = None,
 ) -> CalibrationReport:
     """Calibrate the free geometric parameters (27 for six joints), and the values of
@@ -200,27 +203,66 @@ def calibrate(
             ``options.force``), or poses that do not determine the parameters (exactly singular,
             or with ``options.strict`` near-singular).
     """
-    rob, options = robot, options or CalibrationOptions()
-    sigma_mm, strict, force, max_iter = options.sigma_mm, options.strict, options.force, options.max_iter
-    max_outlier_fraction = options.max_outlier_fraction
-    q_work, work_note = working_pose(rob, q_work, poses=data.q)
-    alpha = float(options.outlier_alpha) or None
-    cell = load_cell(robot=rob) if cell is None else cell
-    nominal = nominal_model(rob, cell)
+    options = options or CalibrationOptions()
+    q_work, work_note = working_pose(robot, q_work, poses=data.q)
+    nominal = _start_model(robot, data, cell)
+    effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
+    rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
+    n_effect = sum(e.n_params for e in effects)
+    warnings = (
+        check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=options.force) + work_note
+    )
+    before = nominal.layout.free_names
+    nominal = hold_undetermined(nominal, data, options.strict, warnings)
+    at_nominal = [name for name in before if name not in nominal.layout.free_names]
+    fit = _fitter(data, options, effects, cond)
+    res, screen, normalized, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
+    check_fitted(res, nominal, data, force=options.force, warnings=warnings)
+    if not res.converged:
+        warnings.append(f"the least-squares iteration did not converge ({res.message})")
+
+    s, kpi_cov = kpi_and_covariance(res, q_work)
+    report = CalibrationReport(
+        robot=rob,
+        nominal=nominal,
+        kpi_nominal=kpi_jacobian(nominal, q_work)[0],
+        result=res,
+        outliers=screen.outliers,
+        data=data,
+        q_work=q_work,
+        outlier_threshold=screen.threshold,
+        normalized=normalized,
+        outlier_alpha=screen.alpha,
+        kpi=s,
+        kpi_cov=kpi_cov,
+        robust=screen.to_dict(),
+        warnings=warnings,
+        identifiability={
+            "at_nominal": at_nominal,
+            "at_solution": list(at_solution),
+            "effects_dropped": dropped,
+        },
+    )
+    _fit_warnings(report, screen, options.sigma_mm, warnings)
+    return report
+
+
+def _start_model(robot: Robot, data: Measurements, cell: Cell | None) -> TrackerModel:
+    """The nominal model of ``robot`` in ``cell`` (default ``models/cell.yaml``) to start from: the
+    tracker frame at the identity for positions given in W, the targets the data do not measure held."""
+    cell = load_cell(robot=robot) if cell is None else cell
+    nominal = nominal_model(robot, cell)
     if data.frame == "base":  # positions given in W: the tracker frame starts at the identity
         p0 = nominal.p.copy()
         p0[nominal.layout.tracker_position] = 0.0
         p0[nominal.layout.tracker_rotation] = 0.0
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
-    n = data.n
-    nominal = hold_unused_targets(nominal, data.target)
-    effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
-    rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
-    n_effect = sum(e.n_params for e in effects)
-    warnings = check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=force) + work_note
-    before = nominal.layout.free_names
-    nominal = hold_undetermined(nominal, data, strict, warnings)
-    at_nominal = [name for name in before if name not in nominal.layout.free_names]
+    return hold_unused_targets(nominal, data.target)
+
+
+def _fitter(data: Measurements, options: CalibrationOptions, effects: list, cond: Conditions) -> Callable:
+    """``fit(model, mask, *, start, register, singular_ok)``: :func:`estimate` on ``data`` with the
+    options' noise and iterations, its InputError naming the file (and the effects fitted together)."""
 
     def fit(model, mask, *, start=effects, register=False, singular_ok=False) -> EstimationResult:
         try:
@@ -228,10 +270,10 @@ def calibrate(
                 model,
                 data.q,
                 data.eta,
-                sigma=sigma_mm,
+                sigma=options.sigma_mm,
                 mask=mask,
                 register=register,
-                max_iter=max_iter,
+                max_iter=options.max_iter,
                 conditions=cond,
                 singular_ok=singular_ok,
                 effects=start,
@@ -244,52 +286,39 @@ def calibrate(
                 else f"{data.path}: {str(exc).removeprefix('estimate: ')}"
             ) from None
 
-    res = fit(nominal, np.ones(n, dtype=bool), register=True, singular_ok=True)
+    return fit
+
+
+def _fit_and_screen(
+    fit: Callable, nominal: TrackerModel, data: Measurements, options: CalibrationOptions, warnings: list[str]
+) -> tuple[EstimationResult, Screening, np.ndarray, tuple[str, ...], list[str]]:
+    """The fit of every pose, what the solution does not determine held or dropped, the outliers
+    screened (and the final solution tested again): (result, screening, the final studentised
+    residuals, names held at the solution, effects dropped)."""
+    strict = options.strict
+    res = fit(nominal, np.ones(data.n, dtype=bool), register=True, singular_ok=True)
     dropped: list[str] = []
     res, at_solution = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
     screen = screen_outliers(
         res,
         data,
         lambda mask, prev: fit(prev.model, mask, start=prev.effects),
-        alpha=alpha,
-        max_outlier_fraction=max_outlier_fraction,
-        force=force,
+        alpha=float(options.outlier_alpha) or None,
+        max_outlier_fraction=options.max_outlier_fraction,
+        force=options.force,
         warnings=warnings,
     )
-    res, outliers, normalized = screen.result, screen.outliers, screen.normalized
-    if outliers:  # the final solution is tested too
+    res, normalized = screen.result, screen.normalized
+    if screen.outliers:  # the final solution is tested too
         res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
         if more:
             at_solution += more
             normalized = normalized_residuals(res)
-    threshold, alpha = screen.threshold, screen.alpha
-    check_fitted(res, nominal, data, force=force, warnings=warnings)
-    if not res.converged:
-        warnings.append(f"the least-squares iteration did not converge ({res.message})")
+    return res, screen, normalized, at_solution, dropped
 
-    s, kpi_cov = kpi_and_covariance(res, q_work)
-    kpi_nom = kpi_jacobian(nominal, q_work)[0]
-    report = CalibrationReport(
-        robot=rob,
-        nominal=nominal,
-        result=res,
-        data=data,
-        q_work=q_work,
-        outliers=outliers,
-        normalized=normalized,
-        outlier_threshold=threshold,
-        outlier_alpha=alpha,
-        kpi=s,
-        kpi_cov=kpi_cov,
-        kpi_nominal=kpi_nom,
-        warnings=warnings,
-        robust=screen.to_dict(),
-        identifiability={
-            "at_nominal": at_nominal,
-            "at_solution": list(at_solution),
-            "effects_dropped": dropped,
-        },
-    )
+
+def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float, warnings: list[str]) -> None:
+    """The warnings of a goodness of fit the noise does not explain (chi2/dof far from 1)."""
     p = report.p_value
     if p is not None and p < 1e-3:
         warnings.append(
@@ -306,7 +335,6 @@ def calibrate(
             f"{sigma_mm:g} mm predicts; {param('sigma_mm')} is probably too large (the reported "
             "uncertainties are then pessimistic)"
         )
-    return report
 
 
 def _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped: list[str]):

@@ -3,6 +3,7 @@ calibrate``, ``validate``, ``diagnose`` and ``next``)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from kpioed_drake.arguments import check_paths
@@ -16,11 +17,11 @@ def read_inputs(
     data_path: str | Path,
     data_format: str | Path | None = None,
     *,
-    cell_path=None,
-    model_out=None,
-    outputs=(),
-    folders=(),
-    html=None,
+    cell_path: str | Path | None = None,
+    model_out: str | Path | None = None,
+    outputs: Sequence[str | Path | None] = (),
+    folders: Sequence[str | Path | None] = (),
+    html: str | Path | None = None,
 ) -> tuple[Robot, Cell, Measurements]:
     """The robot, cell and measurements of a command on a data file, each loaded once, after the
     paths are checked (:func:`~kpioed_drake.arguments.check_paths`).

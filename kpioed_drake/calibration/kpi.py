@@ -17,7 +17,9 @@ from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import kpi_jacobian
 
 
-def working_pose(robot: Robot, q_work=None, *, poses=None) -> tuple[np.ndarray, list[str]]:
+def working_pose(
+    robot: Robot, q_work: np.ndarray | None = None, *, poses: np.ndarray | None = None
+) -> tuple[np.ndarray, list[str]]:
     """(n_joints,) the working pose [rad]: ``q_work``, the model file's, or (a model file without
     one, e.g. a URDF with a two-line sidecar) the measured pose of ``poses`` (n, n_joints) nearest
     their mean, a pose the robot took; and a note saying so (empty otherwise).
@@ -50,7 +52,7 @@ def working_pose(robot: Robot, q_work=None, *, poses=None) -> tuple[np.ndarray, 
     return q_work, note
 
 
-def kpi_and_covariance(result: EstimationResult, q_work) -> tuple[np.ndarray, np.ndarray]:
+def kpi_and_covariance(result: EstimationResult, q_work: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """TCP at ``q_work`` in W of an estimation (effects included) and its covariance.
 
     Returns:

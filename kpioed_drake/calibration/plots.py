@@ -26,7 +26,7 @@ def _figure(*args, **kwargs):
     return plt, plt.subplots(*args, **kwargs)
 
 
-def plot_calibration(report: CalibrationReport, outdir) -> list[Path]:
+def plot_calibration(report: CalibrationReport, outdir: str | Path) -> list[Path]:
     """Write the residual plots of a :class:`~kpioed_drake.calibration.CalibrationReport`.
 
     Returns:

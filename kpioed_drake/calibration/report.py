@@ -240,7 +240,28 @@ class CalibrationReport:
 
     def to_dict(self) -> dict:
         """The JSON report (millimetres and degrees)."""
-        std = self.result.std
+        return {
+            **self._fit_dict(),
+            **self._kpi_dict(),
+            "parameters": self.parameter_table(),
+            "parameter_std_note": "a-priori standard deviations from the given sigma",
+            "correlations": self.correlations(),
+            "tracker": self.tracker(),
+            **self._targets_dict(),
+            "poses": self._poses_list(),
+            "held_at_nominal": list(self.held_at_nominal),
+            "held_at_estimate": list(self.held_at_estimate),
+            "identifiability": self._identifiability_dict(),
+            "robust": dict(self.robust),
+            "effects": self.effect_table(),
+            "effects_note": "non-geometric effects estimated with the geometry (an extended model; empty: "
+            "the geometric model), display units as in the effect text syntax; the KPI is at no payload "
+            "and the reference temperature",
+            "warnings": list(self.warnings),
+        }
+
+    def _poses_list(self) -> list[dict]:
+        """The JSON report's ``poses``: per row its residual and outlier statistic."""
         res = self.result
         poses = []
         for i in range(self.data.n):
@@ -255,6 +276,11 @@ class CalibrationReport:
                     "p_value": float(chi2_dist.sf(self.normalized[i], 3)),
                 }
             )
+        return poses
+
+    def _fit_dict(self) -> dict:
+        """The JSON report's head: the data, the iteration, the goodness of fit and the outlier test."""
+        res = self.result
         return {
             "robot": self.robot.name,
             "data": self.data.path,
@@ -284,6 +310,11 @@ class CalibrationReport:
                 "alpha_familywise": self.outlier_alpha,
                 "threshold": self.outlier_threshold,
             },
+        }
+
+    def _kpi_dict(self) -> dict:
+        """The JSON report's KPI entries: the TCP at q_work and its covariance."""
+        return {
             "kpi_mm": self.kpi.tolist(),
             "kpi_cov_mm2": self.kpi_cov.tolist(),
             "kpi_std_mm": np.sqrt(np.diag(self.kpi_cov)).tolist(),
@@ -295,41 +326,37 @@ class CalibrationReport:
             "kpi_reference": self.kpi_reference(),
             "kpi_note": "TCP (reflector point) at q_work in W; covariance Js Cp Js^T with Cp = (F1^T F1)^-1 "
             "from the given sigma; the a-posteriori version is scaled by chi2/dof",
-            "parameters": self.parameter_table(),
-            "parameter_std_note": "a-priori standard deviations from the given sigma",
-            "correlations": self.correlations(),
-            "tracker": self.tracker(),
+        }
+
+    def _targets_dict(self) -> dict:
+        """The JSON report's ``reflector`` and ``targets``: the estimated offsets in the flange frame."""
+        std, lay = self.result.std, self.model.layout
+        return {
             "reflector": {
                 "p_FQ_mm": self.model.p_FQ.tolist(),
-                "std_mm": std[self.model.layout.free_target(0)].tolist(),
+                "std_mm": std[lay.free_target(0)].tolist(),
                 "note": "estimated reflector offset in the flange frame; the cell file is not changed",
             },
             "targets": [
                 {
                     "target": t + 1,
                     "p_FQ_mm": self.model.target_offsets[t].tolist(),
-                    "std_mm": std[self.model.layout.free_target(t)].tolist(),
+                    "std_mm": std[lay.free_target(t)].tolist(),
                 }
-                for t in range(self.model.layout.n_targets)
+                for t in range(lay.n_targets)
             ],
-            "poses": poses,
-            "held_at_nominal": list(self.held_at_nominal),
-            "held_at_estimate": list(self.held_at_estimate),
-            "identifiability": {
-                "at_nominal": list(self.identifiability.get("at_nominal", [])),
-                "at_solution": list(self.identifiability.get("at_solution", [])),
-                "effects_dropped": list(self.identifiability.get("effects_dropped", [])),
-                "note": "parameters held at nominal because these poses do not determine them: found on "
-                "the registered nominal model before the fit, and on the Jacobian at the estimate; "
-                "effects_dropped: effects of an extended fit these poses cannot tell from the geometry "
-                "or the effects before them (not estimated; the warnings say what each trades against)",
-            },
-            "robust": dict(self.robust),
-            "effects": self.effect_table(),
-            "effects_note": "non-geometric effects estimated with the geometry (an extended model; empty: "
-            "the geometric model), display units as in the effect text syntax; the KPI is at no payload "
-            "and the reference temperature",
-            "warnings": list(self.warnings),
+        }
+
+    def _identifiability_dict(self) -> dict:
+        """The JSON report's ``identifiability``: what was held or dropped and where it was found."""
+        return {
+            "at_nominal": list(self.identifiability.get("at_nominal", [])),
+            "at_solution": list(self.identifiability.get("at_solution", [])),
+            "effects_dropped": list(self.identifiability.get("effects_dropped", [])),
+            "note": "parameters held at nominal because these poses do not determine them: found on "
+            "the registered nominal model before the fit, and on the Jacobian at the estimate; "
+            "effects_dropped: effects of an extended fit these poses cannot tell from the geometry "
+            "or the effects before them (not estimated; the warnings say what each trades against)",
         }
 
     def summary(self) -> str:

@@ -39,6 +39,8 @@ The figures are those of every report (:mod:`kpioed_drake.estimation.accuracy`).
 from __future__ import annotations
 
 import dataclasses
+import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +50,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.arguments import require
 from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.robust import pose_groups
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, param
 from kpioed_drake.estimation.accuracy import Figures, accuracy
 from kpioed_drake.estimation.estimator import register_tracker
@@ -326,13 +329,13 @@ def validate(
     return ValidationReport(
         robot=robot.name,
         model_source=robot.source,
+        effects=tuple(e.name for e in effects),
         data=data,
         residuals_W=residuals,
+        warnings=tuple(warnings),
         method=method,
         frames=frames,
         halves=halves,
-        effects=tuple(e.name for e in effects),
-        warnings=tuple(warnings),
         notes=tuple(notes),
     )
 
@@ -377,7 +380,7 @@ def _moved(residuals: np.ndarray, p_W: np.ndarray, data: Measurements) -> list[s
     ]
 
 
-def predicted_world(model: TrackerModel, data: Measurements, effects=()) -> np.ndarray:
+def predicted_world(model: TrackerModel, data: Measurements, effects: Sequence[Effect] = ()) -> np.ndarray:
     """(n, 3) the reflector positions ``model`` predicts at the data's poses, in W [mm]; with
     ``effects`` under the data's conditions (taken to W with the model's tracker pose).
 
@@ -431,7 +434,7 @@ def validate_file(
     keep_tracker: bool | None = None,
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
-    cell_path=None,
+    cell_path: str | os.PathLike | None = None,
     force: bool = False,
 ) -> ValidationReport:
     """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.

@@ -8,6 +8,7 @@ after everything succeeded, each atomically; a failing run writes nothing.
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 
 from kpioed_drake.calibration.fit import calibrate
@@ -33,7 +34,7 @@ def calibrate_file(
     json_path: str | Path | None = None,
     plots_dir: str | Path | None = None,
     html: str | Path | None = None,
-    cell_path=None,
+    cell_path: str | os.PathLike | None = None,
     data_format: str | Path | None = None,
 ) -> CalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``): load the robot, cell and data once,

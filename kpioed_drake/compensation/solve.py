@@ -35,6 +35,7 @@ are clamped to the limits.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -92,7 +93,15 @@ def _condition(conditions: dict, name: str, n: int, effect: Effect) -> np.ndarra
     return np.broadcast_to(np.asarray(value, dtype=float), (n,))
 
 
-def model_pose(model: TrackerModel, q, effects=(), conditions=None, *, target: int = 0, jacobian=False):
+def model_pose(
+    model: TrackerModel,
+    q: np.ndarray,
+    effects: Sequence[Effect] = (),
+    conditions: Mapping[str, np.ndarray] | None = None,
+    *,
+    target: int = 0,
+    jacobian: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Target point and flange orientation of a model with effects, at the commanded joint values.
 
     Args:
@@ -278,7 +287,13 @@ def _finish(model, q, q_start, goal: _Goal, effects, conditions, target, iterati
 
 
 def compensate_program(
-    model: TrackerModel, nominal: TrackerModel, q_program, *, effects=(), conditions=None, target: int = 0
+    model: TrackerModel,
+    nominal: TrackerModel,
+    q_program: np.ndarray,
+    *,
+    effects: Sequence[Effect] = (),
+    conditions: Mapping[str, np.ndarray] | None = None,
+    target: int = 0,
 ) -> Compensation:
     """Joint values with which ``model`` (and ``effects``) reach the program's nominal poses.
 
@@ -300,7 +315,13 @@ def compensate_program(
 
 
 def reach_targets(
-    model: TrackerModel, points, q_start, *, effects=(), conditions=None, target: int = 0
+    model: TrackerModel,
+    points: np.ndarray,
+    q_start: np.ndarray,
+    *,
+    effects: Sequence[Effect] = (),
+    conditions: Mapping[str, np.ndarray] | None = None,
+    target: int = 0,
 ) -> Compensation:
     """Joint values that put the model's target point at ``points`` (n, 3) in W [mm].
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +60,8 @@ ANGLES = ("model", "controller")
 OUTPUT_COLUMNS = ("residual_mm", "dq_deg", "reachable")
 ORIENTATION_COLUMN = "orientation_deg"
 CALIBRATED_SUFFIX = "-calibrated"
+EffectsArgument = Effect | str | Sequence[Effect | str] | CalibrationReport | dict
+"""What ``effects`` may be (:func:`effects_argument`): effects or their texts, or a calibration report."""
 
 
 def file_effects(robot: Robot) -> tuple[Effect, ...]:
@@ -89,7 +92,9 @@ def _report_effect(d: dict, model: TrackerModel) -> Effect:
     return parse_effect(":".join(parts) + "=" + ",".join(repr(float(v)) for v in values), model=model)
 
 
-def effects_argument(model: TrackerModel, effects) -> tuple[TrackerModel, tuple[Effect, ...]]:
+def effects_argument(
+    model: TrackerModel, effects: EffectsArgument
+) -> tuple[TrackerModel, tuple[Effect, ...]]:
     """The calibrated model and its effects from the ``effects`` argument.
 
     Args:
@@ -235,9 +240,9 @@ def compensate_file(
     nominal: str | None = None,
     target: int = 1,
     angles: str = "model",
-    effects=(),
+    effects: EffectsArgument = (),
     allow_unreachable: bool = False,
-    cell_path=None,
+    cell_path: Path | str | None = None,
 ) -> CompensationReport:
     """Compensate a program or reach target points with a calibrated model (``kpioed compensate``).
 
@@ -260,6 +265,61 @@ def compensate_file(
         SolverError: rows that cannot be reached within the joint limits to ``TOL_MM`` (and
             ``TOL_RAD`` for programs), each named with its row and reason; nothing is written.
     """
+    _check_arguments(program, targets, nominal, angles, allow_unreachable)
+    source = program if program is not None else targets
+    check_paths(robot=robot, inputs=[source], outputs=[out])
+    rob = load_robot(robot)
+    model, effs = effects_argument(nominal_model(rob, load_cell(cell_path, robot=rob)), effects)
+    table = _read_table(source, rob, program=program is not None, angles=angles)
+    _check_conditions(table, effs)
+    kw = dict(effects=effs, conditions=table.conditions)
+    nom = None
+    if program is not None:
+        nom = _nominal_robot(rob, nominal)
+        t = _check_target(target, rob, nom)
+        res = compensate_program(
+            model, nominal_model(nom, load_cell(cell_path, robot=nom)), table.q, target=t, **kw
+        )
+    else:
+        res = reach_targets(
+            model, table.points, _start_poses(table, rob), target=_check_target(target, rob), **kw
+        )
+    to_out = (
+        rob.joint_map.to_controller if angles == "controller" and rob.joint_map is not None else (lambda x: x)
+    )
+    q_file = q_to_file(rob, to_out(res.q))
+    dq = np.max(np.abs(q_file - q_to_file(rob, to_out(res.q_start))), axis=1)
+    if not allow_unreachable:
+        _check_reached(res, table, source, program=program is not None)
+    mode = "program" if program is not None else "targets"
+    text = _output_text(table, rob, q_file, dq, res, mode)
+    with Outputs() as staged:
+        staged.add_text(out, text)
+        staged.commit()
+    return CompensationReport(
+        robot=rob.name,
+        nominal=None if nom is None else nom.name,
+        source=str(source),
+        mode=mode,
+        out=str(out),
+        rows=table.rows,
+        q=q_file,
+        dq=dq,
+        result=res,
+        effects=tuple(e.text() for e in effs),
+        text=text,
+    )
+
+
+def _check_arguments(
+    program: Path | str | None,
+    targets: Path | str | None,
+    nominal: str | None,
+    angles: str,
+    allow_unreachable: bool,
+) -> None:
+    """InputError unless exactly one of program and targets is given, ``angles`` is one of
+    :data:`ANGLES`, ``allow_unreachable`` a bool and ``nominal`` comes with a program."""
     require(
         (program is None) != (targets is None),
         "give exactly one of program and targets",
@@ -277,55 +337,20 @@ def compensate_file(
         "nominal is used with a program only",
         fields=("nominal", "program"),
     )
-    source = program if program is not None else targets
-    check_paths(robot=robot, inputs=[source], outputs=[out])
-    rob = load_robot(robot)
-    model, effs = effects_argument(nominal_model(rob, load_cell(cell_path, robot=rob)), effects)
-    table = _read_table(source, rob, program=program is not None, angles=angles)
-    _check_conditions(table, effs)
-    kw = dict(effects=effs, conditions=table.conditions)
-    if program is not None:
-        nom = _nominal_robot(rob, nominal)
-        t = _check_target(target, rob, nom)
-        res = compensate_program(
-            model, nominal_model(nom, load_cell(cell_path, robot=nom)), table.q, target=t, **kw
-        )
-    else:
-        res = reach_targets(
-            model, table.points, _start_poses(table, rob), target=_check_target(target, rob), **kw
-        )
-    to_out = (
-        rob.joint_map.to_controller if angles == "controller" and rob.joint_map is not None else (lambda x: x)
-    )
-    q_file = q_to_file(rob, to_out(res.q))
-    dq = np.max(np.abs(q_file - q_to_file(rob, to_out(res.q_start))), axis=1)
+
+
+def _check_reached(res: Compensation, table: _Table, source: Path | str, *, program: bool) -> None:
+    """SolverError naming the rows (the first five) that cannot be reached, if any."""
     bad = np.flatnonzero(~res.reachable)
-    if bad.size and not allow_unreachable:
-        named = "; ".join(f"row {table.rows[k]}: {res.reasons[k]}" for k in bad[:5]) + (
-            "; ..." if bad.size > 5 else ""
-        )
-        what = f"{TOL_MM:g} mm" + (f" and {TOL_RAD:g} rad" if program is not None else "")
-        raise SolverError(
-            f"{source}: {bad.size} of {table.rows.size} rows cannot be reached within the joint "
-            f"limits to {what}: "
-            f"{named} (nothing written; allow_unreachable writes them marked reachable=0)",
-            fields=("allow_unreachable",),
-        )
-    mode = "program" if program is not None else "targets"
-    text = _output_text(table, rob, q_file, dq, res, mode)
-    with Outputs() as staged:
-        staged.add_text(out, text)
-        staged.commit()
-    return CompensationReport(
-        robot=rob.name,
-        nominal=nom.name if program is not None else None,
-        source=str(source),
-        mode=mode,
-        out=str(out),
-        rows=table.rows,
-        q=q_file,
-        dq=dq,
-        result=res,
-        effects=tuple(e.text() for e in effs),
-        text=text,
+    if not bad.size:
+        return
+    named = "; ".join(f"row {table.rows[k]}: {res.reasons[k]}" for k in bad[:5]) + (
+        "; ..." if bad.size > 5 else ""
+    )
+    what = f"{TOL_MM:g} mm" + (f" and {TOL_RAD:g} rad" if program else "")
+    raise SolverError(
+        f"{source}: {bad.size} of {table.rows.size} rows cannot be reached within the joint "
+        f"limits to {what}: "
+        f"{named} (nothing written; allow_unreachable writes them marked reachable=0)",
+        fields=("allow_unreachable",),
     )

@@ -125,12 +125,12 @@ def _numbers(r: np.ndarray) -> dict:
 
 
 def accuracy(
-    residuals_W,
-    q,
+    residuals_W: np.ndarray,
+    q: np.ndarray,
     *,
     kind: str,
     tracker: str,
-    target=None,
+    target: np.ndarray | None = None,
     model: str = "",
 ) -> Figures:
     """The figures of residuals (measured minus predicted, in W) of the rows of poses ``q``.

@@ -102,7 +102,7 @@ class Criterion:
         *,
         with_grad: bool = True,
         M0: np.ndarray | None = None,
-    ):
+    ) -> float | tuple[float, np.ndarray]:
         """The criterion of a weighted Jacobian and its derivative with respect to ``F1``.
 
         Args:
@@ -147,7 +147,9 @@ CRITERIA: tuple[str, ...] = tuple(TABLE)
 """Names of the criteria an optimiser can minimise: ``kpi``, ``param``, ``d``, ``o1``."""
 
 
-def kpi_each(F1: np.ndarray, Js_each: np.ndarray, *, M0: np.ndarray | None = None, with_grad: bool = True):
+def kpi_each(
+    F1: np.ndarray, Js_each: np.ndarray, *, M0: np.ndarray | None = None, with_grad: bool = True
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Each working pose's variance ``v_k = tr(Js_k M^-1 Js_k^T)/3`` and its derivative w.r.t. F1.
 
     Args:

@@ -25,11 +25,13 @@ Units: millimetres and radians. Residuals are ``eta - h(p, q)`` in the tracker f
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.linalg
 
 from kpioed_drake import effects as fx
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import ParameterLayout
@@ -48,7 +50,7 @@ evaluating it near the optimum only meets rounding)."""
 # ----------------------------------------------------------------------------------------------
 # Registration
 # ----------------------------------------------------------------------------------------------
-def register_tracker(p_W, p_T) -> tuple[np.ndarray, np.ndarray]:
+def register_tracker(p_W: np.ndarray, p_T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform (no scaling) that best maps tracker-frame points onto world points.
 
     Minimises ``sum_i |p_W[i] - (R_WT p_T[i] + p_WT)|^2`` over proper rotations ``R_WT``
@@ -85,7 +87,9 @@ def register_tracker(p_W, p_T) -> tuple[np.ndarray, np.ndarray]:
     return R_WT, p_WT
 
 
-def registered_model(model: TrackerModel, q, eta, target=None) -> TrackerModel:
+def registered_model(
+    model: TrackerModel, q: np.ndarray, eta: np.ndarray, target: np.ndarray | None = None
+) -> TrackerModel:
     """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
 
     Small rotations zero, ``R_WT_ref`` the registered rotation; ``target``: (n,) each row's 0-based target.
@@ -122,23 +126,13 @@ class Conditions:
     side: np.ndarray | None = None
     payload_kg: np.ndarray | None = None
 
-    def subset(self, idx) -> Conditions:
+    def subset(self, idx: np.ndarray | slice) -> Conditions:
         """The poses ``idx``."""
-
-        def pick(x):
-            return None if x is None else x[idx]
-
-        return Conditions(
-            pick(self.temperature_C),
-            pick(self.time_s),
-            pick(self.tau),
-            pick(self.target),
-            pick(self.side),
-            pick(self.payload_kg),
-        )
+        values = (getattr(self, f.name) for f in dataclasses.fields(self))
+        return Conditions(*(None if x is None else x[idx] for x in values))
 
 
-def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
+def data_conditions(robot: Robot, data: Measurements, *, p_FP: np.ndarray) -> Conditions:
     """The conditions of measured data: its temperature and time, and the gravity torques at the
     commanded angles with the payload at ``p_FP`` [mm] (held fixed during a fit, so that the
     residual function is the same for every parameter value)."""
@@ -146,27 +140,26 @@ def data_conditions(robot: Robot, data: Measurements, *, p_FP) -> Conditions:
     return Conditions(data.temperature_C, data.time_s, tau, data.target, payload_kg=data.payload_kg)
 
 
-def rms(r) -> float:
+def rms(r: np.ndarray) -> float:
     """Root mean square over all coordinates [mm] (nan for no coordinates)."""
     r = np.asarray(r)
     return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
 
 
-def response(model: TrackerModel, effects, q, conditions: Conditions, *, jac: bool = True):
+def response(
+    model: TrackerModel,
+    effects: Sequence[Effect],
+    q: np.ndarray,
+    conditions: Conditions,
+    *,
+    jac: bool = True,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Model response with effects and (with ``jac``) its Jacobian: h (n, 3) [mm], H (n, 3, n_full),
     E (n, 3, k)."""
     f = fx.augmented_jacobian if jac else fx.augmented_response
-    return f(
-        model,
-        q,
-        effects,
-        temperature_C=conditions.temperature_C,
-        time_s=conditions.time_s,
-        tau=conditions.tau,
-        target=conditions.target,
-        side=conditions.side,
-        compliance_payload_kg=conditions.payload_kg,
-    )
+    c = conditions
+    kw = dict(temperature_C=c.temperature_C, time_s=c.time_s, tau=c.tau, target=c.target, side=c.side)
+    return f(model, q, effects, compliance_payload_kg=c.payload_kg, **kw)
 
 
 def covariance(J: np.ndarray, *, singular_ok: bool = False) -> np.ndarray:
@@ -300,7 +293,9 @@ class _Problem:
         return r, J.reshape(r.size, -1)
 
 
-def apply_step(model: TrackerModel, effects, dx: np.ndarray):
+def apply_step(
+    model: TrackerModel, effects: Sequence[Effect], dx: np.ndarray
+) -> tuple[TrackerModel, list[Effect]]:
     """``model`` and ``effects`` moved by ``dx`` (n_free + k,): the free geometric parameters, then
     the effects' values in order [mm, rad, effect units]. Returns (model, list of effects)."""
     free = model.layout.free
@@ -407,16 +402,16 @@ def _levenberg_marquardt(prob: _Problem, model: TrackerModel, effects, free, *, 
 
 def estimate(
     model: TrackerModel,
-    q,
-    eta,
+    q: np.ndarray,
+    eta: np.ndarray,
     *,
     sigma: float = 0.02,
     max_iter: int = 100,
     tol: float = 1e-10,
-    mask=None,
-    weights=None,
+    mask: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
     register: bool = True,
-    effects=(),
+    effects: Sequence[Effect] = (),
     conditions: Conditions | None = None,
     singular_ok: bool = False,
 ) -> EstimationResult:
@@ -462,30 +457,27 @@ def estimate(
         prob, model, effects, free, max_iter=max_iter, tol=tol
     )
 
-    # covariance at the solution (a priori, with the given sigma)
+    iteration = dict(iterations=it, converged=converged, cost=cost, message=message)
+    fitted_to = dict(q=q, eta=eta, mask=mask, weights=w, conditions=conditions)
+    return EstimationResult(
+        model=model,
+        residuals=eta - response(model, effects, q, conditions, jac=False),
+        sigma=float(sigma),
+        dof=3 * m - n_params,
+        Cp=_solution_covariance(J, m, n_params, singular_ok),
+        J=J,
+        effects=tuple(effects),
+        **iteration,
+        **fitted_to,
+    )
+
+
+def _solution_covariance(J: np.ndarray, m: int, n_params: int, singular_ok: bool) -> np.ndarray:
+    """The a-priori covariance at the solution of ``m`` poses; InputError if singular (not singular_ok)."""
     try:
-        Cp = covariance(J, singular_ok=singular_ok)
+        return covariance(J, singular_ok=singular_ok)
     except np.linalg.LinAlgError:
         raise InputError(
             f"estimate: the {m} poses do not determine the {n_params} parameters (information matrix "
             "singular); use more or more varied poses"
         ) from None
-    residuals = eta - response(model, effects, q, conditions, jac=False)
-    return EstimationResult(
-        model=model,
-        residuals=residuals,
-        mask=mask,
-        weights=w,
-        sigma=float(sigma),
-        iterations=it,
-        converged=converged,
-        cost=cost,
-        dof=3 * m - n_params,
-        Cp=Cp,
-        J=J,
-        message=message,
-        q=q,
-        eta=eta,
-        effects=tuple(effects),
-        conditions=conditions,
-    )

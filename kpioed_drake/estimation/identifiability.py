@@ -20,6 +20,7 @@ outside a model's span (the diagnosis's "absorbed" test and its alternatives).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.linalg
@@ -183,7 +184,7 @@ class Undetermined:
 
 def undetermined_parameters(
     J: np.ndarray,
-    names,
+    names: Sequence[str],
     *,
     rtol: float = NEAR_RANK_RTOL,
     max_correlation: float = MAX_CORRELATION,
@@ -256,7 +257,9 @@ def model_factors(J_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.qr(J_model / D)
 
 
-def identifiability(J_model: np.ndarray, J_cand: np.ndarray, *, factors=None) -> dict:
+def identifiability(
+    J_model: np.ndarray, J_cand: np.ndarray, *, factors: tuple[np.ndarray, np.ndarray] | None = None
+) -> dict:
     """How well candidate columns separate from the model's columns (both weighted, (m, .)).
 
     Returns ``remaining`` (smallest singular value of the candidate's orthonormalised columns after
@@ -293,7 +296,9 @@ def projected_basis(Q: np.ndarray, C: np.ndarray) -> np.ndarray:
     return Qc[:, keep]
 
 
-def trades_against(J_kept: np.ndarray, owners, J_cand: np.ndarray, *, k: int = 3) -> tuple[list[str], float]:
+def trades_against(
+    J_kept: np.ndarray, owners: Sequence[str], J_cand: np.ndarray, *, k: int = 3
+) -> tuple[list[str], float]:
     """What candidate columns trade against among a model's columns (both weighted, (m, .)).
 
     Each candidate column, scaled to unit length, is written as the least-squares combination of the

@@ -29,6 +29,8 @@ the data and cost the other candidates one test, not one per side.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import scipy.special
 
@@ -39,7 +41,13 @@ SEED = 20170601
 """Seed of the draws (fixed: a diagnosis is deterministic)."""
 
 
-def min_p_null(bases, *, weights=None, n_draws: int = N_DRAWS, seed: int = SEED) -> np.ndarray:
+def min_p_null(
+    bases: Sequence[np.ndarray],
+    *,
+    weights: np.ndarray | Sequence[float] | None = None,
+    n_draws: int = N_DRAWS,
+    seed: int = SEED,
+) -> np.ndarray:
     """(n_draws,) sorted null minima of the weighted p-values ``p_c / w_c`` over candidates with
     orthonormal bases ``bases``.
 
@@ -77,7 +85,7 @@ def chi2_sf(x: np.ndarray, k: int) -> np.ndarray:
     return scipy.special.chdtrc(k, x)
 
 
-def normalized(weights, n: int) -> np.ndarray:
+def normalized(weights: np.ndarray | Sequence[float] | None, n: int) -> np.ndarray:
     """(n,) weights of a weighted min-p test scaled to mean 1 (None: all 1). Weighted Bonferroni
     with these weights rejects candidate c when ``p_c <= alpha w_c / n``: its family-wise level is
     ``sum_c alpha w_c / n = alpha``."""

@@ -21,6 +21,7 @@ the selection then rest on ``s`` instead, and the report says so (:class:`Noise`
 from __future__ import annotations
 
 import dataclasses
+from typing import Literal
 
 import numpy as np
 
@@ -51,12 +52,12 @@ class Noise:
     """
 
     sigma_mm: float
-    source: str
+    source: Literal["given", "repeated poses", "default", "residuals"]
     stated_mm: float
     stated_source: str
     residual_scale_mm: float | None = None
     residual_dof: int | None = None
-    repeats: dict | None = None
+    repeats: dict[str, float] | None = None
     text: str = ""
 
     def as_dict(self) -> dict:
@@ -64,7 +65,7 @@ class Noise:
         return dataclasses.asdict(self)
 
 
-def repeat_scatter(q: np.ndarray, eta: np.ndarray, target=None) -> dict | None:
+def repeat_scatter(q: np.ndarray, eta: np.ndarray, target: np.ndarray | None = None) -> dict | None:
     """The pooled scatter of repeated poses: rows with the same joint values and target, about their
     mean; ``{"poses", "rows", "dof", "sigma_mm"}`` or None with fewer than ``MIN_REPEAT_DOF``
     degrees of freedom.

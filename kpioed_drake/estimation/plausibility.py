@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation.estimator import register_tracker
+from kpioed_drake.estimation.estimator import EstimationResult, register_tracker
 from kpioed_drake.robot.parameters import joint_label, parameter_joint
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
@@ -246,7 +246,7 @@ def _registered_miss(model: TrackerModel, data: Measurements) -> np.ndarray:
 
 
 def check_fitted(
-    result, nominal: TrackerModel, data: Measurements, *, force: bool, warnings: list[str]
+    result: EstimationResult, nominal: TrackerModel, data: Measurements, *, force: bool, warnings: list[str]
 ) -> None:
     """Refuse a fitted model whose robot parameters moved further than any geometric error
     (:data:`MAX_FITTED_SHARE` of the reach for lengths, :data:`MAX_FITTED_DEG` for angles; the

@@ -24,6 +24,8 @@ includes them (paper outlook; SPEC "Measured data and model discrepancy").
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import scipy.linalg
@@ -38,8 +40,10 @@ from kpioed_drake.effects import (
     parse_effect,
     resolve,
 )
+from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation import covariance
+from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
@@ -155,7 +159,9 @@ class Problem:
         """Fewest poses whose 3 coordinates (per target) can determine the parameters."""
         return int(np.ceil(self.n_params / (3 * self.n_targets)))
 
-    def F1(self, q, *, with_dq: bool = False, frames=None):
+    def F1(
+        self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27).
 
         ``frames``: ``self.model.frames(q)`` if the caller has it already. With T targets every
@@ -221,7 +227,7 @@ class Problem:
         Js = self.Js_each()
         return Js[0] if self.n_kpis == 1 else self._stack(Js)
 
-    def covariances(self, q) -> tuple[np.ndarray, np.ndarray]:
+    def covariances(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``Cp`` (27, 27) and ``Cs = Js Cp Js^T`` (3, 3) [mm^2] of a design ``q`` (n, 6) [rad]
         (several working poses: (3K, 3K) of the weighted stack :meth:`Js`, trace/3 = the mean KPI).
 
@@ -236,7 +242,7 @@ class Problem:
                 "(information matrix singular); use more or more varied poses"
             ) from None
 
-    def kpi_variances(self, q) -> np.ndarray:
+    def kpi_variances(self, q: np.ndarray) -> np.ndarray:
         """(K,) ``tr(Cs_k)/3`` [mm^2] at each working pose of a design ``q`` (n, 6) [rad].
 
         Raises:
@@ -245,7 +251,7 @@ class Problem:
         Cp, _ = self.covariances(q)
         return np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self.Js_each()])
 
-    def criteria(self, q) -> dict[str, float]:
+    def criteria(self, q: np.ndarray) -> dict[str, float]:
         """``kpi_avg_var_mm2`` and ``param_crit`` (scaled tr(Cp) [mm^2]) of a design.
 
         ``kpi_avg_var_mm2`` is tr(Cs)/3 [mm^2]; with several working poses the KPI: the weighted
@@ -262,12 +268,12 @@ class Problem:
 def make_problem(
     robot: str | Robot,
     *,
-    cell_path=None,
+    cell_path: Path | str | None = None,
     q_work: np.ndarray | None = None,
     sigma_mm: float | None = None,
-    tool_offset_mm=(0.0, 0.0, 0.0),
-    extend=(),
-    kpi_weights=None,
+    tool_offset_mm: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+    extend: Sequence[str | Effect] = (),
+    kpi_weights: Sequence[float] | np.ndarray | None = None,
     kpi_aggregate: str = "mean",
     fixed: tuple[str, ...] | None = None,
     max_incidence_deg: float | None = None,
@@ -302,34 +308,9 @@ def make_problem(
             an unknown scaling or KPI point, a tool offset with the flange as KPI point.
     """
     robot = load_robot(robot) if isinstance(robot, str) else robot
-    cell = load_cell(cell_path, robot=robot)
-    if max_incidence_deg is not None:
-        if not 0 < max_incidence_deg < 90:
-            raise InputError(f"max_incidence_deg must be in (0, 90) deg, got {max_incidence_deg!r}")
-        cell = dataclasses.replace(cell, max_incidence=float(np.deg2rad(max_incidence_deg)))
-    if param_scaling not in PARAM_SCALINGS:
-        raise InputError(f"param_scaling must be one of {', '.join(PARAM_SCALINGS)}, got {param_scaling!r}")
-    if kpi_point not in KPI_POINTS:
-        raise InputError(f"kpi_point must be one of {', '.join(KPI_POINTS)}, got {kpi_point!r}")
-    if kpi_point == "flange" and np.any(np.asarray(tool_offset_mm, dtype=float) != 0):
-        raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
-    if q_work is None:
-        if robot.q_work is None:
-            where = "q_work in its sidecar" if robot.urdf is not None else "working pose"
-            raise InputError(
-                f"{robot.name}: the model file has no {where}; pass q_work_deg", fields=("q_work_deg",)
-            )
-        q_work = robot.q_work
-    q_work = np.asarray(q_work, dtype=float)
-    if q_work.ndim == 2 and q_work.shape[0] == 1:
-        q_work = q_work[0]
-    nj = robot.n_joints
-    if q_work.shape[-1:] != (nj,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
-        raise InputError(
-            f"{robot.name}: q_work must be ({nj},) or (K, {nj}) finite angles [rad], got {q_work.shape}"
-        )
-    if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
-        raise InputError(f"{robot.name}: q_work is outside the joint limits")
+    cell = _checked_cell(robot, cell_path, max_incidence_deg)
+    _check_kpi_choices(param_scaling, kpi_point, tool_offset_mm)
+    q_work = _checked_q_work(robot, q_work)
     weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
     sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
     model = nominal_model(robot, cell)
@@ -355,6 +336,51 @@ def make_problem(
             kpi_point=kpi_point,
         )
     )
+
+
+def _checked_cell(robot: Robot, cell_path: Path | str | None, max_incidence_deg: float | None) -> Cell:
+    """The robot's cell, with ``max_incidence_deg`` (checked in (0, 90) deg) if given."""
+    cell = load_cell(cell_path, robot=robot)
+    if max_incidence_deg is not None:
+        if not 0 < max_incidence_deg < 90:
+            raise InputError(f"max_incidence_deg must be in (0, 90) deg, got {max_incidence_deg!r}")
+        cell = dataclasses.replace(cell, max_incidence=float(np.deg2rad(max_incidence_deg)))
+    return cell
+
+
+def _check_kpi_choices(
+    param_scaling: str, kpi_point: str, tool_offset_mm: Sequence[float] | np.ndarray
+) -> None:
+    """InputError for an unknown scaling or KPI point, or a tool offset with the flange as KPI point."""
+    if param_scaling not in PARAM_SCALINGS:
+        raise InputError(f"param_scaling must be one of {', '.join(PARAM_SCALINGS)}, got {param_scaling!r}")
+    if kpi_point not in KPI_POINTS:
+        raise InputError(f"kpi_point must be one of {', '.join(KPI_POINTS)}, got {kpi_point!r}")
+    if kpi_point == "flange" and np.any(np.asarray(tool_offset_mm, dtype=float) != 0):
+        raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
+
+
+def _checked_q_work(robot: Robot, q_work: np.ndarray | None) -> np.ndarray:
+    """The working pose(s) [rad], (n_joints,) or (K, n_joints), within the joint limits (default: the
+    model file's)."""
+    if q_work is None:
+        if robot.q_work is None:
+            where = "q_work in its sidecar" if robot.urdf is not None else "working pose"
+            raise InputError(
+                f"{robot.name}: the model file has no {where}; pass q_work_deg", fields=("q_work_deg",)
+            )
+        q_work = robot.q_work
+    q_work = np.asarray(q_work, dtype=float)
+    if q_work.ndim == 2 and q_work.shape[0] == 1:
+        q_work = q_work[0]
+    nj = robot.n_joints
+    if q_work.shape[-1:] != (nj,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
+        raise InputError(
+            f"{robot.name}: q_work must be ({nj},) or (K, {nj}) finite angles [rad], got {q_work.shape}"
+        )
+    if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
+        raise InputError(f"{robot.name}: q_work is outside the joint limits")
+    return q_work
 
 
 SEPARABLE_POSES = 300

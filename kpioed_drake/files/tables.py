@@ -27,6 +27,7 @@ import numpy as np
 from kpioed_drake.errors import InputError
 from kpioed_drake.files.formats import ANGLE_UNITS, LENGTH_UNITS, TIME_UNITS, WHITESPACE, DataFormat
 from kpioed_drake.robot.jointmap import FileJoints, file_joints, joints_from_file
+from kpioed_drake.robot.models import Robot
 
 XYZ_COLUMNS = ("x_mm", "y_mm", "z_mm")
 """The reflector position columns of the native measurement file [mm]."""
@@ -45,7 +46,7 @@ class DataRows(list):
     lines: list[int]
 
 
-def row_numbers(data) -> list[int]:
+def row_numbers(data: list) -> list[int]:
     """File line numbers of the data rows (header = line 1 when the file has no blank lines)."""
     return list(getattr(data, "lines", range(2, len(data) + 2)))
 
@@ -153,11 +154,8 @@ def read_csv_table(
     data.lines = lines[1:]
     for k, r in zip(data.lines, data, strict=True):
         if len(r) != len(header):
-            hint = (
-                ""
-                if delimiter == ","
-                else f" (separator {delimiter!r}; check the format file's 'separator' and 'decimal')"
-            )
+            sep = f" (separator {delimiter!r}; check the format file's 'separator' and 'decimal')"
+            hint = "" if delimiter == "," else sep
             names = "the format's columns name" if columns is not None else "the header has"
             raise InputError(f"{path}: row {k}: {len(r)} fields, {names} {len(header)}{hint}")
     return header, data
@@ -189,7 +187,15 @@ def _numbers(
     return out
 
 
-def parse_targets(path, values: np.ndarray, rows, *, column: str = TARGET_COLUMN, n_targets=None, model=""):
+def parse_targets(
+    path: str | Path,
+    values: np.ndarray,
+    rows: np.ndarray,
+    *,
+    column: str = TARGET_COLUMN,
+    n_targets: int | None = None,
+    model: str = "",
+) -> np.ndarray:
     """(n,) 0-based target indices of a file's target column (numbered 1..T without gaps).
 
     Args:
@@ -280,8 +286,8 @@ class JointTable:
 
 
 def read_joint_table(
-    path,
-    robot,
+    path: str | Path,
+    robot: Robot,
     *,
     joints: str = "required",
     required: tuple[str, ...] = (),
@@ -477,7 +483,7 @@ MEASUREMENT_FORMATS = {"csv": _native, "format": _foreign}
 """The formats of a measurement file: the native CSV, and a layout a format file describes."""
 
 
-def read_measurement_table(path: str | Path, robot, data_format: DataFormat | None = None) -> dict:
+def read_measurement_table(path: str | Path, robot: Robot, data_format: DataFormat | None = None) -> dict:
     """The arrays of a measurement file, as :meth:`~kpioed_drake.tracker.data.Measurements.from_arrays`
     takes them: ``q`` (n, n_joints) [rad; mm], ``eta`` (n, 3) [mm], ``rows`` (n,), conditions (n,),
     ``target`` (n,) 0-based, ``frame``, ``extra`` and ``source``.

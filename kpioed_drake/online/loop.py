@@ -21,7 +21,7 @@ from kpioed_drake.design.approximate.design import kpi_factor
 from kpioed_drake.design.approximate.given import bound_of, given_design
 from kpioed_drake.design.approximate.search import dual_values
 from kpioed_drake.design.optimize import optimize_design
-from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.estimation.problem import Problem, make_problem
 from kpioed_drake.online.options import NextOptions
 from kpioed_drake.online.step import next_poses
 from kpioed_drake.robot.models import Robot
@@ -34,7 +34,7 @@ ELLIPSOID_95 = float(chi2.ppf(0.95, 3))
 """chi^2(3) quantile of the 95 % confidence ellipsoid of the TCP."""
 
 
-def loop_start(robot: Robot, *, seed: int, n_start: int, sigma_mm: float):
+def loop_start(robot: Robot, *, seed: int, n_start: int, sigma_mm: float) -> tuple[Problem, np.ndarray]:
     """The loop's problem (the model file, noise ``sigma_mm``) and its start: ``n_start`` heuristic
     poses (n_start, n_joints) [rad] of ``seed``, the same in :func:`closed_loop` and
     :func:`start_bound`."""

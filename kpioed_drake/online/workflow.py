@@ -3,6 +3,7 @@ the plan carried from step to step and the JSON record written."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from kpioed_drake.arguments import check_paths
@@ -23,7 +24,7 @@ def next_file(
     out: str | Path | None = None,
     json_path: str | Path | None = None,
     data_format: str | Path | None = None,
-    cell_path=None,
+    cell_path: str | os.PathLike | None = None,
     plan_path: str | Path | None = None,
 ) -> tuple[NextReport, Robot]:
     """``kpioed next``: one step on a measurement file; ``out`` gets the next poses (a design CSV,

@@ -107,12 +107,12 @@ def parameters_table(model: TrackerModel) -> list[dict]:
 
 def simulate(
     robot: Robot,
-    q,
+    q: np.ndarray,
     options: SimulationOptions | None = None,
     *,
-    payload_kg=0.0,
-    temperature_C=None,
-    time_s=None,
+    payload_kg: float | np.ndarray = 0.0,
+    temperature_C: np.ndarray | None = None,
+    time_s: np.ndarray | None = None,
     condition_offsets: dict | None = None,
     cell: Cell | None = None,
 ) -> tuple[pd.DataFrame, dict]:
@@ -139,32 +139,14 @@ def simulate(
         ``effects``, ``sigma_mm``, ``seed``.
     """
     rob, options = robot, options or SimulationOptions()
-    sigma_mm, seed, geometric_errors, n_targets = (
-        options.sigma_mm,
-        options.seed,
-        options.geometric_errors,
-        options.n_targets,
-    )
+    sigma_mm, seed = options.sigma_mm, options.seed
     cell = load_cell(robot=rob) if cell is None else cell
     effects = _with_model_effects(rob, list(options.effects))
-    q = np.atleast_2d(np.asarray(q, dtype=float))
+    q_deg, q, n_t = _checked_poses(rob, q, options.n_targets)
     n = q.shape[0]
-    nj = rob.n_joints
-    if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
-        raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
-    n_t = rob.n_targets if n_targets is None else n_targets
-    if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
-        raise InputError(
-            f"n_targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
-            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}",
-            fields=("n_targets",),
-        )
-    # the simulation uses exactly the joint values that the file will hold
-    q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)
-    q = q_from_file(rob, q_deg)
 
     rng = np.random.default_rng(seed)
-    model = true_model(nominal_model(rob, cell), rng, geometric_errors=geometric_errors)
+    model = true_model(nominal_model(rob, cell), rng, geometric_errors=options.geometric_errors)
     offsets = condition_offsets or {}
     t, temp, payload = _conditions(
         n, rng, time_s=time_s, temperature_C=temperature_C, payload_kg=payload_kg, offsets=offsets
@@ -186,11 +168,31 @@ def simulate(
         "effects": effect_objs,
         "sigma_mm": float(sigma_mm),
         "seed": int(seed),
-        "geometric_errors": bool(geometric_errors),
+        "geometric_errors": bool(options.geometric_errors),
         "n_targets": int(n_t),
         "condition_offsets": sorted(offsets),
     }
     return table, truth
+
+
+def _checked_poses(rob: Robot, q, n_targets: int | None) -> tuple[np.ndarray, np.ndarray, int]:
+    """The poses as the file will hold them (joint values [deg, mm] rounded to ``Q_DECIMALS``) and
+    in model units, so that the simulation uses exactly the written values; and the targets
+    measured per pose. InputError for a bad shape or target count."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[0]
+    nj = rob.n_joints
+    if q.shape != (n, nj) or n == 0 or not np.all(np.isfinite(q)):
+        raise InputError(f"simulate: expected (n, {nj}) finite joint angles, got shape {q.shape}")
+    n_t = rob.n_targets if n_targets is None else n_targets
+    if not (isinstance(n_t, int | np.integer) and 1 <= n_t <= rob.n_targets):
+        raise InputError(
+            f"n_targets: expected a whole number in 1..{rob.n_targets} (the targets the robot model "
+            f"{rob.source or rob.name} defines in targets_mm), got {n_targets!r}",
+            fields=("n_targets",),
+        )
+    q_deg = np.round(q_to_file(rob, q), Q_DECIMALS)
+    return q_deg, q_from_file(rob, q_deg), n_t
 
 
 def _with_model_effects(robot: Robot, effects) -> list:

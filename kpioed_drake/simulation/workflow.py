@@ -6,6 +6,8 @@ the file workflow (:func:`simulate_file`) over :func:`kpioed_drake.simulation.tr
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -58,7 +60,7 @@ def simulate_file(
     *,
     payload_kg: float = 0.0,
     truth_path: str | None = None,
-    cell_path=None,
+    cell_path: Path | str | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``), written atomically.
 

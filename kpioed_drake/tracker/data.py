@@ -11,6 +11,7 @@ Inside, targets are 0-based; row numbers follow :data:`~kpioed_drake.files.table
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -101,17 +102,17 @@ class Measurements:
     @classmethod
     def from_arrays(
         cls,
-        q,
-        eta,
+        q: np.ndarray,
+        eta: np.ndarray,
         *,
-        temperature_C=None,
-        time_s=None,
-        payload_kg=None,
+        temperature_C: np.ndarray | float | None = None,
+        time_s: np.ndarray | float | None = None,
+        payload_kg: np.ndarray | float | None = None,
         source: str = "data",
-        rows=None,
+        rows: np.ndarray | Sequence[int] | None = None,
         frame: str = "tracker",
-        target=None,
-        extra=(),
+        target: np.ndarray | Sequence[int] | None = None,
+        extra: Mapping[str, np.ndarray] | Sequence[tuple[str, np.ndarray]] = (),
     ) -> Measurements:
         """Validated measurements from arrays in internal units (q [rad], eta [mm]).
 
@@ -145,7 +146,9 @@ class Measurements:
         return data
 
     @classmethod
-    def from_table(cls, table, robot: Robot | None = None, *, source: str = "data") -> Measurements:
+    def from_table(
+        cls, table: pd.DataFrame, robot: Robot | None = None, *, source: str = "data"
+    ) -> Measurements:
         """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`.
 
         Raises:
@@ -212,15 +215,13 @@ class Measurements:
         columns |= {c: getattr(self, c) for c in OPTIONAL_COLUMNS if getattr(self, c) is not None}
         for name, values in columns.items():
             low, high, unit = PLAUSIBLE[name]
-            bad = np.flatnonzero((values < low) | (values > high))
-            if bad.size:
-                k = int(bad[0])
+            for k in np.flatnonzero((values < low) | (values > high))[:1]:
                 raise InputError(
                     f"{self.source}: row {self.rows[k]}, column {name!r}: {values[k]:g} {unit} is no "
                     f"measured value (expected {low:g} .. {high:g} {unit}); check the row"
                 )
 
-    def subset(self, idx) -> Measurements:
+    def subset(self, idx: np.ndarray | slice) -> Measurements:
         """The poses ``idx`` (indices or a boolean mask), rows kept."""
 
         def pick(x):
@@ -252,7 +253,7 @@ class Measurements:
         return pd.DataFrame(cols)
 
 
-def per_pose(value, n: int, name: str) -> np.ndarray:
+def per_pose(value: float | np.ndarray | Sequence[float], n: int, name: str) -> np.ndarray:
     """(n,) values of a per-pose quantity given as one number or one per pose.
 
     Raises:
@@ -266,7 +267,7 @@ def per_pose(value, n: int, name: str) -> np.ndarray:
     return arr
 
 
-def check_pose_count(path, n: int, robot: Robot) -> None:
+def check_pose_count(path: str | Path, n: int, robot: Robot) -> None:
     """Enough rows (poses x targets) for the robot's estimated parameters (27 parameters: 9 rows).
 
     Raises:
@@ -307,7 +308,7 @@ def read_measurements(path: str | Path, robot: Robot) -> Measurements:
     return read_data(path, robot)
 
 
-def as_measurements(data, robot: Robot) -> Measurements:
+def as_measurements(data: Measurements | str | Path, robot: Robot) -> Measurements:
     """``data`` itself if it is :class:`Measurements`, else the file it names (:func:`read_measurements`).
 
     Raises:
@@ -341,7 +342,7 @@ def poses_and_rows(n_poses: int, n_rows: int) -> str:
     return f"{n_poses} poses" if n_poses == n_rows else f"{n_poses} poses ({n_rows} rows)"
 
 
-def counted_rows(q) -> str:
+def counted_rows(q: np.ndarray) -> str:
     """:func:`poses_and_rows` of the rows ``q`` (n, n_joints) (rows with equal values are one pose's)."""
     q = np.asarray(q)
     return poses_and_rows(int(len(np.unique(q, axis=0))) if len(q) else 0, len(q))

@@ -76,7 +76,7 @@ class FeasibilityChecker:
         self._beams = beam_targets(robot, cell)
         self._model = nominal_model(robot, cell)
 
-    def clearances(self, q, *, frames: Frames | None = None) -> dict[str, float]:
+    def clearances(self, q: np.ndarray, *, frames: Frames | None = None) -> dict[str, float]:
         """All pair clearances [mm] of one pose: Drake pairs and the beam pairs (every target's
         beam: ``beam vs B``, several targets ``beam1 vs B`` .. ``beamT vs B``)."""
         q = np.asarray(q, dtype=float)
@@ -103,12 +103,12 @@ class FeasibilityChecker:
                 out[f"{label} vs {o.name}"] = float(d) - o.radius - self.cell.beam_radius
         return out
 
-    def incidence_deg(self, q, *, frames: Frames | None = None) -> float:
+    def incidence_deg(self, q: np.ndarray, *, frames: Frames | None = None) -> float:
         """Incidence angle of one pose [deg] (paper eq. 4); several targets: the largest."""
         c = np.min(incidence_cosines(self._model, np.atleast_2d(q), frames=frames)[0])
         return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
-    def check_pose(self, q, index: int = 0, *, collision: bool = True) -> PoseReport:
+    def check_pose(self, q: np.ndarray, index: int = 0, *, collision: bool = True) -> PoseReport:
         """Report of one pose ``q`` (6,) [rad]: joint limits, incidence and, with ``collision``,
         every robot and beam clearance (without, ``min_clearance_mm`` is inf)."""
         q = np.asarray(q, dtype=float)
@@ -143,7 +143,7 @@ class FeasibilityChecker:
                 fails.append(dict(check=kind, name=name, value=d, limit=0.0, violation=-d))
         return PoseReport(index, not fails, fails, cmin, pair, inc)
 
-    def check(self, q, *, collision: bool = True) -> list[PoseReport]:
+    def check(self, q: np.ndarray, *, collision: bool = True) -> list[PoseReport]:
         """Reports for (n, 6) poses [rad]."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         return [self.check_pose(qi, i, collision=collision) for i, qi in enumerate(q)]

@@ -15,6 +15,7 @@ taking ``target=None`` measure target 0 (the reflector), exactly as with one tar
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -36,7 +37,7 @@ def _rot(axis: int, a: float) -> np.ndarray:
     return R
 
 
-def small_rotation(r) -> np.ndarray:
+def small_rotation(r: np.ndarray) -> np.ndarray:
     """``Rx(r0) @ Ry(r1) @ Rz(r2)`` (3, 3)."""
     return _rot(0, r[0]) @ _rot(1, r[1]) @ _rot(2, r[2])
 
@@ -91,14 +92,14 @@ class TrackerModel:
         """(T, 3) offsets of every target in the flange frame [mm]."""
         return self.p[self.layout.targets].reshape(self.layout.n_targets, 3)
 
-    def target_points(self, target=None) -> np.ndarray:
+    def target_points(self, target: np.ndarray | None = None) -> np.ndarray:
         """Flange-frame offsets of the rows' targets: (3,) target 0 if ``target`` is None, else
         (n, 3) for the (n,) 0-based target indices [mm]."""
         if target is None:
             return self.p_FQ
         return self.target_offsets[check_targets(self.layout, target)]
 
-    def target_links(self, target=None):
+    def target_links(self, target: np.ndarray | None = None) -> np.ndarray | None:
         """The frames the rows' targets are fixed in: None (the flange; a serial robot, or
         ``target`` None) or (n,) frame indices of a tree robot's targets on several links."""
         if target is None or self.robot.target_links is None:
@@ -114,11 +115,11 @@ class TrackerModel:
         p[self.layout.tracker_rotation] = 0.0
         return dataclasses.replace(self, p=p, R_WT_ref=self.R_WT)
 
-    def frames(self, q) -> Frames:
+    def frames(self, q: np.ndarray) -> Frames:
         return forward_kinematics(self.robot, q, self.geometry)
 
 
-def check_targets(layout: ParameterLayout, target) -> np.ndarray:
+def check_targets(layout: ParameterLayout, target: np.ndarray | Sequence[int]) -> np.ndarray:
     """(n,) 0-based target indices as integers.
 
     Raises:
@@ -150,7 +151,7 @@ def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
     return TrackerModel(robot=robot, p=p, R_WT_ref=cell.R_WT, layout=layout)
 
 
-def hold_unused_targets(model: TrackerModel, target) -> TrackerModel:
+def hold_unused_targets(model: TrackerModel, target: np.ndarray | None) -> TrackerModel:
     """``model`` with the offsets of the targets no row measures held at nominal (not estimated).
 
     ``target``: (n,) 0-based target of each row (None: only target 0 is measured). A model with
@@ -167,12 +168,12 @@ def hold_unused_targets(model: TrackerModel, target) -> TrackerModel:
     return dataclasses.replace(model, layout=layout)
 
 
-def reflector_world(model: TrackerModel, q, target=None) -> np.ndarray:
+def reflector_world(model: TrackerModel, q: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) position in W of each row's target (``target`` (n,) 0-based; None: target 0) [mm]."""
     return flange_point(model.frames(q), model.target_points(target), model.target_links(target))
 
 
-def measure(model: TrackerModel, q, target=None) -> np.ndarray:
+def measure(model: TrackerModel, q: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
     """Model response h(p, q) (eq. 3): (n, 3) target positions in the tracker frame [mm].
 
     ``target``: (n,) 0-based target index of each row (None: target 0, the reflector).
@@ -193,7 +194,15 @@ def _set_target_columns(H: np.ndarray, block: np.ndarray, layout: ParameterLayou
         H[rows, ..., layout.target(t)] = block[rows]
 
 
-def tracker_jacobian(model: TrackerModel, p_WQ, JW, *, scale=None, offset=None, target=None):
+def tracker_jacobian(
+    model: TrackerModel,
+    p_WQ: np.ndarray,
+    JW: np.ndarray,
+    *,
+    scale: np.ndarray | None = None,
+    offset: np.ndarray | None = None,
+    target: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Response in the tracker frame and its Jacobian w.r.t. the full parameter vector.
 
     ``h = R_TW (s p_WQ - p_WT - offset)``: the reflector points ``p_WQ``, optionally scaled about W
@@ -240,8 +249,13 @@ def _rotation_columns(model: TrackerModel, h: np.ndarray) -> np.ndarray:
 
 
 def measurement_jacobian(
-    model: TrackerModel, q, *, with_dq: bool = False, frames: Frames | None = None, target=None
-):
+    model: TrackerModel,
+    q: np.ndarray,
+    *,
+    with_dq: bool = False,
+    frames: Frames | None = None,
+    target: np.ndarray | None = None,
+) -> tuple[np.ndarray, ...]:
     """Jacobian of :func:`measure` w.r.t. the full parameter vector (33 entries for six joints).
 
     ``frames`` is ``model.frames(q)`` if the caller has it already; ``target`` (n,) the 0-based
@@ -287,7 +301,9 @@ def _drot_transposed(r) -> list[np.ndarray]:
     return [(Rx @ Gx @ Ry @ Rz).T, (Rx @ Ry @ Gy @ Rz).T, (Rx @ Ry @ Rz @ Gz).T]
 
 
-def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None, target=None) -> np.ndarray:
+def incidence_cosine(
+    model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None, target: np.ndarray | None = None
+) -> np.ndarray:
     """(n,) cosine of the incidence angle between the reflector axis z_F and the line of sight
     (to each row's target; ``target`` None: target 0)."""
     frames = model.frames(q) if frames is None else frames
@@ -298,7 +314,7 @@ def incidence_cosine(model: TrackerModel, q, *, frames: Frames | None = None, ta
     return np.einsum("ni,ni->n", frames.at_link(link)[0][..., 2], g)
 
 
-def incidence_cosines(model: TrackerModel, q, *, frames: Frames | None = None) -> np.ndarray:
+def incidence_cosines(model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None) -> np.ndarray:
     """(n, T) :func:`incidence_cosine` of every pose to each of the model's T targets."""
     frames = model.frames(q) if frames is None else frames
     if model.layout.n_targets == 1:
@@ -313,7 +329,9 @@ def incidence_cosines(model: TrackerModel, q, *, frames: Frames | None = None) -
     )
 
 
-def kpi_jacobian(model: TrackerModel, q_work, tool_offset=(0.0, 0.0, 0.0)):
+def kpi_jacobian(
+    model: TrackerModel, q_work: np.ndarray, tool_offset: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0)
+) -> tuple[np.ndarray, np.ndarray]:
     """The KPI: TCP position in W at ``q_work`` and its Jacobian w.r.t. the full parameter vector.
 
     The TCP is the reflector point plus ``tool_offset`` (flange axes, [mm]); the tracker parameters
