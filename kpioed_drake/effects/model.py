@@ -276,35 +276,10 @@ def parse_effect(
     if eq and not given:
         raise InputError(f"effect {spec!r}: nothing after '='")
     if family == "joint_elasticity":
-        if len(parts) != 2:
-            raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
-        joint = _joint(parts[1], spec, nj)
-        if joint == 1:
-            raise InputError(
-                f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
-                "so its elasticity has no effect (use joints 2..6)"
-            )
-        if given is not None:
-            (c,) = _numbers(given, 1, spec)
-            return Effect(family, joint, None, (c,))
-        if rng is None:
-            return Effect(family, joint)
-        eff = Effect(family, joint, tool_mm=float(rng.uniform(*ELASTIC_TOOL_MM)))
-        return resolve(eff, model) if model is not None else eff
+        eff = _parse_elasticity(parts, given, rng, spec, nj)
+        return resolve(eff, model) if model is not None and eff.tool_mm is not None else eff
     if family == "gear_cyclic":
-        if len(parts) != 3:
-            raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
-        joint = _joint(parts[1], spec, nj)
-        if not re.fullmatch(r"[1-9]\d*", parts[2]):
-            raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
-        n = int(parts[2])
-        if given is not None:
-            ab = np.deg2rad(_numbers(given, 2, spec))
-            return Effect(family, joint, n, tuple(float(x) for x in ab))
-        if rng is None:
-            return Effect(family, joint, n)
-        ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
-        return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+        return _parse_gear(parts, given, rng, spec, nj)
     if family in COMPLIANCE_FAMILIES:
         eff = _parse_compliance(family, parts, given, rng, spec, model, n_joints)
         return resolve(eff, model) if model is not None else eff
@@ -313,13 +288,60 @@ def parse_effect(
         return resolve(eff, model) if model is not None and family in BASIS_FAMILIES else eff
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
+    return _parse_tracker_thermal(family, given, rng, spec)
+
+
+def _parse_elasticity(
+    parts: list[str], given: str | None, rng: np.random.Generator | None, spec: str, nj: int
+) -> Effect:
+    """``joint_elasticity:JOINT[=c]``: with a value, unknown, or drawn as a tool displacement."""
+    family = "joint_elasticity"
+    if len(parts) != 2:
+        raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
+    joint = _joint(parts[1], spec, nj)
+    if joint == 1:
+        raise InputError(
+            f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
+            "so its elasticity has no effect (use joints 2..6)"
+        )
+    if given is not None:
+        (c,) = _numbers(given, 1, spec)
+        return Effect(family, joint, None, (c,))
+    if rng is None:
+        return Effect(family, joint)
+    return Effect(family, joint, tool_mm=float(rng.uniform(*ELASTIC_TOOL_MM)))
+
+
+def _parse_gear(
+    parts: list[str], given: str | None, rng: np.random.Generator | None, spec: str, nj: int
+) -> Effect:
+    """``gear_cyclic:JOINT:N[=a,b]`` (a, b in deg): with values, unknown, or drawn."""
+    family = "gear_cyclic"
+    if len(parts) != 3:
+        raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
+    joint = _joint(parts[1], spec, nj)
+    if not re.fullmatch(r"[1-9]\d*", parts[2]):
+        raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
+    n = int(parts[2])
+    if given is not None:
+        ab = np.deg2rad(_numbers(given, 2, spec))
+        return Effect(family, joint, n, tuple(float(x) for x in ab))
+    if rng is None:
+        return Effect(family, joint, n)
+    ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
+    return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+
+
+def _parse_tracker_thermal(
+    family: str, given: str | None, rng: np.random.Generator | None, spec: str
+) -> Effect:
+    """``thermal_expansion[=k]`` (drawn: steel) or ``tracker_drift[=vx,vy,vz]`` (mm/min)."""
     if family == "thermal_expansion":
         if given is None and rng is None:
             return Effect(family)
         k = _numbers(given, 1, spec)[0] if given is not None else STEEL_K
         return Effect(family, values=(float(k),))
-    # tracker_drift
-    if given is not None:
+    if given is not None:  # tracker_drift
         v = np.asarray(_numbers(given, 3, spec)) / 60.0
         return Effect(family, values=tuple(float(x) for x in v))
     if rng is None:
