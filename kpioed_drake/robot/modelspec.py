@@ -19,6 +19,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.options import yaml_mismatch
+from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import JointMapSpec
 
 MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
@@ -192,13 +193,9 @@ class RobotSpec:
 
 
 @dataclasses.dataclass
-class ObstacleSpec:
+class ObstacleSpec(CapsuleSpec):
     """A fixed obstacle capsule in the world frame W [mm]."""
 
-    name: str = ""
-    radius_mm: float = 0.0
-    a_mm: list[float] = dataclasses.field(default_factory=list)
-    b_mm: list[float] = dataclasses.field(default_factory=list)
     moves_with_car: bool = False
 
 
@@ -316,6 +313,37 @@ def rated_payload(value, where: str) -> float | None:
     if not (np.isfinite(kg) and kg >= 0):
         raise InputError(f"{where}: expected the rated payload in kg, a number >= 0, got {value!r}")
     return kg if kg > 0 else None
+
+
+def vec3(values: object, where: str) -> np.ndarray:
+    """(3,) finite numbers from a file field ``where``; InputError otherwise."""
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: expected 3 finite numbers, got {values!r}")
+    return arr
+
+
+def shared_fields(spec: RobotSpec | SidecarSpec, where: str, joint_names: tuple[str, ...]) -> dict:
+    """The :class:`~kpioed_drake.robot.models.Robot` fields a robot file and a URDF's sidecar give
+    alike (beam links, car shift, extra gauge, compliant base, rated payload, drives, effects and
+    payload point), checked in this order; ``where`` names the file in messages.
+
+    Raises:
+        InputError: ``where``, the field and what was expected.
+    """
+    return dict(
+        beam_links=tuple(int(x) for x in spec.beam_links),
+        car_shift_x=float(spec.car_shift_x_mm),
+        extra_gauge=tuple(spec.extra_gauge),
+        compliant_base=bool(spec.compliant_base),
+        rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
+        drives=drive_types(spec.drive, spec.drives, joint_names, where),
+        effects=checked_effects(spec.effects, where),
+        effects_where=where,
+        payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")
+        if spec.payload_point_mm
+        else None,
+    )
 
 
 def spec_joint_names(spec: RobotSpec) -> tuple[str, ...]:
