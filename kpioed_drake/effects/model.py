@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -178,10 +179,11 @@ class Effect:
             return np.zeros(self.n_params)
         return np.asarray(self.values, dtype=float)
 
-    def with_values(self, values) -> Effect:
+    def with_values(self, values: np.ndarray | Sequence[float]) -> Effect:
+        """This effect with ``values`` (internal units)."""
         return dataclasses.replace(self, values=tuple(float(v) for v in np.ravel(values)))
 
-    def display_values(self, values=None) -> list[float]:
+    def display_values(self, values: np.ndarray | None = None) -> list[float]:
         """Values (or any same-shaped array, e.g. standard deviations) in display units."""
         v = self.value_array() if values is None else np.asarray(values, dtype=float)
         return [float(x) for x in np.ravel(v) / _DISPLAY[self.family]]
@@ -414,8 +416,12 @@ def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, mode
 
 
 def parse_effects(
-    texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None, n_joints=None
-):
+    texts: Iterable[str],
+    rng: np.random.Generator | None = None,
+    *,
+    model: TrackerModel | None = None,
+    n_joints: int | None = None,
+) -> list[Effect]:
     """Parse several effects (a list, or one comma-free text per effect); duplicates are an error."""
     effects = [parse_effect(t, rng, model=model, n_joints=n_joints) for t in texts]
     keys = [e.key for e in effects]
