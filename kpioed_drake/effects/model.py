@@ -17,6 +17,7 @@ from kpioed_drake.effects.gravity import elastic_lever
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_basis
 from kpioed_drake.errors import InputError
+from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
@@ -413,6 +414,43 @@ def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, mode
     if rng is None:
         return Effect(family, joint)
     return Effect(family, joint, tool_mm=float(rng.uniform(*COMPLIANCE_TOOL_MM)))
+
+
+def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
+    if x is None:
+        raise InputError(f"effect {effect} needs {what} for every pose (column {what!r} in the data)")
+    return per_pose(x, n, f"effect {effect}: {what}")
+
+
+def scale_and_drift(
+    effects: Sequence[Effect],
+    n: int,
+    temperature_C: float | np.ndarray | None,
+    time_s: float | np.ndarray | None,
+) -> tuple:
+    """Of the thermal and tracker effects at n poses: the length scale s (n,), the tracker shift
+    ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (each (n,) or None), and the tracker's distance scale
+    s_T (n,).
+
+    Raises:
+        InputError: an effect that needs ``temperature_C`` or ``time_s`` without them.
+    """
+    s = np.ones(n)
+    s_T = np.ones(n)
+    temp = None
+    drift = np.zeros((n, 3))
+    tvec = None
+    for e in effects:
+        if e.family in ("thermal_expansion", "tracker_scale"):
+            temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
+            if e.family == "thermal_expansion":
+                s = s + e.value_array()[0] * temp
+            else:
+                s_T = s_T + e.value_array()[0] * temp
+        elif e.family == "tracker_drift":
+            tvec = _per_pose(time_s, n, "time_s", e.name)
+            drift = drift + tvec[:, None] * e.value_array()[None, :]
+    return s, drift, temp, tvec, s_T
 
 
 def parse_effects(

@@ -17,22 +17,15 @@ from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
-from kpioed_drake.effects.model import T_REF_C, Effect, parse_effect, resolve
+from kpioed_drake.effects.model import Effect, parse_effect, resolve, scale_and_drift
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, flange_point, link_paths, point_jacobian
-from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel, tracker_jacobian
 
 
 # ----------------------------------------------------------------------------------------------
 # The measurement model with effects and its Jacobian
 # ----------------------------------------------------------------------------------------------
-def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
-    if x is None:
-        raise InputError(f"effect {effect} needs {what} for every pose (column {what!r} in the data)")
-    return per_pose(x, n, f"effect {effect}: {what}")
-
-
 def joint_deltas(
     model: TrackerModel,
     q_cmd: np.ndarray,
@@ -113,27 +106,6 @@ def joint_deltas(
     return delta, factors
 
 
-def _scale_and_drift(effects, n: int, temperature_C, time_s):
-    """Length scale s (n,), tracker shift ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (or None), and
-    the tracker's distance scale s_T (n,)."""
-    s = np.ones(n)
-    s_T = np.ones(n)
-    temp = None
-    drift = np.zeros((n, 3))
-    tvec = None
-    for e in effects:
-        if e.family in ("thermal_expansion", "tracker_scale"):
-            temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
-            if e.family == "thermal_expansion":
-                s = s + e.value_array()[0] * temp
-            else:
-                s_T = s_T + e.value_array()[0] * temp
-        elif e.family == "tracker_drift":
-            tvec = _per_pose(time_s, n, "time_s", e.name)
-            drift = drift + tvec[:, None] * e.value_array()[None, :]
-    return s, drift, temp, tvec, s_T
-
-
 def effect_rotations(
     model: TrackerModel,
     q: np.ndarray,
@@ -207,7 +179,7 @@ def augmented_response(
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target), model.target_links(target))
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
     p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c, target=target), p_WQ)
-    s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
+    s, drift, _, _, s_T = scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
 
@@ -266,7 +238,7 @@ def augmented_jacobian(
     p_raw, theta_raw = out[0], out[1][:, :, lay.joint_angles]
     out = _compliance_turned(effects, rots, out, with_dq)
     p_WQ, JW = out[0], out[1]
-    s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
+    s, drift, temp, tvec, s_T = scale_and_drift(effects, n, temperature_C, time_s)
     R_TW = model.R_WT.T
     h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift, target=target)
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
