@@ -126,7 +126,7 @@ def param_is_angle(chain: Chain) -> list[bool]:
     return out
 
 
-def rot_axis(axis: np.ndarray, angle) -> np.ndarray:
+def rot_axis(axis: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation about the unit ``axis`` (3,) by ``angle`` (...) [rad] (Rodrigues)."""
     a = np.asarray(axis, dtype=float)
     K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])

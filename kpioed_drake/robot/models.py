@@ -13,6 +13,7 @@ Conventions (SPEC): classic Denavit-Hartenberg
 
 import dataclasses
 import functools
+from collections.abc import Iterable
 
 import numpy as np
 from pydrake.math import RollPitchYaw
@@ -57,7 +58,7 @@ class Capsule:
     b: np.ndarray  # (3,) [mm]
 
 
-def joint_param_names(conventions) -> list[str]:
+def joint_param_names(conventions: Iterable[str]) -> list[str]:
     """Names of the joint parameters of rows of these conventions, e.g. ``theta1, d1, a1, alpha1``."""
     names = []
     for i, conv in enumerate(conventions, start=1):

@@ -11,7 +11,9 @@ objects (millimetres, radians) the rest of the package uses. Field meanings: ``m
 import dataclasses
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -110,7 +112,7 @@ class EffectSpec:
     regressor column (p rows of r_j numbers), so that the file's values multiply the same columns."""
 
 
-def checked_effects(specs, where: str) -> tuple[EffectSpec, ...]:
+def checked_effects(specs: Iterable[EffectSpec], where: str) -> tuple[EffectSpec, ...]:
     """The ``effects:`` entries of a model file, with finite numbers and consistent sizes.
 
     Raises:
@@ -300,7 +302,7 @@ class SidecarSpec:
     notes: str = ""
 
 
-def rated_payload(value, where: str) -> float | None:
+def rated_payload(value: float, where: str) -> float | None:
     """A model file's ``rated_payload_kg``: None for 0 (not given), else a finite number > 0 [kg].
 
     Raises:
@@ -351,7 +353,7 @@ def spec_joint_names(spec: RobotSpec) -> tuple[str, ...]:
     return tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints))
 
 
-def load_yaml_typed(path: str | Path, schema):
+def load_yaml_typed(path: str | Path, schema: type) -> Any:
     """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
     path = Path(path)
     if path.is_dir():

@@ -129,7 +129,7 @@ def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
     return ET.tostring(root, encoding="unicode")
 
 
-def add_urdf(plant: MultibodyPlant, source: UrdfSource):
+def add_urdf(plant: MultibodyPlant, source: UrdfSource) -> ModelInstanceIndex:
     """Parse the robot into ``plant`` (not finalized) and weld its root; returns the model instance."""
     try:
         (inst,) = Parser(plant).AddModelsFromString(source.text, "urdf")
@@ -142,12 +142,12 @@ def add_urdf(plant: MultibodyPlant, source: UrdfSource):
     return inst
 
 
-def movable_joints(plant: MultibodyPlant, inst, source: UrdfSource) -> list:
+def movable_joints(plant: MultibodyPlant, inst: ModelInstanceIndex, source: UrdfSource) -> list:
     """The plant's joints of the chain, base to flange."""
     return [plant.GetJointByName(n, inst) for n in source.joints]
 
 
-def read_urdf_robot(path: Path, load_yaml) -> dict:
+def read_urdf_robot(path: Path | str, load_yaml: Callable) -> dict:
     """The fields of a :class:`kpioed_drake.robot.models.Robot` of a URDF file and its sidecar.
 
     Args:
