@@ -29,7 +29,7 @@ def own_basis(robot: Robot, name: str) -> tuple[np.ndarray, np.ndarray] | None:
     return None
 
 
-def with_basis(robot: Robot, name: str, D, V) -> Robot:
+def with_basis(robot: Robot, name: str, D: np.ndarray, V: np.ndarray) -> Robot:
     """``robot`` with ``D`` (p,), ``V`` (p, r) as the basis of the effect ``name`` (``robot``
     itself unchanged)."""
     bases = {key: (key, d, v) for key, d, v in robot.gravity_bases}

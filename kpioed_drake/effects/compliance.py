@@ -53,7 +53,7 @@ import numpy as np
 
 from kpioed_drake.effects.gravity import gravity_model, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, flange_point, forward_kinematics, subtree_links
+from kpioed_drake.robot.kinematics import Frames, cross, flange_point, forward_kinematics, subtree_links
 from kpioed_drake.robot.models import Robot
 
 COLUMN = "column_compliance"
@@ -160,7 +160,14 @@ def _carriage_motion(fr, C: np.ndarray, k: int) -> np.ndarray:
 
 
 def rotation(
-    robot: Robot, family: str, joint, q, *, p_FP, payload_kg=None, with_dq: bool = False
+    robot: Robot,
+    family: str,
+    joint: int | None,
+    q: np.ndarray,
+    *,
+    p_FP: np.ndarray,
+    payload_kg: float | np.ndarray | None = None,
+    with_dq: bool = False,
 ) -> Rotation:
     """The :class:`Rotation` of a compliance effect at poses q (n, nj) [rad, mm].
 
@@ -176,25 +183,7 @@ def rotation(
     n, nj = q.shape
     fr = nominal_frames(robot, q)
     g = gravity_model(robot).g
-    if family == COLUMN:
-        check_column(robot, joint)
-        k = int(joint)
-        C = fr.o[:, k]
-        a = fr.joint_axes[:, k - 1]
-        h = np.einsum("ni,ni->n", C - fr.o[:, k - 1], a)  # [mm]
-        pivot = C - 0.5 * h[:, None] * a
-    elif family == BASE:
-        k = 0
-        C = np.broadcast_to(base_origin(robot), (n, 3))
-        pivot = np.array(C)
-    elif family == LATERAL:
-        check_lateral(robot, joint)
-        k = int(joint)
-        C = fr.joint_points[:, k - 1]
-        a = fr.joint_axes[:, k - 1]
-        pivot = np.array(C)
-    else:
-        raise ValueError(f"not a compliance family: {family}")
+    k, C, a, h, pivot = _pivot(robot, fr, family, joint)
     links = np.arange(1, nj + 1) if k == 0 else subtree_links(robot, k)  # the links it carries
     p_l = fr.o[:, links] + np.einsum("nlab,lb->nla", fr.R[:, links], robot.coms[links])  # (n, L, 3)
     w_l = robot.masses[links]
@@ -239,6 +228,33 @@ def rotation(
     return Rotation(m, pivot, dm, dpivot, dm_dp)
 
 
+def _pivot(robot: Robot, fr: Frames, family: str, joint: int | None) -> tuple:
+    """``(k, C, a, h, pivot)`` of a compliance at the frames ``fr`` of n poses: the joint k (0: the
+    base), the point C (n, 3) the carried links' moment is taken about, joint k's axis a (n, 3) and a
+    column's height h (n,) [mm] (None where they do not apply), and the pivot (n, 3) [mm]."""
+    a = h = None
+    if family == COLUMN:
+        check_column(robot, joint)
+        k = int(joint)
+        C = fr.o[:, k]
+        a = fr.joint_axes[:, k - 1]
+        h = np.einsum("ni,ni->n", C - fr.o[:, k - 1], a)  # [mm]
+        pivot = C - 0.5 * h[:, None] * a
+    elif family == BASE:
+        k = 0
+        C = np.broadcast_to(base_origin(robot), (fr.R.shape[0], 3))
+        pivot = np.array(C)
+    elif family == LATERAL:
+        check_lateral(robot, joint)
+        k = int(joint)
+        C = fr.joint_points[:, k - 1]
+        a = fr.joint_axes[:, k - 1]
+        pivot = np.array(C)
+    else:
+        raise ValueError(f"not a compliance family: {family}")
+    return k, C, a, h, pivot
+
+
 def _projector_dq(fr, a: np.ndarray, M: np.ndarray, k: int) -> np.ndarray:
     """(n, nj, 3) ``d(I - a a^T)/dq_i M`` of joint k's axis ``a`` (n, 3): the revolute joints before
     k turn it, ``da = w_i x a``; the others leave it."""
@@ -262,7 +278,7 @@ def _moment_dq(fr, p_l, w_l, links, C, k: int, g) -> np.ndarray:
     return 1e-3 * np.einsum("l,nlja->nja", w_l, cross(v, g[None, None, None, :]))
 
 
-def lever(robot: Robot, family: str, joint, p_FQ) -> float:
+def lever(robot: Robot, family: str, joint: int | None, p_FQ: np.ndarray) -> float:
     """Largest reflector displacement per unit c over the joint box [mm per unit c]:
     ``max_q |m(q) x (p_WQ - pivot)|`` over :func:`~kpioed_drake.effects.gravity.reference_poses`
     (no payload); a drawn ``tool_mm`` divided by it is the drawn c."""
@@ -275,7 +291,7 @@ def lever(robot: Robot, family: str, joint, p_FQ) -> float:
     return _CACHE[key]
 
 
-def candidates(robot: Robot, q) -> tuple[list[tuple[str, int | None]], list[str]]:
+def candidates(robot: Robot, q: np.ndarray) -> tuple[list[tuple[str, int | None]], list[str]]:
     """The compliance candidates of a diagnosis: ``(family, joint)`` pairs and notes on those left out.
 
     ``column_compliance:k`` for every column (:func:`vertical_columns`) whose joint spans more than

@@ -9,6 +9,8 @@ import dataclasses
 import hashlib
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
@@ -37,7 +39,9 @@ class GravityModel:
         self.g = np.asarray(self.scene.plant.gravity_field().gravity_vector(), dtype=float)  # m/s^2
         self._ad = None
 
-    def link_torques(self, q, *, with_dq: bool = False):
+    def link_torques(
+        self, q: np.ndarray, *, with_dq: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """(n, nj) generalized gravity forces [N m; N for prismatic joints] at q (n, nj) [rad, mm].
 
         With ``with_dq`` also (n, nj, nj) ``d tau_i / d q_j`` (Drake AutoDiffXd) [per rad, per mm].
@@ -63,7 +67,9 @@ class GravityModel:
             dtau[k] = ExtractGradient(plant_ad.CalcGravityGeneralizedForces(ctx_ad))[np.ix_(idx, idx)] * scale
         return tau, dtau
 
-    def payload_torques(self, q, payload_kg, p_FP, *, with_dq: bool = False):
+    def payload_torques(
+        self, q: np.ndarray, payload_kg: float | np.ndarray, p_FP: np.ndarray, *, with_dq: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """(n, nj) torques [N m] of point masses ``payload_kg`` (scalar or (n,)) at ``p_FP`` [mm].
 
         ``tau_i = F . m_i`` with ``F = m g`` [N] and ``m_i = w_i x r_i`` (``w_i`` the axis of joint
@@ -100,7 +106,7 @@ class GravityModel:
         dtau = np.einsum("nc,njic->nij", F, d)
         return tau, dtau
 
-    def payload_torques_dp(self, q, payload_kg) -> np.ndarray:
+    def payload_torques_dp(self, q: np.ndarray, payload_kg: float | np.ndarray) -> np.ndarray:
         """(n, nj, 3) derivative of :meth:`payload_torques` w.r.t. ``p_FP`` [N m / mm].
 
         ``F . (w_i x R_WF dp) = (F x w_i) . R_WF dp``, times 1e-3 (mm -> m); 0 for a prismatic joint.
@@ -113,7 +119,14 @@ class GravityModel:
         Fxw = Fxw * fr.path[fr.tip][None, :, None]  # only the joints carrying the flange
         return 1e-3 * np.einsum("nic,ncd->nid", Fxw, fr.at_link()[0])
 
-    def torques(self, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):
+    def torques(
+        self,
+        q: np.ndarray,
+        *,
+        payload_kg: float | np.ndarray | None = None,
+        p_FP: np.ndarray | None = None,
+        with_dq: bool = False,
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Link torques plus the payload's (if ``payload_kg`` is given) [N m]."""
         out = self.link_torques(q, with_dq=with_dq)
         if payload_kg is None or np.all(np.asarray(payload_kg) == 0):
@@ -137,7 +150,7 @@ MAX_REGRESSOR_BYTES = 1 << 30
 _REGRESSOR_BYTES = [0]
 
 
-def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute):
+def memoized(kind: str, robot: Robot, q: np.ndarray, extra: tuple, compute: Callable[[], Any]) -> Any:
     """``compute()`` for the regressor ``kind`` of ``robot`` at poses ``q`` with ``extra`` arguments,
     kept for the latest :data:`MAX_REGRESSORS` calls. The regressors of the gravity bases depend on
     the commanded poses and the nominal geometry only, not on the parameters a fit moves, so its
@@ -174,7 +187,7 @@ def _arrays(out) -> tuple:
     return (out,)
 
 
-def nominal_frames(robot: Robot, q) -> Frames:
+def nominal_frames(robot: Robot, q: np.ndarray) -> Frames:
     """:func:`~kpioed_drake.robot.kinematics.forward_kinematics` at the nominal geometry, memoized
     (:func:`memoized`; read-only arrays): the regressors of every gravity basis and moment start
     from the same frames of the same poses."""
@@ -207,7 +220,14 @@ def gravity_model(robot: Robot) -> GravityModel:
     return _GRAVITY_CACHE[key]
 
 
-def gravity_torques(robot: Robot, q, *, payload_kg=None, p_FP=None, with_dq: bool = False):
+def gravity_torques(
+    robot: Robot,
+    q: np.ndarray,
+    *,
+    payload_kg: float | np.ndarray | None = None,
+    p_FP: np.ndarray | None = None,
+    with_dq: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """(n, nj) gravity generalized forces [N m] (Drake sign: the torque gravity exerts on the joint)."""
     return gravity_model(robot).torques(q, payload_kg=payload_kg, p_FP=p_FP, with_dq=with_dq)
 

@@ -38,6 +38,7 @@ is the torque range, not the joint number (a tilted base or gravity makes it ide
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
 import scipy.special
@@ -73,7 +74,9 @@ def com_scales(coms: np.ndarray) -> np.ndarray:
     return np.where(r > 0, r, COM_SCALE_AT_ORIGIN_MM)
 
 
-def link_regressor(robot: Robot, q, joint: int, *, g=None, with_dq: bool = False):
+def link_regressor(
+    robot: Robot, q: np.ndarray, joint: int, *, g: np.ndarray | None = None, with_dq: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """:func:`_link_regressor`, memoized (:func:`~.gravity.memoized`; read-only arrays)."""
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -168,7 +171,9 @@ class JointBasis:
     def rank(self) -> int:
         return self.V.shape[1]
 
-    def regressor(self, robot: Robot, q, *, with_dq: bool = False):
+    def regressor(
+        self, robot: Robot, q: np.ndarray, *, with_dq: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Y_j (n, r) [N m per N m]; with ``with_dq`` also dY_j (n, 6, r)."""
         out = link_regressor(robot, q, self.joint, g=self.g, with_dq=with_dq)
         T = self.V / self.D[:, None]
@@ -199,7 +204,7 @@ def _rank(A: np.ndarray) -> int:
     return int(np.sum(s > _POSE_RANK_TOL * s[0])) if s.size and s[0] > 0 else 0
 
 
-def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
+def joint_basis(robot: Robot, joint: int, *, g: np.ndarray | None = None) -> JointBasis:
     """The :class:`JointBasis` of ``joint``: the robot's own where it has one (sized on a data set's
     poses, :func:`size_on_poses`, or stored in its model file's ``effects:``), else the (cached)
     reference basis, the SVD of the scaled full regressor over :data:`_N_REF` seeded poses in the
@@ -212,7 +217,7 @@ def joint_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
     return reference_basis(robot, joint, g=g)
 
 
-def reference_basis(robot: Robot, joint: int, *, g=None) -> JointBasis:
+def reference_basis(robot: Robot, joint: int, *, g: np.ndarray | None = None) -> JointBasis:
     """The (cached) reference basis of ``joint`` over the joint box (see :func:`joint_basis`)."""
     g = gravity_model(robot).g if g is None else np.asarray(g, dtype=float)
     key = _key(robot, joint, g)
@@ -234,7 +239,7 @@ def _basis(robot: Robot, joint: int, D, V) -> JointBasis:
     return JointBasis(joint, D, V, V.T @ (D * link_moments(robot, joint)), gravity_model(robot).g)
 
 
-def pose_rank(robot: Robot, q, joint: int, *, centered: bool = True) -> int:
+def pose_rank(robot: Robot, q: np.ndarray, joint: int, *, centered: bool = True) -> int:
     """The rank of joint ``joint``'s gravity basis on the poses ``q`` (n, nj) [rad]: how many
     combinations of the link moments its torque distinguishes there, with ``centered`` beyond a
     torque that is the same at every pose (whose deflection is the joint's offset). 0: gravity
@@ -244,7 +249,7 @@ def pose_rank(robot: Robot, q, joint: int, *, centered: bool = True) -> int:
     return _reduced(Y - Y.mean(axis=0) if centered else Y, _POSE_RANK_TOL)[1].shape[1]
 
 
-def size_on_poses(robot: Robot, q) -> tuple[Robot, dict[int, tuple[int, int]]]:
+def size_on_poses(robot: Robot, q: np.ndarray) -> tuple[Robot, dict[int, tuple[int, int]]]:
     """``robot`` with every joint's basis sized on the data's own poses ``q`` (n, nj) [rad] where the
     reference basis is singular on them (a coupled joint, e.g. ``q_4 = -(q_2 + q_3)``, a fixed or
     barely moving joint make some columns of ``Y_j`` dependent on these poses, and no number of such
@@ -272,7 +277,9 @@ def size_on_poses(robot: Robot, q) -> tuple[Robot, dict[int, tuple[int, int]]]:
     return sized, out
 
 
-def unloaded_candidates(robot: Robot | None, q, joints, payload_kg=None) -> tuple[list, list[str]]:
+def unloaded_candidates(
+    robot: Robot | None, q: np.ndarray, joints: Iterable[int], payload_kg: float | np.ndarray | None = None
+) -> tuple[list, list[str]]:
     """The elasticity candidates of the joints whose gravity torque with the model file's masses is
     zero at every pose ``q`` (n, nj) [rad] (``joints``, 1-based), with the true reason for each one
     left out: a joint whose torque is zero for any link masses at these poses (rank 0 of its basis
@@ -316,7 +323,7 @@ def _key(robot: Robot, joint: int, g: np.ndarray) -> tuple:
     return (robot_key(robot), joint, g.tobytes())
 
 
-def store_basis(robot: Robot, joint: int, D, V) -> Robot:
+def store_basis(robot: Robot, joint: int, D: np.ndarray, V: np.ndarray) -> Robot:
     """``robot`` with ``D`` (p,) and ``V`` (p, r) as joint ``joint``'s basis (``robot`` unchanged), so
     that values estimated with these columns multiply them again.
 
@@ -327,7 +334,7 @@ def store_basis(robot: Robot, joint: int, D, V) -> Robot:
     return with_basis(robot, f"{FAMILY}:{joint}", jb.D, jb.V)
 
 
-def check_basis(robot: Robot, joint: int, D, V) -> JointBasis:
+def check_basis(robot: Robot, joint: int, D: np.ndarray, V: np.ndarray) -> JointBasis:
     """The basis ``D`` (p,), ``V`` (p, r) (e.g. a model file's) of joint ``joint``, checked.
 
     Raises:
@@ -347,7 +354,7 @@ def check_basis(robot: Robot, joint: int, D, V) -> JointBasis:
     return _basis(robot, joint, D, V)
 
 
-def payload_varies(payload_kg) -> bool:
+def payload_varies(payload_kg: float | np.ndarray | None) -> bool:
     """True if the payload takes more than one value over the data."""
     if payload_kg is None:
         return False
@@ -467,7 +474,7 @@ def basis_compliance(effect, model: TrackerModel) -> dict:
     return out
 
 
-def torque_std(robot: Robot, q, joint: int, *, spread: float = MASS_PRIOR_SPREAD) -> np.ndarray:
+def torque_std(robot: Robot, q: np.ndarray, joint: int, *, spread: float = MASS_PRIOR_SPREAD) -> np.ndarray:
     """(n,) prior standard deviation of joint ``joint``'s gravity torque [N m] when the file's link
     masses and centres of mass are uncertain by ``spread`` (:data:`MASS_PRIOR_SPREAD`): first-order
     propagation of the independent uniform errors ``a, d`` (variance ``spread^2 / 3``) through

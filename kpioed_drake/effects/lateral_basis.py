@@ -27,6 +27,7 @@ at every pose is a link moment (in the span); one that varies is not supported.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -46,7 +47,9 @@ _POSE_RANK_TOL = 1e-5
 _CACHE: dict = {}
 
 
-def moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
+def moment_regressor(
+    robot: Robot, q: np.ndarray, joint: int, *, with_dq: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """:func:`_moment_regressor`, memoized (:func:`~.gravity.memoized`; read-only arrays)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     return memoized(
@@ -119,7 +122,7 @@ class LateralBasis:
     def rank(self) -> int:
         return self.V.shape[1]
 
-    def rotations(self, robot: Robot, q, *, with_dq: bool = False) -> list[Rotation]:
+    def rotations(self, robot: Robot, q: np.ndarray, *, with_dq: bool = False) -> list[Rotation]:
         """The :class:`~.compliance.Rotation` of each parameter at poses ``q`` (n, nj)."""
         out = moment_regressor(robot, q, self.joint, with_dq=with_dq)
         T = self.V / self.D[:, None]
@@ -173,7 +176,7 @@ def lateral_basis(robot: Robot, joint: int) -> LateralBasis:
     return _CACHE[key]
 
 
-def pose_rank(robot: Robot, q, joint: int) -> int:
+def pose_rank(robot: Robot, q: np.ndarray, joint: int) -> int:
     """The rank of joint ``joint``'s moment basis on poses ``q`` beyond a rotation that is the same
     at every pose (the geometry's frame errors take it): 0 when nothing varies across the axis."""
     return _reduced(_varying(robot, np.atleast_2d(np.asarray(q, dtype=float)), joint), _POSE_RANK_TOL)[
@@ -181,7 +184,9 @@ def pose_rank(robot: Robot, q, joint: int) -> int:
     ].shape[1]
 
 
-def size_on_poses(robot: Robot, q, joints) -> tuple[Robot, dict[int, tuple[int, int]]]:
+def size_on_poses(
+    robot: Robot, q: np.ndarray, joints: Iterable[int]
+) -> tuple[Robot, dict[int, tuple[int, int]]]:
     """``robot`` with the lateral bases of ``joints`` sized on the data's poses ``q`` where the
     reference basis is singular on them (the rule of
     :func:`~kpioed_drake.effects.gravity_basis.size_on_poses`); ``robot`` itself unchanged.
@@ -246,7 +251,9 @@ def massless_joints(robot: Robot) -> list[int]:
     ]
 
 
-def candidates(robot: Robot | None, q, payload_kg=None) -> tuple[list[tuple[int, int]], list[str]]:
+def candidates(
+    robot: Robot | None, q: np.ndarray, payload_kg: float | np.ndarray | None = None
+) -> tuple[list[tuple[int, int]], list[str]]:
     """The lateral-basis candidates of a diagnosis: every revolute joint whose carried links the
     model file gives no masses (their moment is unknown, not zero) and whose moment across the axis
     varies over the poses ``q`` (n, nj) [rad]; none with a payload that varies (not supported).

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from kpioed_drake.effects.gravity import elastic_lever
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import resolve_basis
 from kpioed_drake.errors import InputError
+from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel
 
 FAMILIES = ("joint_elasticity", "gear_cyclic", "thermal_expansion", "tracker_drift")
@@ -178,10 +180,11 @@ class Effect:
             return np.zeros(self.n_params)
         return np.asarray(self.values, dtype=float)
 
-    def with_values(self, values) -> Effect:
+    def with_values(self, values: np.ndarray | Sequence[float]) -> Effect:
+        """This effect with ``values`` (internal units)."""
         return dataclasses.replace(self, values=tuple(float(v) for v in np.ravel(values)))
 
-    def display_values(self, values=None) -> list[float]:
+    def display_values(self, values: np.ndarray | None = None) -> list[float]:
         """Values (or any same-shaped array, e.g. standard deviations) in display units."""
         v = self.value_array() if values is None else np.asarray(values, dtype=float)
         return [float(x) for x in np.ravel(v) / _DISPLAY[self.family]]
@@ -276,35 +279,10 @@ def parse_effect(
     if eq and not given:
         raise InputError(f"effect {spec!r}: nothing after '='")
     if family == "joint_elasticity":
-        if len(parts) != 2:
-            raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
-        joint = _joint(parts[1], spec, nj)
-        if joint == 1:
-            raise InputError(
-                f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
-                "so its elasticity has no effect (use joints 2..6)"
-            )
-        if given is not None:
-            (c,) = _numbers(given, 1, spec)
-            return Effect(family, joint, None, (c,))
-        if rng is None:
-            return Effect(family, joint)
-        eff = Effect(family, joint, tool_mm=float(rng.uniform(*ELASTIC_TOOL_MM)))
-        return resolve(eff, model) if model is not None else eff
+        eff = _parse_elasticity(parts, given, rng, spec, nj)
+        return resolve(eff, model) if model is not None and eff.tool_mm is not None else eff
     if family == "gear_cyclic":
-        if len(parts) != 3:
-            raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
-        joint = _joint(parts[1], spec, nj)
-        if not re.fullmatch(r"[1-9]\d*", parts[2]):
-            raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
-        n = int(parts[2])
-        if given is not None:
-            ab = np.deg2rad(_numbers(given, 2, spec))
-            return Effect(family, joint, n, tuple(float(x) for x in ab))
-        if rng is None:
-            return Effect(family, joint, n)
-        ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
-        return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+        return _parse_gear(parts, given, rng, spec, nj)
     if family in COMPLIANCE_FAMILIES:
         eff = _parse_compliance(family, parts, given, rng, spec, model, n_joints)
         return resolve(eff, model) if model is not None else eff
@@ -313,13 +291,60 @@ def parse_effect(
         return resolve(eff, model) if model is not None and family in BASIS_FAMILIES else eff
     if len(parts) != 1:
         raise InputError(f"effect {spec!r}: {family} takes no joint")
+    return _parse_tracker_thermal(family, given, rng, spec)
+
+
+def _parse_elasticity(
+    parts: list[str], given: str | None, rng: np.random.Generator | None, spec: str, nj: int
+) -> Effect:
+    """``joint_elasticity:JOINT[=c]``: with a value, unknown, or drawn as a tool displacement."""
+    family = "joint_elasticity"
+    if len(parts) != 2:
+        raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
+    joint = _joint(parts[1], spec, nj)
+    if joint == 1:
+        raise InputError(
+            f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
+            "so its elasticity has no effect (use joints 2..6)"
+        )
+    if given is not None:
+        (c,) = _numbers(given, 1, spec)
+        return Effect(family, joint, None, (c,))
+    if rng is None:
+        return Effect(family, joint)
+    return Effect(family, joint, tool_mm=float(rng.uniform(*ELASTIC_TOOL_MM)))
+
+
+def _parse_gear(
+    parts: list[str], given: str | None, rng: np.random.Generator | None, spec: str, nj: int
+) -> Effect:
+    """``gear_cyclic:JOINT:N[=a,b]`` (a, b in deg): with values, unknown, or drawn."""
+    family = "gear_cyclic"
+    if len(parts) != 3:
+        raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
+    joint = _joint(parts[1], spec, nj)
+    if not re.fullmatch(r"[1-9]\d*", parts[2]):
+        raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
+    n = int(parts[2])
+    if given is not None:
+        ab = np.deg2rad(_numbers(given, 2, spec))
+        return Effect(family, joint, n, tuple(float(x) for x in ab))
+    if rng is None:
+        return Effect(family, joint, n)
+    ab = rng.uniform(*GEAR_DEG, size=2) * rng.choice([-1.0, 1.0], size=2)
+    return Effect(family, joint, n, tuple(float(x) for x in np.deg2rad(ab)))
+
+
+def _parse_tracker_thermal(
+    family: str, given: str | None, rng: np.random.Generator | None, spec: str
+) -> Effect:
+    """``thermal_expansion[=k]`` (drawn: steel) or ``tracker_drift[=vx,vy,vz]`` (mm/min)."""
     if family == "thermal_expansion":
         if given is None and rng is None:
             return Effect(family)
         k = _numbers(given, 1, spec)[0] if given is not None else STEEL_K
         return Effect(family, values=(float(k),))
-    # tracker_drift
-    if given is not None:
+    if given is not None:  # tracker_drift
         v = np.asarray(_numbers(given, 3, spec)) / 60.0
         return Effect(family, values=tuple(float(x) for x in v))
     if rng is None:
@@ -391,9 +416,50 @@ def _parse_compliance(family: str, parts: list[str], given, rng, spec: str, mode
     return Effect(family, joint, tool_mm=float(rng.uniform(*COMPLIANCE_TOOL_MM)))
 
 
+def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
+    if x is None:
+        raise InputError(f"effect {effect} needs {what} for every pose (column {what!r} in the data)")
+    return per_pose(x, n, f"effect {effect}: {what}")
+
+
+def scale_and_drift(
+    effects: Sequence[Effect],
+    n: int,
+    temperature_C: float | np.ndarray | None,
+    time_s: float | np.ndarray | None,
+) -> tuple:
+    """Of the thermal and tracker effects at n poses: the length scale s (n,), the tracker shift
+    ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (each (n,) or None), and the tracker's distance scale
+    s_T (n,).
+
+    Raises:
+        InputError: an effect that needs ``temperature_C`` or ``time_s`` without them.
+    """
+    s = np.ones(n)
+    s_T = np.ones(n)
+    temp = None
+    drift = np.zeros((n, 3))
+    tvec = None
+    for e in effects:
+        if e.family in ("thermal_expansion", "tracker_scale"):
+            temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
+            if e.family == "thermal_expansion":
+                s = s + e.value_array()[0] * temp
+            else:
+                s_T = s_T + e.value_array()[0] * temp
+        elif e.family == "tracker_drift":
+            tvec = _per_pose(time_s, n, "time_s", e.name)
+            drift = drift + tvec[:, None] * e.value_array()[None, :]
+    return s, drift, temp, tvec, s_T
+
+
 def parse_effects(
-    texts, rng: np.random.Generator | None = None, *, model: TrackerModel | None = None, n_joints=None
-):
+    texts: Iterable[str],
+    rng: np.random.Generator | None = None,
+    *,
+    model: TrackerModel | None = None,
+    n_joints: int | None = None,
+) -> list[Effect]:
     """Parse several effects (a list, or one comma-free text per effect); duplicates are an error."""
     effects = [parse_effect(t, rng, model=model, n_joints=n_joints) for t in texts]
     keys = [e.key for e in effects]

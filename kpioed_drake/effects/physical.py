@@ -45,6 +45,7 @@ from kpioed_drake import effects as fx
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.robot.drivetrain import follower_factor, joint_drive
+from kpioed_drake.robot.models import Robot
 
 N_STD = 2.0
 """A bound is violated when the estimate is beyond it by more than this many standard deviations."""
@@ -115,7 +116,7 @@ class BasisSize:
     reach_mm: float
 
 
-def bounds_for(robot, joint: int | None) -> tuple[DriveBounds, str]:
+def bounds_for(robot: Robot | None, joint: int | None) -> tuple[DriveBounds, str]:
     """The bounds of a joint's effects and the joint's drive type (gear without a robot)."""
     drive = "gear" if robot is None or joint is None else joint_drive(robot, joint)
     return DRIVE_BOUNDS[drive], drive
@@ -132,7 +133,7 @@ def plausibility(
     *,
     tau: np.ndarray,
     time_s: np.ndarray | None,
-    robot=None,
+    robot: Robot | None = None,
     size: BasisSize | None = None,
 ) -> tuple[bool, str | None]:
     """Whether an estimated effect's value is physically plausible, and why not.

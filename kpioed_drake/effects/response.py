@@ -8,6 +8,7 @@ or base compliance (:mod:`.compliance`) turns the reflector point about its pivo
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -16,25 +17,25 @@ from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
-from kpioed_drake.effects.model import T_REF_C, parse_effect, resolve
+from kpioed_drake.effects.model import Effect, parse_effect, resolve, scale_and_drift
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, flange_point, link_paths, point_jacobian
-from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel, tracker_jacobian
 
 
 # ----------------------------------------------------------------------------------------------
 # The measurement model with effects and its Jacobian
 # ----------------------------------------------------------------------------------------------
-def _per_pose(x, n: int, what: str, effect: str) -> np.ndarray:
-    if x is None:
-        raise InputError(f"effect {effect} needs {what} for every pose (column {what!r} in the data)")
-    return per_pose(x, n, f"effect {effect}: {what}")
-
-
 def joint_deltas(
-    model: TrackerModel, q_cmd, effects, *, payload_kg=None, with_dq: bool = False, tau=None, side=None
-):
+    model: TrackerModel,
+    q_cmd: np.ndarray,
+    effects: Sequence[Effect],
+    *,
+    payload_kg: float | np.ndarray | None = None,
+    with_dq: bool = False,
+    tau: np.ndarray | None = None,
+    side: np.ndarray | None = None,
+) -> tuple:
     """Joint-angle errors of the joint effects at their values [rad], and what their columns need.
 
     The joint effects (:data:`~kpioed_drake.effects.model.JOINT_FAMILIES`) add ``factor(q) @ values``
@@ -105,29 +106,14 @@ def joint_deltas(
     return delta, factors
 
 
-def _scale_and_drift(effects, n: int, temperature_C, time_s):
-    """Length scale s (n,), tracker shift ``v t`` (n, 3) [mm], ``T - T_REF_C`` and t (or None), and
-    the tracker's distance scale s_T (n,)."""
-    s = np.ones(n)
-    s_T = np.ones(n)
-    temp = None
-    drift = np.zeros((n, 3))
-    tvec = None
-    for e in effects:
-        if e.family in ("thermal_expansion", "tracker_scale"):
-            temp = _per_pose(temperature_C, n, "temperature_C", e.name) - T_REF_C
-            if e.family == "thermal_expansion":
-                s = s + e.value_array()[0] * temp
-            else:
-                s_T = s_T + e.value_array()[0] * temp
-        elif e.family == "tracker_drift":
-            tvec = _per_pose(time_s, n, "time_s", e.name)
-            drift = drift + tvec[:, None] * e.value_array()[None, :]
-    return s, drift, temp, tvec, s_T
-
-
 def effect_rotations(
-    model: TrackerModel, q, effects, payload_kg, *, with_dq: bool = False, target=None
+    model: TrackerModel,
+    q: np.ndarray,
+    effects: Sequence[Effect],
+    payload_kg: float | np.ndarray | None,
+    *,
+    with_dq: bool = False,
+    target: np.ndarray | None = None,
 ) -> dict:
     """{index in effects: [:class:`~.compliance.Rotation` per parameter]} of the effects that turn
     what they carry: the compliances (payload at ``model.p_FP``) and the lateral basis. On a tree robot a
@@ -172,16 +158,16 @@ def _turned(effects, rots: dict, p_W: np.ndarray):
 
 def augmented_response(
     model: TrackerModel,
-    q_cmd,
-    effects=(),
+    q_cmd: np.ndarray,
+    effects: Sequence[Effect] = (),
     *,
-    temperature_C=None,
-    time_s=None,
-    payload_kg=None,
-    tau=None,
-    target=None,
-    side=None,
-    compliance_payload_kg=None,
+    temperature_C: float | np.ndarray | None = None,
+    time_s: float | np.ndarray | None = None,
+    payload_kg: float | np.ndarray | None = None,
+    tau: np.ndarray | None = None,
+    target: np.ndarray | None = None,
+    side: np.ndarray | None = None,
+    compliance_payload_kg: float | np.ndarray | None = None,
 ) -> np.ndarray:
     """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
 
@@ -193,24 +179,24 @@ def augmented_response(
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target), model.target_links(target))
     pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
     p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c, target=target), p_WQ)
-    s, drift, _, _, s_T = _scale_and_drift(effects, q.shape[0], temperature_C, time_s)
+    s, drift, _, _, s_T = scale_and_drift(effects, q.shape[0], temperature_C, time_s)
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
 
 def augmented_jacobian(
     model: TrackerModel,
-    q_cmd,
-    effects=(),
+    q_cmd: np.ndarray,
+    effects: Sequence[Effect] = (),
     *,
-    temperature_C=None,
-    time_s=None,
-    payload_kg=None,
+    temperature_C: float | np.ndarray | None = None,
+    time_s: float | np.ndarray | None = None,
+    payload_kg: float | np.ndarray | None = None,
     with_dq: bool = False,
-    tau=None,
-    target=None,
-    side=None,
-    compliance_payload_kg=None,
-):
+    tau: np.ndarray | None = None,
+    target: np.ndarray | None = None,
+    side: np.ndarray | None = None,
+    compliance_payload_kg: float | np.ndarray | None = None,
+) -> tuple[np.ndarray, ...]:
     """Response of the measurement model with effects and its Jacobian.
 
     ``h = s_T R_TW (s p_WQ(p, q_cmd + delta) - p_WT - v t)`` with the effects at their values (unknown
@@ -252,7 +238,7 @@ def augmented_jacobian(
     p_raw, theta_raw = out[0], out[1][:, :, lay.joint_angles]
     out = _compliance_turned(effects, rots, out, with_dq)
     p_WQ, JW = out[0], out[1]
-    s, drift, temp, tvec, s_T = _scale_and_drift(effects, n, temperature_C, time_s)
+    s, drift, temp, tvec, s_T = scale_and_drift(effects, n, temperature_C, time_s)
     R_TW = model.R_WT.T
     h, H = tracker_jacobian(model, p_WQ, JW, scale=s, offset=drift, target=target)
     theta = JW[:, :, lay.joint_angles]  # (n, 3, 6) dp_WQ/dq_act: the theta columns
@@ -369,13 +355,13 @@ def _tracker_scaled(effects, h, H, E, dE, dp_dq, *, s, s_T, temp, R_TW):
 
 def true_measurements(
     model_true: TrackerModel,
-    q_cmd,
-    effects=(),
+    q_cmd: np.ndarray,
+    effects: Sequence[Effect | str] = (),
     *,
-    temperature_C=None,
-    time_s=None,
-    payload_kg=None,
-    target=None,
+    temperature_C: float | np.ndarray | None = None,
+    time_s: float | np.ndarray | None = None,
+    payload_kg: float | np.ndarray | None = None,
+    target: np.ndarray | None = None,
 ) -> np.ndarray:
     """Noise-free reflector positions in the tracker frame [mm] of a robot with these effects.
 
@@ -414,15 +400,15 @@ def true_measurements(
 
 def extension_columns(
     model: TrackerModel,
-    q,
-    extensions,
+    q: np.ndarray,
+    extensions: Sequence[Effect | str],
     *,
-    temperature_C=None,
-    time_s=None,
-    payload_kg=None,
+    temperature_C: float | np.ndarray | None = None,
+    time_s: float | np.ndarray | None = None,
+    payload_kg: float | np.ndarray | None = None,
     with_dq: bool = False,
-    target=None,
-):
+    target: np.ndarray | None = None,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Jacobian columns of the measurement w.r.t. the parameters of model extensions.
 
     To extend calibration or design by effects, append these columns to the geometric ones:
@@ -458,13 +444,19 @@ def extension_columns(
     return out[2]
 
 
-def extension_param_names(extensions) -> list[str]:
+def extension_param_names(extensions: Sequence[Effect | str]) -> list[str]:
     """Names of the extension parameters in column order, e.g. ``gear_cyclic:4:2.a``."""
     effs = [parse_effect(e) if isinstance(e, str) else e for e in extensions]
     return [nm for e in effs for nm in e.param_names]
 
 
-def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+def effect_kpi_columns(
+    model: TrackerModel,
+    q_work: np.ndarray,
+    effects: Sequence[Effect],
+    *,
+    tool_offset: Sequence[float] = (0.0, 0.0, 0.0),
+) -> np.ndarray:
     """(3, k) derivative of the TCP in W at ``q_work`` w.r.t. the effect parameters.
 
     KPI conditions: no payload, temperature ``T_REF_C`` (thermal column 0), tracker irrelevant
@@ -488,7 +480,13 @@ def effect_kpi_columns(model: TrackerModel, q_work, effects, *, tool_offset=(0.0
     return np.concatenate(cols, axis=1) if cols else np.zeros((3, 0))
 
 
-def effect_tcp_shift(model: TrackerModel, q_work, effects, *, tool_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+def effect_tcp_shift(
+    model: TrackerModel,
+    q_work: np.ndarray,
+    effects: Sequence[Effect],
+    *,
+    tool_offset: Sequence[float] = (0.0, 0.0, 0.0),
+) -> np.ndarray:
     """(3,) TCP displacement in W at ``q_work`` caused by the effects at their values (KPI conditions)."""
     q = np.asarray(q_work, dtype=float)[None, :]
     effects = list(effects)

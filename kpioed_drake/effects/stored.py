@@ -8,6 +8,8 @@ basis the values belong to); :func:`model_effects` turns a loaded robot's entrie
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from kpioed_drake.effects import lateral_basis as lb
@@ -59,7 +61,9 @@ def _stored_basis(robot: Robot, eff: Effect, spec: EffectSpec, at: str) -> Effec
     return eff
 
 
-def effect_specs(effects, std=None, *, robot: Robot | None = None) -> list[EffectSpec]:
+def effect_specs(
+    effects: Sequence[Effect], std: np.ndarray | None = None, *, robot: Robot | None = None
+) -> list[EffectSpec]:
     """Model-file entries of estimated ``effects`` (display units).
 
     Args:

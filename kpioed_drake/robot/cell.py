@@ -10,7 +10,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.modelspec import MODELS_DIR, CellSpec, load_yaml_typed
+from kpioed_drake.robot.modelspec import MODELS_DIR, CellSpec, load_yaml_typed, vec3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,14 +50,6 @@ class Cell:
     obstacles: tuple[Obstacle, ...]
     work_height_above_cabin: float = 100.0
     work_cabin_obstacle: str = "car_cabin"
-
-
-def vec3(values, where: str) -> np.ndarray:
-    """(3,) finite numbers from a file field ``where``; InputError otherwise."""
-    arr = np.asarray(values, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(f"{where}: expected 3 finite numbers, got {values!r}")
-    return arr
 
 
 def cell_from_spec(spec: CellSpec, where: str = "cell") -> Cell:

@@ -34,6 +34,8 @@ import threading
 import numpy as np
 import scipy.linalg
 
+from kpioed_drake.robot.jointmap import JointMap
+
 PER_JOINT = 7
 """Parameters per joint of a chain robot."""
 ELEMENTS = ("off", "px", "py", "pz", "rx", "ry", "rz")
@@ -124,7 +126,7 @@ def param_is_angle(chain: Chain) -> list[bool]:
     return out
 
 
-def rot_axis(axis: np.ndarray, angle) -> np.ndarray:
+def rot_axis(axis: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation about the unit ``axis`` (3,) by ``angle`` (...) [rad] (Rodrigues)."""
     a = np.asarray(axis, dtype=float)
     K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
@@ -246,13 +248,13 @@ def auto_gauge(
     chain: Chain,
     lower: np.ndarray,
     upper: np.ndarray,
-    p_FQ,
+    p_FQ: np.ndarray,
     *,
     n_poses: int = GAUGE_POSES,
     seed: int = GAUGE_SEED,
     rtol: float = GAUGE_RTOL,
-    joint_map=None,
-    links=None,
+    joint_map: JointMap | None = None,
+    links: np.ndarray | None = None,
 ) -> tuple[str, ...]:
     """Names of the joint parameters held at nominal: those that do not add to the rank.
 
@@ -268,19 +270,47 @@ def auto_gauge(
     last joint's link).
     """
     nj = chain.n_joints
-    rng = np.random.default_rng(seed)
-    if joint_map is None:
-        q = rng.uniform(lower, upper, size=(n_poses, nj))
-    else:
-        A, b = joint_map.A, joint_map.b
-        first = np.argmax(A != 0, axis=0)  # the first joint each axis drives
-        f = A[first, np.arange(A.shape[1])]
-        lo_ax, up_ax = np.sort(
-            np.stack([(lower[first] - b[first]) / f, (upper[first] - b[first]) / f]), axis=0
-        )
-        q = np.clip(rng.uniform(lo_ax, up_ax, size=(n_poses, A.shape[1])) @ A.T + b, lower, upper)
-    fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
+    q = _gauge_poses(lower, upper, n_poses, np.random.default_rng(seed), joint_map, nj)
     targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
+    A = _gauge_jacobian(chain, q, targets, links)
+    norms = np.linalg.norm(A, axis=0)
+    live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
+    A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
+    basis, held = _kept_columns(A, rtol, param_names(nj), 6 + 3 * targets.shape[0])
+    _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)
+    dq = np.abs(np.diag(Rq))
+    rank = int(np.sum(dq > rtol * dq[0]))
+    if rank != len(basis):
+        raise ValueError(
+            f"gauge selection found rank {len(basis)}, pivoted QR {rank}; it would hold {', '.join(held)}"
+        )
+    return tuple(held)
+
+
+def _gauge_poses(
+    lower: np.ndarray,
+    upper: np.ndarray,
+    n_poses: int,
+    rng: np.random.Generator,
+    joint_map: JointMap | None,
+    nj: int,
+) -> np.ndarray:
+    """(n_poses, nj) joint values for :func:`auto_gauge`: uniform in the limits, or through the
+    ``joint_map`` from controller axes drawn in the limits of the first joint each drives."""
+    if joint_map is None:
+        return rng.uniform(lower, upper, size=(n_poses, nj))
+    A, b = joint_map.A, joint_map.b
+    first = np.argmax(A != 0, axis=0)  # the first joint each axis drives
+    f = A[first, np.arange(A.shape[1])]
+    lo_ax, up_ax = np.sort(np.stack([(lower[first] - b[first]) / f, (upper[first] - b[first]) / f]), axis=0)
+    return np.clip(rng.uniform(lo_ax, up_ax, size=(n_poses, A.shape[1])) @ A.T + b, lower, upper)
+
+
+def _gauge_jacobian(chain: Chain, q: np.ndarray, targets: np.ndarray, links: np.ndarray | None) -> np.ndarray:
+    """(3 T n_poses, 6 + 3 T + 7 nj) Jacobian of the ``targets`` (T, 3) [mm] at the poses ``q``:
+    the tracker's columns, the targets' and the joints' (``links``: each target's frame)."""
+    n_poses, nj = q.shape
+    fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
     T = targets.shape[0]
     links = np.full(T, nj) if links is None else np.broadcast_to(np.asarray(links, dtype=int), (T,))
     path = chain.paths
@@ -297,13 +327,14 @@ def auto_gauge(
         target_cols = np.zeros((n_poses, 3, 3 * T))
         target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, f]
         blocks.append(np.concatenate([-eye, tracker_rot, target_cols, joint_cols], axis=2))
-    A = np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
-    norms = np.linalg.norm(A, axis=0)
-    live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
-    A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
+    return np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
+
+
+def _kept_columns(A: np.ndarray, rtol: float, names: list[str], n_fixed: int) -> tuple[list, list[str]]:
+    """The orthonormal basis of the columns of ``A`` kept in order (residual > ``rtol``) and the
+    names of the joint columns held; the first ``n_fixed`` (tracker, targets) must all be kept."""
     basis: list[np.ndarray] = []
     held = []
-    names = param_names(nj)
     for k in range(A.shape[1]):
         v = A[:, k].copy()
         for _ in range(2):  # Gram-Schmidt, twice for orthogonality
@@ -312,15 +343,8 @@ def auto_gauge(
         r = np.linalg.norm(v)
         if r > rtol:
             basis.append(v / r)
-        elif k >= 6 + 3 * T:
-            held.append(names[k - 6 - 3 * T])
+        elif k >= n_fixed:
+            held.append(names[k - n_fixed])
         else:
             raise ValueError("tracker or target columns are dependent: reflector or chain degenerate")
-    _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)
-    dq = np.abs(np.diag(Rq))
-    rank = int(np.sum(dq > rtol * dq[0]))
-    if rank != len(basis):
-        raise ValueError(
-            f"gauge selection found rank {len(basis)}, pivoted QR {rank}; it would hold {', '.join(held)}"
-        )
-    return tuple(held)
+    return basis, held

@@ -22,6 +22,8 @@ few per cent, a harmonic drive has larger cyclic errors, cables and belts are so
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from kpioed_drake.errors import InputError
@@ -33,7 +35,7 @@ WRIST = 3
 """Joints of a branch's wrist: the last three revolute joints of a branch that ends in a leaf."""
 
 
-def drive_types(drive: str, drives: dict, joint_names, where: str) -> tuple[str, ...]:
+def drive_types(drive: str, drives: dict, joint_names: Iterable[str], where: str) -> tuple[str, ...]:
     """Per joint its drive type from a robot file's ``drive`` (every joint) and ``drives`` (per
     joint, by name or 1-based number; overrides ``drive``).
 

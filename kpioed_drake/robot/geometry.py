@@ -32,7 +32,9 @@ from kpioed_drake.robot.models import Cell, Robot
 _EPS = 1e-12
 
 
-def segment_distance(p1, q1, p2, q2):
+def segment_distance(
+    p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points between segments p1-q1 and p2-q2 (broadcast over leading axes).
 
     Returns:
@@ -188,18 +190,20 @@ class ClearanceModel:
     def n_rows(self) -> int:
         return len(self.rows.names)
 
-    def values(self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None) -> np.ndarray:
+    def values(
+        self, q: np.ndarray, *, geometry: np.ndarray | None = None, frames: Frames | None = None
+    ) -> np.ndarray:
         """Clearances only: (n, m) [mm] (>= 0 is free). Arguments as :meth:`evaluate`."""
         return self.compute(q, geometry=geometry, frames=frames).values
 
     def evaluate(
         self,
-        q,
+        q: np.ndarray,
         *,
         geometry: np.ndarray | None = None,
         frames: Frames | None = None,
         rows: np.ndarray | None = None,
-    ):
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Clearances and their joint-angle Jacobian.
 
         Args:
@@ -218,7 +222,7 @@ class ClearanceModel:
         return ev.values, self.jacobian(ev, rows)
 
     def compute(
-        self, q, *, geometry: np.ndarray | None = None, frames: Frames | None = None
+        self, q: np.ndarray, *, geometry: np.ndarray | None = None, frames: Frames | None = None
     ) -> ClearanceEval:
         """Every row's clearance and what its gradient needs (:meth:`jacobian`); see :meth:`evaluate`."""
         return ClearanceEval(*self._rows(q, geometry, frames))

@@ -26,6 +26,7 @@ the file, row and column of a value outside the robot's limits.
 """
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -90,7 +91,7 @@ class JointMap:
         """Controller axes (columns of a controller's file)."""
         return int(self.A.shape[1])
 
-    def to_model(self, J) -> np.ndarray:
+    def to_model(self, J: np.ndarray) -> np.ndarray:
         """Model angles of controller angles.
 
         Args:
@@ -109,7 +110,7 @@ class JointMap:
         N = U[:, rank:].T
         return N, N @ self.b
 
-    def to_controller(self, q) -> np.ndarray:
+    def to_controller(self, q: np.ndarray) -> np.ndarray:
         """Controller angles of model angles (the inverse map), (n, n_axes) [rad].
 
         Raises:
@@ -181,7 +182,11 @@ def _general(spec: JointMapSpec, where: str, joint_names, prismatic) -> JointMap
 
 
 def joint_map_from_spec(
-    spec: JointMapSpec | None, where: str = "robot", *, joint_names=None, prismatic=None
+    spec: JointMapSpec | None,
+    where: str = "robot",
+    *,
+    joint_names: Sequence[str] | None = None,
+    prismatic: np.ndarray | None = None,
 ) -> JointMap | None:
     """Validate a :class:`JointMapSpec` and convert it (None stays None).
 

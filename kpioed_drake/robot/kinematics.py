@@ -34,7 +34,7 @@ from kpioed_drake.robot.chain import chain_frames, serial_paths
 from kpioed_drake.robot.models import Robot
 
 
-def cross(a, b) -> np.ndarray:
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a x b`` over the last axis (length 3), broadcast over leading axes.
 
     Written out by components: ``numpy.cross`` spends most of its time on axis handling for the
@@ -127,7 +127,7 @@ class Frames:
         per_pose = ("R", "o", "elem_u", "elem_o", "joint_axes", "joint_points")
         return dataclasses.replace(self, **{f: np.repeat(getattr(self, f), times, axis=0) for f in per_pose})
 
-    def point_path(self, link=None) -> np.ndarray | None:
+    def point_path(self, link: int | np.ndarray | None = None) -> np.ndarray | None:
         """(n, nj) ``path[link]``: the joints that move points on ``link`` (scalar or (n,) one per
         pose; None: the tip); None when every joint does (the serial flange: no mask needed)."""
         f = self.tip if link is None else link
@@ -141,7 +141,7 @@ class Frames:
         before[joint - 1] = False
         return before
 
-    def at_link(self, link=None) -> tuple[np.ndarray, np.ndarray]:
+    def at_link(self, link: int | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(R (n, 3, 3), o (n, 3))`` of the frame ``link`` ((n,) one per pose, scalar, or None:
         the tip)."""
         f = self.tip if link is None else link
@@ -189,7 +189,7 @@ def _as_poses(q, n_joints: int) -> np.ndarray:
     return q
 
 
-def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> Frames:
+def forward_kinematics(robot: Robot, q: np.ndarray, geometry: np.ndarray | None = None) -> Frames:
     """Frames of all links and the identification elements.
 
     Args:
@@ -259,7 +259,7 @@ def forward_kinematics(robot: Robot, q, geometry: np.ndarray | None = None) -> F
     return Frames(R, o, eu, eo, erot, R[:, :nj, :, 2], o[:, :nj], np.zeros(nj, dtype=bool), moved)
 
 
-def flange_point(frames: Frames, p_FP, link=None) -> np.ndarray:
+def flange_point(frames: Frames, p_FP: np.ndarray, link: int | np.ndarray | None = None) -> np.ndarray:
     """(n, 3) world position of a point given in the flange frame [mm].
 
     ``p_FP`` is (3,) or (n, 3) (one point per pose, e.g. each row's target); ``link`` the frame it
@@ -273,7 +273,9 @@ def flange_point(frames: Frames, p_FP, link=None) -> np.ndarray:
     return o + np.einsum("nij,...j->ni", R, p_FP)
 
 
-def point_jacobian(frames: Frames, p_FP, *, link=None, with_dq: bool = False):
+def point_jacobian(
+    frames: Frames, p_FP: np.ndarray, *, link: int | np.ndarray | None = None, with_dq: bool = False
+) -> tuple[np.ndarray, ...]:
     """Jacobian of a flange-fixed point w.r.t. the joint parameters and its flange coordinates.
 
     Args:

@@ -13,6 +13,7 @@ Conventions (SPEC): classic Denavit-Hartenberg
 
 import dataclasses
 import functools
+from collections.abc import Iterable
 
 import numpy as np
 from pydrake.math import RollPitchYaw
@@ -20,7 +21,6 @@ from pydrake.math import RollPitchYaw
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot import chain as chainmod
 from kpioed_drake.robot.cell import Cell, Obstacle, cell_from_spec, load_cell, vec3  # noqa: F401 (re-exported)
-from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec
 from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and locations, re-exported)
     MODELS_DIR,
@@ -36,6 +36,7 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     load_yaml_typed,
     rated_payload,
     robot_path,
+    shared_fields,
     spec_joint_names,
 )
 from kpioed_drake.robot.reference import Reference, estimated_errors, reference_of
@@ -57,7 +58,7 @@ class Capsule:
     b: np.ndarray  # (3,) [mm]
 
 
-def joint_param_names(conventions) -> list[str]:
+def joint_param_names(conventions: Iterable[str]) -> list[str]:
     """Names of the joint parameters of rows of these conventions, e.g. ``theta1, d1, a1, alpha1``."""
     names = []
     for i, conv in enumerate(conventions, start=1):
@@ -317,35 +318,12 @@ def robot_from_spec(spec: RobotSpec, where: str = "robot") -> Robot:
     bad = sorted(set(spec.extra_gauge) - set(joint_param_names(conv)))
     if bad:
         raise InputError(f"{where}: extra_gauge names {bad} that are not joint parameters of this table")
-    return Robot(
-        name=spec.name,
-        conventions=tuple(conv),
-        geometry=geom,
-        lower=lo,
-        upper=up,
-        capsules=tuple(caps),
-        masses=masses,
-        coms=coms,
-        self_pairs=tuple(pairs),
-        beam_links=tuple(int(x) for x in spec.beam_links),
-        q_work=q_work,
-        car_shift_x=float(spec.car_shift_x_mm),
-        joint_names=spec_joint_names(spec),
-        source=where,
-        p_FQ=p_FQ,
-        X_WT=X_WT,
-        joint_map=joint_map_from_spec(spec.joint_map, where, joint_names=spec_joint_names(spec)),
-        extra_gauge=tuple(spec.extra_gauge),
-        targets=targets,
-        compliant_base=bool(spec.compliant_base),
-        rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
-        drives=drive_types(spec.drive, spec.drives, spec_joint_names(spec), where),
-        effects=checked_effects(spec.effects, where),
-        effects_where=where,
-        payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")
-        if spec.payload_point_mm
-        else None,
-    )
+    names = spec_joint_names(spec)
+    joint_map = joint_map_from_spec(spec.joint_map, where, joint_names=names)
+    table = dict(name=spec.name, conventions=tuple(conv), geometry=geom, lower=lo, upper=up)
+    links = dict(capsules=tuple(caps), masses=masses, coms=coms, self_pairs=tuple(pairs), q_work=q_work)
+    frames = dict(p_FQ=p_FQ, X_WT=X_WT, targets=targets, joint_names=names, joint_map=joint_map)
+    return Robot(**table, **links, **frames, source=where, **shared_fields(spec, where, names))
 
 
 def _targets(spec: RobotSpec, where: str, p_FQ: np.ndarray | None) -> np.ndarray | None:

@@ -11,7 +11,9 @@ objects (millimetres, radians) the rest of the package uses. Field meanings: ``m
 import dataclasses
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -19,6 +21,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.options import yaml_mismatch
+from kpioed_drake.robot.drivetrain import drive_types
 from kpioed_drake.robot.jointmap import JointMapSpec
 
 MODELS_DIR = Path(os.environ.get("KPIOED_MODELS", Path(__file__).resolve().parents[2] / "models"))
@@ -109,7 +112,7 @@ class EffectSpec:
     regressor column (p rows of r_j numbers), so that the file's values multiply the same columns."""
 
 
-def checked_effects(specs, where: str) -> tuple[EffectSpec, ...]:
+def checked_effects(specs: Iterable[EffectSpec], where: str) -> tuple[EffectSpec, ...]:
     """The ``effects:`` entries of a model file, with finite numbers and consistent sizes.
 
     Raises:
@@ -192,13 +195,9 @@ class RobotSpec:
 
 
 @dataclasses.dataclass
-class ObstacleSpec:
+class ObstacleSpec(CapsuleSpec):
     """A fixed obstacle capsule in the world frame W [mm]."""
 
-    name: str = ""
-    radius_mm: float = 0.0
-    a_mm: list[float] = dataclasses.field(default_factory=list)
-    b_mm: list[float] = dataclasses.field(default_factory=list)
     moves_with_car: bool = False
 
 
@@ -303,7 +302,7 @@ class SidecarSpec:
     notes: str = ""
 
 
-def rated_payload(value, where: str) -> float | None:
+def rated_payload(value: float, where: str) -> float | None:
     """A model file's ``rated_payload_kg``: None for 0 (not given), else a finite number > 0 [kg].
 
     Raises:
@@ -318,12 +317,43 @@ def rated_payload(value, where: str) -> float | None:
     return kg if kg > 0 else None
 
 
+def vec3(values: object, where: str) -> np.ndarray:
+    """(3,) finite numbers from a file field ``where``; InputError otherwise."""
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: expected 3 finite numbers, got {values!r}")
+    return arr
+
+
+def shared_fields(spec: RobotSpec | SidecarSpec, where: str, joint_names: tuple[str, ...]) -> dict:
+    """The :class:`~kpioed_drake.robot.models.Robot` fields a robot file and a URDF's sidecar give
+    alike (beam links, car shift, extra gauge, compliant base, rated payload, drives, effects and
+    payload point), checked in this order; ``where`` names the file in messages.
+
+    Raises:
+        InputError: ``where``, the field and what was expected.
+    """
+    return dict(
+        beam_links=tuple(int(x) for x in spec.beam_links),
+        car_shift_x=float(spec.car_shift_x_mm),
+        extra_gauge=tuple(spec.extra_gauge),
+        compliant_base=bool(spec.compliant_base),
+        rated_payload_kg=rated_payload(spec.rated_payload_kg, f"{where}: rated_payload_kg"),
+        drives=drive_types(spec.drive, spec.drives, joint_names, where),
+        effects=checked_effects(spec.effects, where),
+        effects_where=where,
+        payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")
+        if spec.payload_point_mm
+        else None,
+    )
+
+
 def spec_joint_names(spec: RobotSpec) -> tuple[str, ...]:
     """The joint names of a robot file (``A1`` .. for a joint without one)."""
     return tuple(j.name or f"A{i + 1}" for i, j in enumerate(spec.joints))
 
 
-def load_yaml_typed(path: str | Path, schema):
+def load_yaml_typed(path: str | Path, schema: type) -> Any:
     """A YAML file loaded into the dataclass ``schema``; errors (InputError) name the file and field."""
     path = Path(path)
     if path.is_dir():

@@ -28,6 +28,7 @@ from pydrake.geometry import (
     Capsule,
     CollisionFilterDeclaration,
     GeometrySet,
+    QueryObject,
     SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
@@ -92,18 +93,19 @@ class Scene:
     q_scale: np.ndarray
     q_index: np.ndarray
 
-    def positions(self, q) -> np.ndarray:
+    def positions(self, q: np.ndarray) -> np.ndarray:
         """The plant's position vector of joint values ``q`` (nj,) [rad, mm]; the plant's other
         joints (branches, a floating base) at their default positions."""
         x = self.plant.GetDefaultPositions()  # a held joint (a free base) at its default pose
         x[self.q_index] = np.asarray(q, dtype=float) * self.q_scale
         return x
 
-    def set_q(self, q) -> None:
+    def set_q(self, q: np.ndarray) -> None:
         """Set the joint values [rad; mm for prismatic joints]."""
         self.plant.SetPositions(self.plant_context, self.positions(q))
 
-    def query_object(self):
+    def query_object(self) -> QueryObject:
+        """The scene graph's query object at the current joint values."""
         return self.plant.get_geometry_query_input_port().Eval(self.plant_context)
 
     def X_WB(self, i: int) -> RigidTransform:

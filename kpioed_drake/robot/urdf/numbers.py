@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.robot.modelspec import SidecarSpec
 
 MM = 1e-3
 LIMIT_ATTRIBUTES = ("lower", "upper", "effort", "velocity")
@@ -28,7 +29,9 @@ MAX_LENGTH_M = 1e3
 INERTIA = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
 
 
-def floats(el, attr: str, default: str, where: str, *, bound: float = math.inf) -> np.ndarray:
+def floats(
+    el: ET.Element | None, attr: str, default: str, where: str, *, bound: float = math.inf
+) -> np.ndarray:
     """Attribute ``attr`` of ``el`` (``default`` when absent) as numbers, each finite and at most
     ``bound`` in size.
 
@@ -75,7 +78,7 @@ def check_numbers(root: ET.Element, path: Path) -> None:
                 floats(inertia, attr, "0", f"{where} <inertia>")
 
 
-def sidecar_limits(side, sw: str) -> dict[str, tuple[float, float]]:
+def sidecar_limits(side: SidecarSpec, sw: str) -> dict[str, tuple[float, float]]:
     """The sidecar's ``limits`` by joint name (its units), each finite with lower < upper.
 
     Raises:

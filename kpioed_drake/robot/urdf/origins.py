@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
@@ -35,12 +36,16 @@ def error_transform(
     return X @ RigidTransform(RotationMatrix(rot_axis(np.asarray(axis, dtype=float), off)))
 
 
-def fold(X: RigidTransform, axis, prismatic: bool, errors, *, scale: float = 1.0) -> RigidTransform:
+def fold(
+    X: RigidTransform, axis: np.ndarray, prismatic: bool, errors: np.ndarray, *, scale: float = 1.0
+) -> RigidTransform:
     """``X E(e)``: a placement with the errors folded in."""
     return X @ error_transform(axis, prismatic, errors, scale=scale)
 
 
-def unfold(X: RigidTransform, axis, prismatic: bool, errors, *, scale: float = 1.0) -> RigidTransform:
+def unfold(
+    X: RigidTransform, axis: np.ndarray, prismatic: bool, errors: np.ndarray, *, scale: float = 1.0
+) -> RigidTransform:
     """``X E(e)^-1``: a placement with the errors folded back out."""
     return X @ error_transform(axis, prismatic, errors, scale=scale).inverse()
 
@@ -78,7 +83,9 @@ def _fmt(v) -> str:
     return " ".join(f"{(0.0 if abs(x) < 1e-15 else float(x)):.17g}" for x in v)
 
 
-def moved_origins(root: ET.Element, joints, chain: Chain, errors, *, out: bool) -> None:
+def moved_origins(
+    root: ET.Element, joints: Sequence[str], chain: Chain, errors: np.ndarray, *, out: bool
+) -> None:
     """Fold ``errors`` (nj, 7) [rad, mm] into (``out`` False) or out of (``out`` True) the
     ``<origin>`` of the chain's joints ``joints`` (names, base to flange) in the URDF tree ``root``."""
     by_name = {j.get("name"): j for j in root.findall("joint")}
@@ -88,7 +95,7 @@ def moved_origins(root: ET.Element, joints, chain: Chain, errors, *, out: bool) 
         set_origin(el, move(origin(el), chain.axis[i], bool(chain.prismatic[i]), errors[i], scale=MM))
 
 
-def unfolded_text(text: str, joints, chain: Chain, errors) -> str:
+def unfolded_text(text: str, joints: Sequence[str], chain: Chain, errors: np.ndarray) -> str:
     """URDF ``text`` with ``errors`` folded out of the chain joints' origins."""
     root = ET.fromstring(text)
     moved_origins(root, joints, chain, errors, out=True)

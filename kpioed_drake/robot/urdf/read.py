@@ -20,21 +20,24 @@ The sidecar ``<name>.kpioed.yaml`` next to ``<name>.urdf`` (optional) holds what
 sidecar, as every model file, millimetres and degrees (prismatic joint values in millimetres).
 """
 
+from __future__ import annotations
+
 import dataclasses
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import PrismaticJoint
+from pydrake.multibody.tree import ModelInstanceIndex, PrismaticJoint
+from pydrake.systems.framework import Context
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.chain import Chain, auto_gauge, param_names
-from kpioed_drake.robot.drivetrain import drive_types
-from kpioed_drake.robot.jointmap import joint_map_from_spec, mimic_joint_map
-from kpioed_drake.robot.modelspec import SidecarSpec, checked_effects, rated_payload
+from kpioed_drake.robot.jointmap import JointMap, joint_map_from_spec, mimic_joint_map
+from kpioed_drake.robot.modelspec import SidecarSpec, shared_fields
 from kpioed_drake.robot.urdf.numbers import (
     MAX_LENGTH_M,
     check_numbers,
@@ -126,7 +129,7 @@ def _stripped(root: ET.Element, masses=(), chain=(), where: str = "") -> str:
     return ET.tostring(root, encoding="unicode")
 
 
-def add_urdf(plant: MultibodyPlant, source: UrdfSource):
+def add_urdf(plant: MultibodyPlant, source: UrdfSource) -> ModelInstanceIndex:
     """Parse the robot into ``plant`` (not finalized) and weld its root; returns the model instance."""
     try:
         (inst,) = Parser(plant).AddModelsFromString(source.text, "urdf")
@@ -139,12 +142,12 @@ def add_urdf(plant: MultibodyPlant, source: UrdfSource):
     return inst
 
 
-def movable_joints(plant: MultibodyPlant, inst, source: UrdfSource) -> list:
+def movable_joints(plant: MultibodyPlant, inst: ModelInstanceIndex, source: UrdfSource) -> list:
     """The plant's joints of the chain, base to flange."""
     return [plant.GetJointByName(n, inst) for n in source.joints]
 
 
-def read_urdf_robot(path: Path, load_yaml) -> dict:
+def read_urdf_robot(path: Path | str, load_yaml: Callable) -> dict:
     """The fields of a :class:`kpioed_drake.robot.models.Robot` of a URDF file and its sidecar.
 
     Args:
@@ -158,34 +161,22 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
         InputError: malformed XML, an unsupported joint type, a branching tree, a bad sidecar.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    xml = _parse_xml(path)
-    check_numbers(xml, path)
-    side_path = sidecar_path(path)
-    side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
-    sw = str(side_path)
-    tips = measured_links(side, sw, path)
-    chain_xml, parents, root, welded = chain_joints(xml, path, tips)
+    xml, side, sw = _read_files(path, load_yaml)
+    chain_xml, parents, root, welded = chain_joints(xml, path, measured_links(side, sw, path))
     mimicked = mimics(chain_xml, path)  # the URDF's own joint map: its errors name the URDF
     X_WB = _base_pose(side, welded, sw, path)
     names = tuple(j.get("name") for j in chain_xml)
     overrides = sidecar_limits(side, sw)
     text = _stripped(checked_limits(xml, overrides, path), side.masses, chain_xml, sw)
     source = UrdfSource(str(path), text, X_WB, root, names)
-    plant = MultibodyPlant(0.0)
-    inst = add_urdf(plant, source)
-    plant.Finalize()
-    ctx = plant.CreateDefaultContext()
-    joints = movable_joints(plant, inst, source)
-    n = len(joints)
+    plant, ctx, inst, joints = _finalized_plant(source)
     R_PJ, p_PJ, axis, pris, lo, up, bodies = _joint_frames(plant, ctx, joints, parents, path)
     lo, up = _limits(overrides, names, pris, lo, up, sw, path)
-    tree = bool(np.any(parents != np.arange(n) - 1))
+    tree = bool(np.any(parents != np.arange(len(joints)) - 1))
     chain = Chain(R_PJ=R_PJ, p_PJ=p_PJ, axis=axis, prismatic=pris, parent=parents if tree else None)
     masses, coms, owner = _inertia(plant, ctx, bodies)
     if side.capsules:
-        caps = _side_capsules(side, n, sw)
+        caps = _side_capsules(side, len(joints), sw)
     else:
         caps = _capsules(xml, plant, ctx, inst, bodies, owner, path)
     if side.targets:
@@ -196,6 +187,55 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     q_work = _q_work(side, pris, lo, up, sw)
     X_WT = _tracker_pose(side, sw)
     pairs = _link_pairs(side, parents, sw)
+    joint_map = _joint_map(side, xml, names, mimicked, pris, sw, path)
+    refl = p_FQ if targets is None else targets
+    gauge = _gauge(side, chain, lo, up, refl, sw, path, joint_map, target_links)
+    conventions = tuple("prismatic" if p else "revolute" for p in pris)
+    table = dict(name=side.name or path.stem, conventions=conventions, lower=lo, upper=up)
+    links = dict(capsules=caps, masses=masses, coms=coms, self_pairs=tuple(pairs), q_work=q_work)
+    frames = dict(p_FQ=p_FQ, X_WT=X_WT, targets=targets, joint_names=names, joint_map=joint_map)
+    urdf = dict(geometry=np.zeros((len(joints), 7)), chain=chain, gauge=gauge, urdf=source)
+    return dict(
+        **table,
+        **links,
+        **frames,
+        **urdf,
+        source=str(path),
+        target_links=target_links,
+        estimated_errors=side.estimated_errors,
+        **shared_fields(side, sw, names),
+    )
+
+
+def _read_files(path: Path, load_yaml: Callable) -> tuple[ET.Element, SidecarSpec, str]:
+    """The URDF's XML (its numbers checked), the sidecar (empty without a file) and its path."""
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    xml = _parse_xml(path)
+    check_numbers(xml, path)
+    side_path = sidecar_path(path)
+    side = load_yaml(side_path, SidecarSpec) if side_path.is_file() else SidecarSpec()
+    return xml, side, str(side_path)
+
+
+def _finalized_plant(source: UrdfSource) -> tuple[MultibodyPlant, Context, ModelInstanceIndex, list]:
+    """A plant of the robot alone (finalized), its default context, model instance and joints."""
+    plant = MultibodyPlant(0.0)
+    inst = add_urdf(plant, source)
+    plant.Finalize()
+    return plant, plant.CreateDefaultContext(), inst, movable_joints(plant, inst, source)
+
+
+def _joint_map(
+    side: SidecarSpec,
+    xml: ET.Element,
+    names: tuple[str, ...],
+    mimicked: dict,
+    pris: np.ndarray,
+    sw: str,
+    path: Path,
+) -> JointMap | None:
+    """The sidecar's joint map, else the URDF's ``<mimic>`` joints' (joints off the chain named)."""
     off_chain = {
         j.get("name"): j.get("type") == "prismatic"
         for j in xml.iter("joint")
@@ -205,43 +245,7 @@ def read_urdf_robot(path: Path, load_yaml) -> dict:
     jmap = side.joint_map or mimic_joint_map(
         list(names), mimicked, [MM if p else 1.0 for p in pris], jwhere, off_chain=off_chain
     )
-    joint_map = joint_map_from_spec(jmap, jwhere, joint_names=names, prismatic=pris)
-    refl = p_FQ if targets is None else targets
-    gauge = _gauge(side, chain, lo, up, refl, sw, path, joint_map, target_links)
-    return dict(
-        name=side.name or path.stem,
-        conventions=tuple("prismatic" if p else "revolute" for p in pris),
-        geometry=np.zeros((n, 7)),
-        lower=lo,
-        upper=up,
-        capsules=caps,
-        masses=masses,
-        coms=coms,
-        self_pairs=tuple(pairs),
-        beam_links=tuple(int(x) for x in side.beam_links),
-        q_work=q_work,
-        car_shift_x=float(side.car_shift_x_mm),
-        joint_names=names,
-        source=str(path),
-        p_FQ=p_FQ,
-        X_WT=X_WT,
-        extra_gauge=tuple(side.extra_gauge),
-        joint_map=joint_map,
-        targets=targets,
-        chain=chain,
-        gauge=gauge,
-        urdf=source,
-        compliant_base=bool(side.compliant_base),
-        rated_payload_kg=rated_payload(side.rated_payload_kg, f"{sw}: rated_payload_kg"),
-        drives=drive_types(side.drive, side.drives, names, sw),
-        effects=checked_effects(side.effects, sw),
-        effects_where=sw,
-        target_links=target_links,
-        estimated_errors=side.estimated_errors,
-        payload_point=_vec(side.payload_point_mm, f"{sw}: payload_point_mm")
-        if side.payload_point_mm
-        else None,
-    )
+    return joint_map_from_spec(jmap, jwhere, joint_names=names, prismatic=pris)
 
 
 def _base_pose(side, welded: bool, sw: str, path: Path) -> RigidTransform | None:

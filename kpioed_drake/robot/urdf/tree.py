@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.robot.modelspec import SidecarSpec
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 HELD = ("fixed", "floating", "planar")
@@ -20,7 +21,7 @@ joint above it), held at its origin (the tracker frame is registered to the data
 placement is free anyway); a floating or planar joint below a movable one is refused."""
 
 
-def measured_links(side, sw: str, path: Path) -> tuple[tuple[str, str], ...]:
+def measured_links(side: SidecarSpec, sw: str, path: Path) -> tuple[tuple[str, str], ...]:
     """The measured links, each with the file and field naming it (``targets[k].link`` of the
     sidecar ``sw``, or ``tip_link``)."""
     if side.targets and (side.tip_link or side.targets_mm or side.reflector_position_mm):

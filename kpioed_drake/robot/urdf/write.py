@@ -12,6 +12,7 @@ NAME.urdf`` carries the whole calibrated model (as a calibrated YAML file does).
 
 import dataclasses
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +21,14 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import Robot, load_yaml_typed
+from kpioed_drake.robot.modelspec import EffectSpec
 from kpioed_drake.robot.urdf.origins import moved_origins
 from kpioed_drake.robot.urdf.read import SidecarSpec, sidecar_path
 
 URDF_SUFFIX = ".urdf"
 
 
-def check_out_path(robot: Robot, out) -> None:
+def check_out_path(robot: Robot, out: Path | str) -> None:
     """A URDF robot's calibrated model must be written as ``.urdf``, a table robot's as YAML.
 
     Raises:
@@ -67,14 +69,14 @@ def calibrated_urdf(robot: Robot, geometry: np.ndarray, note: str = "") -> str:
 def calibrated_sidecar(
     robot: Robot,
     *,
-    p_FQ,
-    p_WT,
-    R_WT,
-    targets=None,
+    p_FQ: np.ndarray,
+    p_WT: np.ndarray,
+    R_WT: np.ndarray,
+    targets: np.ndarray | None = None,
     note: str = "",
-    effects=(),
-    estimated_errors=(),
-    payload_point=(),
+    effects: Sequence[EffectSpec] = (),
+    estimated_errors: Sequence[Sequence[float]] = (),
+    payload_point: Sequence[float] = (),
 ) -> str:
     """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, the
     estimated effects (``effects``: :class:`~kpioed_drake.robot.modelspec.EffectSpec` entries) and
@@ -106,6 +108,6 @@ def calibrated_sidecar(
     return header + yaml_dump_typed(side)
 
 
-def sidecar_of(out) -> Path:
+def sidecar_of(out: Path | str) -> Path:
     """The sidecar path written beside ``out`` (``NAME.urdf`` -> ``NAME.kpioed.yaml``)."""
     return sidecar_path(Path(str(out)))
