@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -217,8 +217,15 @@ def next(  # noqa: A001 (the command's name)
         ``next_q_deg``, ...) and
         ``summary``.
     """
-    settings = dict(n=n, sigma_mm=sigma_mm, seed=seed, certify=certify, max_plan=max_plan, force=force)
-    options = NextOptions(target_var_mm2=target_var_mm2, **settings)
+    options = NextOptions(
+        target_var_mm2=target_var_mm2,
+        n=n,
+        sigma_mm=sigma_mm,
+        seed=seed,
+        certify=certify,
+        max_plan=max_plan,
+        force=force,
+    )
     result, rob = next_file(
         robot, data_path, options, out=out, json_path=json_path, data_format=data_format, plan_path=plan
     )
@@ -321,7 +328,11 @@ def simulate(
         (table, truth): the measurement table (pandas) and the truth dict.
     """
     options = SimulationOptions(
-        sigma_mm=sigma_mm, seed=seed, effects=effects, geometric_errors=geometric_errors, n_targets=n_targets
+        sigma_mm=sigma_mm,
+        seed=seed,
+        effects=cast(tuple[str, ...], tuple(effects)),  # texts or Effect objects (SimulationOptions.effects)
+        geometric_errors=geometric_errors,
+        n_targets=n_targets,
     )
     return simulate_file(
         robot, design, out, options, payload_kg=payload_kg, truth_path=truth_path, cell_path=cell_path

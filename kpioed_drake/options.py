@@ -12,14 +12,17 @@ import dataclasses
 import math
 import typing
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from kpioed_drake.errors import InputError
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 """An options record type (a dataclass)."""
 
 
@@ -59,7 +62,9 @@ def load_options(cls: type[T], *, filename: str | Path | None = None, data: str 
     where = str(filename) if filename is not None else "options"
     schema = _yaml_schema(cls)
     try:
-        parsed = yaml.safe_load(Path(filename).read_text(encoding="utf-8") if filename is not None else data)
+        parsed = yaml.safe_load(
+            Path(filename).read_text(encoding="utf-8") if filename is not None else data or ""
+        )
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
         what = str(exc).splitlines()[0] if str(exc).strip() else "nested too deeply"
         raise InputError(f"{where}: not a readable YAML file ({what})") from None

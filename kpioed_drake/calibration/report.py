@@ -129,7 +129,8 @@ class CalibrationReport:
 
     @property
     def outlier_rows(self) -> list[int]:
-        return [int(self.data.rows[i]) for i in sorted(self.outliers)]
+        rows = np.asarray(self.data.rows)
+        return [int(rows[i]) for i in sorted(self.outliers)]
 
     @property
     def aposteriori_factor(self) -> float | None:
@@ -154,7 +155,7 @@ class CalibrationReport:
             conv = np.rad2deg if ang else (lambda x: x)
             est = i in free
             value = float(conv(self.model.p[i]))
-            nominal = float(conv(self.nominal.p[i]))
+            nominal: float | None = float(conv(self.nominal.p[i]))
             if i in rotation:  # small rotations about the estimated tracker axes: zero after rebasing
                 nominal = None
             row = {
@@ -268,7 +269,7 @@ class CalibrationReport:
             r = res.residuals[i]
             poses.append(
                 {
-                    "row": int(self.data.rows[i]),
+                    "row": int(np.asarray(self.data.rows)[i]),
                     "used": bool(res.mask[i]),
                     "residual_mm": r.tolist(),
                     "residual_norm_mm": float(np.linalg.norm(r)),

@@ -52,7 +52,7 @@ class CompensationReport:
             f"max {np.max(self.dq):.4g} deg",
         ]
         lines += [f"  row {row}: {why}" for row, why in zip(self.rows, r.reasons, strict=True) if why]
-        big = self.rows[self.dq > LARGE_CORRECTION[0]] if self.mode == "program" else []
+        big: np.ndarray | list = self.rows[self.dq > LARGE_CORRECTION[0]] if self.mode == "program" else []
         if len(big):
             lines.append(
                 f"  warning: corrections over {LARGE_CORRECTION[0]:g} deg in rows "

@@ -32,6 +32,7 @@ import dataclasses
 import functools
 import re
 import xml.etree.ElementTree as ET
+from typing import Any
 
 import numpy as np
 import scipy.stats
@@ -236,7 +237,7 @@ def step_dict(s: SelectionStep) -> dict:
             "swapped": dataclasses.asdict(s.swap),
             "candidates": [],
         }
-    out = {
+    out: dict[str, Any] = {
         "step": s.step,
         "holdout_rms_mm_before": s.holdout_rms_mm_before,
         "chi2_before": s.chi2_before,
@@ -464,9 +465,10 @@ def unused_advice(columns: list[str], robot: Robot | None = None) -> str:
     file off the measured chain (another branch's load acts on this one) -> describe the whole tree;
     joint-like columns of a table robot -> the same; other columns -> make them a variable."""
     off_chain = set()
-    if robot is not None and getattr(robot, "urdf", None) is not None:
-        names = {j.get("name") for j in ET.fromstring(robot.urdf.text).findall("joint")}
-        off_chain = names - set(robot.urdf.joints)
+    urdf = None if robot is None else robot.urdf
+    if urdf is not None:
+        names = {j.get("name") for j in ET.fromstring(urdf.text).findall("joint")}
+        off_chain = names - set(urdf.joints)
     joints = [c for c in columns if c in off_chain or re.fullmatch(r"q\d+_(deg|mm)", c)]
     text = f"the rest follows column(s) {', '.join(columns)}, which the model does not use"
     if joints:

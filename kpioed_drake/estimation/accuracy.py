@@ -155,7 +155,7 @@ def accuracy(
         raise ValueError(f"accuracy: expected (n, 3) residuals of n >= 1 rows, got {r.shape} and q {q.shape}")
     if kind not in KINDS or tracker not in TRACKER:
         raise ValueError(f"accuracy: unknown kind {kind!r} or tracker {tracker!r}")
-    targets = ()
+    targets: tuple[dict, ...] = ()
     t = None if target is None else np.asarray(target, dtype=int)
     if t is not None and np.unique(t).size > 1:
         targets = tuple(

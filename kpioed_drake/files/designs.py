@@ -40,7 +40,9 @@ def read_design(path: str | Path, robot: Robot, *, check_limits: bool = True) ->
     Raises:
         InputError: missing file or column, text or NaN in a cell, angles outside the limits.
     """
-    return read_joint_table(path, robot, empty=NO_POSES, check_limits=check_limits).q
+    q = read_joint_table(path, robot, empty=NO_POSES, check_limits=check_limits).q
+    assert q is not None  # the joint columns are required
+    return q
 
 
 def read_condition_offsets(path: str | Path) -> dict[str, np.ndarray]:
@@ -62,6 +64,7 @@ def design_csv_text(
 ) -> str:
     """CSV text of (n, n_joints) poses [rad] in degrees (prismatic joints in mm; ``robot`` None:
     six revolute joints), with optional extra columns."""
+    extra = extra or {}
     q_deg = q_to_file(robot, np.atleast_2d(q))
     cols = list(q_columns(robot)) + list(extra or {})
     buf = io.StringIO()

@@ -164,7 +164,7 @@ def load_format(path: str | Path) -> DataFormat:
     return check_format(load_yaml_typed(path, DataFormat), where=str(path))
 
 
-def as_format(data_format: DataFormat | str | Path | None) -> DataFormat:
+def as_format(data_format: DataFormat | str | Path) -> DataFormat:
     """A checked :class:`DataFormat`: ``data_format`` itself (checked) or the format file it names.
 
     Raises:

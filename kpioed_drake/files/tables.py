@@ -20,6 +20,7 @@ import dataclasses
 import difflib
 import io
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -161,14 +162,11 @@ def read_csv_table(
     return header, data
 
 
-def _numbers(
-    path, header, data, column: str, decimal: str = ".", *, strict: bool = True
-) -> np.ndarray | None:
+def _numbers(path, header, data, column: str, decimal: str = ".") -> np.ndarray:
     """Column ``column`` as floats (a decimal comma read as a point with ``decimal=","``).
 
     Raises:
-        InputError: text, an empty cell, NaN or an infinity (file, row and column named); without
-            ``strict`` such a column is None instead.
+        InputError: text, an empty cell, NaN or an infinity (file, row and column named).
     """
     j = header.index(column)
     out = np.empty(len(data))
@@ -177,12 +175,8 @@ def _numbers(
         try:
             out[i] = float(cell.replace(",", ".") if decimal == "," else cell)
         except ValueError:
-            if not strict:
-                return None
             raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a number") from None
         if not np.isfinite(out[i]):
-            if not strict:
-                return None
             raise InputError(f"{path}: row {k}, column {column!r}: {cell!r} is not a finite number")
     return out
 
@@ -277,7 +271,7 @@ class JointTable:
 
     path: str
     header: list[str]
-    data: DataRows
+    data: list[list[str]]
     rows: np.ndarray
     q: np.ndarray | None
     values: dict
@@ -287,7 +281,7 @@ class JointTable:
 
 def read_joint_table(
     path: str | Path,
-    robot: Robot,
+    robot: Robot | None,
     *,
     joints: str = "required",
     required: tuple[str, ...] = (),
@@ -333,7 +327,7 @@ def read_joint_table(
     read = [*required, *(c for c in optional if c in header and c != TARGET_COLUMN)]
     values = {c: _numbers(path, header, data, c) for c in read}
     target = None
-    if TARGET_COLUMN in optional and TARGET_COLUMN in header:
+    if spec is not None and TARGET_COLUMN in optional and TARGET_COLUMN in header:
         numbers = _numbers(path, header, data, TARGET_COLUMN)
         target = parse_targets(path, numbers, rows, n_targets=spec.n_targets, model=spec.label)
     _check_payload(path, values.get("payload_kg"), rows, "payload_kg")
@@ -353,13 +347,14 @@ def _native(path: Path, robot, fmt: None) -> dict:
         optional=(*OPTIONAL_COLUMNS, TARGET_COLUMN),
         suggest=OPTIONAL_COLUMNS,
     )
-    known = {*t.joints.columns, *XYZ_COLUMNS, *OPTIONAL_COLUMNS, TARGET_COLUMN}
+    known = {*(t.joints.columns if t.joints else ()), *XYZ_COLUMNS, *OPTIONAL_COLUMNS, TARGET_COLUMN}
     extra = {}
     for c in t.header:
         if c not in known:  # a numeric column the model does not read is kept; a text column is not data
-            v = _numbers(path, t.header, t.data, c, strict=False)
-            if v is not None:
-                extra[c] = v
+            try:
+                extra[c] = _numbers(path, t.header, t.data, c)
+            except InputError:
+                pass
     eta = np.stack([t.values[c] for c in XYZ_COLUMNS], axis=1)
     opt = {c: t.values.get(c) for c in OPTIONAL_COLUMNS}
     if t.target is not None:
@@ -479,7 +474,7 @@ def _several_per_row(path: Path, fmt: DataFormat, cols: _Columns, q, rows, extra
     return dict(q=q, eta=eta, source=str(path), rows=rows, frame=fmt.frame, target=target, **extra)
 
 
-MEASUREMENT_FORMATS = {"csv": _native, "format": _foreign}
+MEASUREMENT_FORMATS: dict[str, Callable[..., dict]] = {"csv": _native, "format": _foreign}
 """The formats of a measurement file: the native CSV, and a layout a format file describes."""
 
 

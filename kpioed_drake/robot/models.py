@@ -40,7 +40,7 @@ from kpioed_drake.robot.modelspec import (  # noqa: F401 (the file schemas and l
     spec_joint_names,
 )
 from kpioed_drake.robot.reference import Reference, estimated_errors, reference_of
-from kpioed_drake.robot.urdf import read_urdf_robot
+from kpioed_drake.robot.urdf import UrdfSource, read_urdf_robot
 
 N_JOINTS = 6
 """Joints of the DH/Hayati YAML robots (a URDF robot has its own count: ``robot.n_joints``)."""
@@ -135,7 +135,7 @@ class Robot:
     extra_gauge: tuple[str, ...] = ()
     chain: chainmod.Chain | None = None
     gauge: tuple[str, ...] | None = None
-    urdf: object | None = None
+    urdf: UrdfSource | None = None
     targets: np.ndarray | None = None
     compliant_base: bool = False
     rated_payload_kg: float | None = None

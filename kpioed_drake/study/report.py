@@ -55,7 +55,7 @@ def _fmt(v, f: str = "{:.3f}") -> str:
 
 def _md_table(df: pd.DataFrame, f: str = "{:.3f}") -> str:
     """A markdown table: booleans as words, counts (``n_*``, ``*_draws``) as integers, else ``f``."""
-    cols = [df.index.name or ""] + list(df.columns)
+    cols = [str(df.index.name or "")] + [str(c) for c in df.columns]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for idx, r in df.iterrows():
         vals = []
