@@ -25,7 +25,7 @@ from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design, remove_poses
 from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
@@ -385,3 +385,57 @@ def _finish(res: DesignReport, allow_infeasible: bool) -> DesignReport:
         res,
         fields=("allow_infeasible", "seed", "starts"),
     )
+
+
+def first_target_n(problem: Problem, V: float, given: np.ndarray | None, max_poses: int) -> int:
+    """The first N of :func:`~kpioed_drake.design.target.design_for_target`'s search for the target
+    V [mm^2]: :func:`min_new_poses`, after checking that the ``given`` poses alone do not reach V
+    and that ``max_poses`` allows N (else :class:`~kpioed_drake.errors.InputError`)."""
+    n_given = 0 if given is None else len(np.atleast_2d(given))
+    n_min = min_new_poses(problem, n_given)
+    if given is not None:
+        try:
+            alone = problem.criteria(given)["kpi_avg_var_mm2"]
+        except InputError:
+            alone = np.inf
+        if alone <= V:
+            raise InputError(
+                f"the {n_given} given poses already reach tr(Cs)/3 = {alone:.4g} <= {V:.4g} mm^2: "
+                "no new poses are needed"
+            )
+    if max_poses < n_min:
+        raise InputError(f"max_poses {max_poses} is below the fewest poses {n_min}")
+    return n_min
+
+
+def target_attempt(
+    problem: Problem, n: int, V: float, previous: DesignReport | None, *, shrink: bool, settings: dict
+) -> tuple[DesignReport, dict]:
+    """One solve of :func:`~kpioed_drake.design.target.design_for_target`'s search: ``n`` poses
+    (``optimize_design`` with ``settings``, infeasible results kept) started from ``previous``
+    reduced to ``n`` poses by :func:`~kpioed_drake.design.polish.remove_poses` (``shrink``, the
+    bisection) or grown with heuristic poses (the doubling; no ``q0`` if ``previous`` is None
+    or infeasible).
+
+    Returns:
+        The design and its row of the search's trail: ``n_poses``, ``kpi_avg_var_mm2`` [mm^2],
+        ``reached`` (solved, feasible and at most V), ``success``, ``feasible``, ``solve_s``.
+    """
+    q0 = None
+    if previous is not None and shrink:
+        q0 = remove_poses(problem, previous.q, n, given=settings["given"])
+    elif previous is not None:
+        more = heuristic_design(
+            problem, n=n - len(previous.q), seed=settings["seed"] + n, collision=settings["collision"]
+        )
+        q0 = np.concatenate([previous.q, more]) if previous.feasible else None
+    res = optimize_design(problem, n=n, q0=q0, allow_infeasible=True, **settings)
+    row = {
+        "n_poses": n,
+        "kpi_avg_var_mm2": res.kpi_avg_var_mm2,
+        "reached": bool(res.success and res.feasible and res.kpi_avg_var_mm2 <= V),
+        "success": res.success,
+        "feasible": res.feasible,
+        "solve_s": res.solve_s,
+    }
+    return res, row
