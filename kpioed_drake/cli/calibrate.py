@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import (
     DATA_HELP,
@@ -11,14 +13,14 @@ from kpioed_drake.cli import (
     add_q_work,
     add_robot,
     data_outputs,
-    print_json,
+    print_result,
 )
 
 API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
@@ -51,7 +53,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     report = api.calibrate(
         args.robot,
         args.data,
@@ -63,11 +65,5 @@ def run(args) -> int:
         strict=args.strict,
         **data_outputs(args),
     )
-    if args.json == "-":
-        print_json(report.to_dict())
-        return 0
-    print(report.summary())
-    for path, what in ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page")):
-        if path:
-            print(f"  {what}: {path}")
-    return 0
+    written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
+    return print_result(args, report.to_dict, report.summary, written)

@@ -38,7 +38,7 @@ API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path"
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "design",
         help="compute measurement poses (KPI, standard, D, O1 optimal or heuristic)",
@@ -175,7 +175,7 @@ def _weights(text: str | None) -> list[float] | None:
         raise InputError(f"--kpi-weights: expected comma-separated numbers, got {text!r}") from None
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.criterion is None and args.discriminate is None:
         raise InputError("--criterion is required (or --discriminate A|B)")
     q_work = args.q_work[0] if args.q_work and len(args.q_work) == 1 else args.q_work

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
-from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_json
+from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_result
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "validate",
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
@@ -35,7 +37,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     result = api.validate(
         args.robot,
         args.data,
@@ -46,8 +48,4 @@ def run(args) -> int:
         json_path=json_file(args.json),
         plots_dir=args.plots,
     )
-    if args.json == "-":
-        print_json(result.to_dict())
-        return 0
-    print(result.summary())
-    return 0
+    return print_result(args, result.to_dict, result.summary)
