@@ -10,12 +10,16 @@ Units: millimetres in W (robot base frame, z up); angles in radians.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from kpioed_drake.outputs import pyplot
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import Cell, Robot
+
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
 
 
 def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 20, n_cap: int = 6):
@@ -41,11 +45,11 @@ def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 2
 def plot_design_poses(
     robot: Robot,
     cell: Cell,
-    q,
+    q: np.ndarray,
     path: str | Path,
     *,
-    q_work=None,
-    infeasible=None,
+    q_work: np.ndarray | None = None,
+    infeasible: np.ndarray | None = None,
     title: str | None = None,
     show_beams: bool = True,
     elev: float = 25.0,
@@ -102,7 +106,7 @@ def plot_design_poses(
     return path
 
 
-def _draw_working_poses(ax, robot: Robot, cell: Cell, q_work) -> None:
+def _draw_working_poses(ax: Axes3D, robot: Robot, cell: Cell, q_work: np.ndarray) -> None:
     """The working pose(s) ``q_work`` [rad] in black with their TCP (one pose: with its capsules)."""
     fw = forward_kinematics(robot, np.atleast_2d(np.asarray(q_work, dtype=float)))
     pw = flange_point(fw, cell.p_FQ)
@@ -117,7 +121,7 @@ def _draw_working_poses(ax, robot: Robot, cell: Cell, q_work) -> None:
         ax.plot_surface(*_capsule_mesh(A, B, c.radius, 12, 4), color="gray", alpha=0.08, linewidth=0)
 
 
-def _draw_cell(ax, cell: Cell, chain: np.ndarray) -> None:
+def _draw_cell(ax: Axes3D, cell: Cell, chain: np.ndarray) -> None:
     """The obstacles, the tracker and the floor, and the axes around them and the poses' ``chain``
     (n, 8, 3) [mm]."""
     for ob in cell.obstacles:

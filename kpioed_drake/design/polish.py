@@ -57,7 +57,7 @@ class Polished:
 
 
 def exchanged(
-    problem, q: np.ndarray, pool_q: np.ndarray, pool_F: np.ndarray, *, M0=None
+    problem: Problem, q: np.ndarray, pool_q: np.ndarray, pool_F: np.ndarray, *, M0: np.ndarray | None = None
 ) -> np.ndarray | None:
     """The design ``q`` (n, nj) [rad] after an exchange over ``q`` and ``pool_q`` (m, nj) [rad] with
     rows ``pool_F`` (m, 3, k), or None if the exchange keeps every pose. ``M0``: (k, k) information

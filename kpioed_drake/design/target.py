@@ -30,6 +30,7 @@ The lower bound for N poses is :func:`~kpioed_drake.design.approximate.certifica
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +55,7 @@ def design_for_target(
     given: np.ndarray | None = None,
     max_poses: int = MAX_TARGET_POSES,
     bound: bool = True,
-    **options,
+    **options: Any,
 ) -> DesignReport:
     """The design of the fewest poses whose KPI reaches ``target_var_mm2`` (warm-started search).
 

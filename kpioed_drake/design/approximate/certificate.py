@@ -142,7 +142,9 @@ def pool_certificate(problem: Problem, q_pool: np.ndarray) -> PoolCertificate:
     )
 
 
-def verify_search(problem: Problem, approx: ApproximateDesign, *, seed: int = 0):
+def verify_search(
+    problem: Problem, approx: ApproximateDesign, *, seed: int = 0
+) -> tuple[ApproximateDesign, np.ndarray]:
     """A broader search for poses of large ``g`` with ``approx``'s ``Y``.
 
     Evaluates ``g`` on :data:`VERIFY_POOL` fresh random feasible poses (seed ``seed``), on random

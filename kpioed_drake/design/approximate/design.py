@@ -37,6 +37,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Iterator
 
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
@@ -94,7 +95,7 @@ little faster than :data:`CLARABEL_TOL` for a start of the same value to a few 1
 
 
 @contextlib.contextmanager
-def quiet_solver_notes():
+def quiet_solver_notes() -> Iterator[None]:
     """Drake's log at WARNING within: Clarabel's "returns InsufficientProgress" notes (INFO) are
     expected where a tight tolerance is tried before a looser one, and would reach the user."""
     log = logging.getLogger("drake")
@@ -387,8 +388,13 @@ def rank3_changes(F: np.ndarray, M: np.ndarray, K: np.ndarray, sign: float) -> n
 
 
 def exchange_counts(
-    F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_iter: int = EXCHANGE_ITER, M0=None
-):
+    F: np.ndarray,
+    K: np.ndarray,
+    counts: np.ndarray,
+    *,
+    max_iter: int = EXCHANGE_ITER,
+    M0: np.ndarray | None = None,
+) -> np.ndarray:
     """Improve an exact design over candidates by exchanges (Mitchell's DETMAX for the L-criterion).
 
     Each step adds a copy of the candidate whose addition lowers ``Phi`` most, then removes the
