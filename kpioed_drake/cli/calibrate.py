@@ -13,6 +13,7 @@ from kpioed_drake.cli import (
     add_q_work,
     add_robot,
     data_outputs,
+    passed,
     print_result,
 )
 
@@ -54,16 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    report = api.calibrate(
-        args.robot,
-        args.data,
-        sigma_mm=args.sigma_mm,
-        q_work_deg=args.q_work,
-        extend=args.extend,
-        outlier_alpha=args.outlier_alpha,
-        out=args.out,
-        strict=args.strict,
-        **data_outputs(args),
-    )
+    same = passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
+    report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **data_outputs(args))
     written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
     return print_result(args, report.to_dict, report.summary, written)

@@ -20,16 +20,9 @@ import sys
 
 from kpioed_drake import api
 from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
-from kpioed_drake.design import (
-    DEFAULT_START,
-    DESIGN_METHODS,
-    SOLVERS,
-    START_METHODS,
-    DesignError,
-    discrimination_lines,
-    format_summary,
-)
+from kpioed_drake.design import DesignError, discrimination_lines, format_summary
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
+from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
 from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
 from kpioed_drake.estimation.criteria import TABLE
 from kpioed_drake.estimation.problem import KPI_AGGREGATES

@@ -12,6 +12,7 @@ from kpioed_drake.cli import (
     add_robot,
     add_sigma,
     data_outputs,
+    passed,
     print_result,
 )
 
@@ -47,13 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    report = api.diagnose(
-        args.robot,
-        args.data,
-        sigma_mm=args.sigma_mm,
-        out=args.out,
-        **data_outputs(args),
-    )
+    report = api.diagnose(args.robot, args.data, **passed(args, "sigma_mm", "out"), **data_outputs(args))
     written = (
         (args.out, "extended model (use it as --robot FILE)"),
         (args.plots, "plots"),

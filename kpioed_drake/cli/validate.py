@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from kpioed_drake import api
-from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_result
+from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, passed, print_result
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -38,14 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    outputs = {"json_path": json_file(args.json), "plots_dir": args.plots, "data_format": args.format}
+    keep = args.keep_tracker or None
     result = api.validate(
-        args.robot,
-        args.data,
-        data_format=args.format,
-        tracker_frame=args.tracker_frame,
-        keep_tracker=args.keep_tracker or None,
-        force=args.force,
-        json_path=json_file(args.json),
-        plots_dir=args.plots,
+        args.robot, args.data, keep_tracker=keep, **passed(args, "tracker_frame", "force"), **outputs
     )
     return print_result(args, result.to_dict, result.summary)
