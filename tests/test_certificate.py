@@ -40,6 +40,14 @@ def kr16():
     return make_problem("kr16")
 
 
+def _search_settings(monkeypatch, *, pool: int, starts: int, certify_rounds: int, verify_rounds: int) -> None:
+    """A smaller certificate search for one test: its pool, starts and rounds."""
+    monkeypatch.setattr(certificate, "VERIFY_POOL", pool)
+    monkeypatch.setattr(certificate, "VERIFY_STARTS", starts)
+    monkeypatch.setattr(certificate, "CERTIFY_ROUNDS", certify_rounds)
+    monkeypatch.setattr(certificate, "VERIFY_ROUNDS", verify_rounds)
+
+
 @pytest.fixture(scope="module")
 def pool(kr16):
     return heuristic_design(kr16, n=300, seed=3, margin_mm=0.0)
@@ -181,13 +189,7 @@ def test_verify_search_and_certified_design_continue_the_column_generation(kr16,
     assert checked.bound <= a.bound and np.all(checked.Y == a.Y)
     if len(found):
         assert np.all(dual_values(pose_rows(kr16, found), a.Y) > 1.0) and not checked.converged
-    for name, value in (
-        ("VERIFY_POOL", 300),
-        ("VERIFY_STARTS", 8),
-        ("CERTIFY_ROUNDS", 1),
-        ("VERIFY_ROUNDS", 2),
-    ):
-        monkeypatch.setattr(certificate, name, value)
+    _search_settings(monkeypatch, pool=300, starts=8, certify_rounds=1, verify_rounds=2)
     cert = certified_design(kr16, seed=5, warm=a)
     assert cert is certified_design(kr16, seed=5)  # cached per problem object and seed
     assert cert.rounds > a.rounds and cert.n_checked >= 300
@@ -336,13 +338,7 @@ def test_disk_cache_of_the_certificate_search(kr16, small_approx, tmp_path, monk
 def small_search_cached_in(tmp_path, monkeypatch):
     """A short certificate search whose disk cache is ``tmp_path``."""
     monkeypatch.setenv("KPIOED_CACHE", str(tmp_path))
-    for name, value in (
-        ("VERIFY_POOL", 200),
-        ("VERIFY_STARTS", 4),
-        ("CERTIFY_ROUNDS", 1),
-        ("VERIFY_ROUNDS", 1),
-    ):
-        monkeypatch.setattr(certificate, name, value)
+    _search_settings(monkeypatch, pool=200, starts=4, certify_rounds=1, verify_rounds=1)
     return tmp_path
 
 

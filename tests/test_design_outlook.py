@@ -5,6 +5,8 @@ reaching a target tr(Cs)/3."""
 from __future__ import annotations
 
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +29,9 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation import criteria
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import read_design, write_design
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import reader_transitions as rt  # noqa: E402
 
 PATH_OFFSETS_DEG = np.array([[0, 0, 0, 0, 0, 0], [20, 10, -10, 0, 15, 0], [-20, -5, 10, 0, -10, 30]])
 """A working path around kr16's q_work sampled at 3 points [deg] (within the joint limits)."""
@@ -199,6 +204,33 @@ def test_remove_poses_drops_the_pose_that_raises_the_kpi_least(kr16):
     each = [kr16.criteria(np.delete(q, i, axis=0))["kpi_avg_var_mm2"] for i in range(14)]
     assert np.array_equal(kept, np.delete(q, int(np.argmin(each)), axis=0))
     assert remove_poses(kr16, q, 10).shape == (10, 6)
+
+
+def _target_search_returns(kr16, V, criterion):
+    """The design of ``design_for_target(kr16, V)`` and how often control came back to
+    design/target.py after leaving it (followed with sys.setprofile, numpy and stdlib frames
+    belonging to the package frame under them)."""
+    out = {}
+    seq = rt.stays(
+        lambda: out.setdefault(
+            "res", design_for_target(kr16, V, criterion=criterion, collision=True, bound=False)
+        )
+    )
+    assert seq[0] == design_target.__name__, seq[:3]
+    return out["res"], seq.count(design_target.__name__) - 1
+
+
+def test_target_search_leaves_its_module_once_per_design_tried(kr16):
+    """One call per step of the search (its start and its solve) and one to check the request: the
+    search comes back to design/target.py once per design tried, plus once."""
+    res, returns = _target_search_returns(kr16, 1.3, "heuristic")
+    assert returns == len(res.target["trail"]) + 1 == 7
+
+
+@pytest.mark.slow
+def test_target_search_of_about_20_optimised_poses_comes_back_at_most_8_times(kr16):
+    res, returns = _target_search_returns(kr16, 0.2, "kpi")
+    assert res.target["n_poses"] == 19 and returns == len(res.target["trail"]) + 1 <= 8
 
 
 @pytest.mark.slow

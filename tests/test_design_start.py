@@ -63,34 +63,13 @@ def test_default_start_and_bad_start_values(kr16):
 
 
 def test_bad_start_on_the_command_line(capsys, tmp_path):
-    code, _, err = _run(
-        capsys,
-        "design",
-        "--robot",
-        "kr16",
-        "--criterion",
-        "kpi",
-        "--start",
-        "best",
-        "--out",
-        str(tmp_path / "d.csv"),
-    )
-    assert code == 2 and "--start" in err
-    code, _, err = _run(
-        capsys,
-        "design",
-        "--robot",
-        "kr16",
-        "--criterion",
-        "param",
-        "--start",
-        "approximate",
-        "--n",
-        "20",
-        "--out",
-        str(tmp_path / "d.csv"),
-    )
-    assert code == 2 and "criterion 'kpi'" in err
+    out = str(tmp_path / "d.csv")
+    for options, message in (
+        (["--criterion", "kpi", "--start", "best"], "--start"),
+        (["--criterion", "param", "--start", "approximate", "--n", "20"], "criterion 'kpi'"),
+    ):
+        code, _, err = _run(capsys, "design", "--robot", "kr16", *options, "--out", out)
+        assert code == 2 and message in err
     assert not (tmp_path / "d.csv").exists()
 
 

@@ -25,6 +25,8 @@ import signal
 import sys
 import threading
 import traceback
+from collections.abc import Callable
+from typing import Any
 
 from kpioed_drake.errors import (
     EXIT_INPUT,
@@ -58,7 +60,7 @@ COMMANDS = (
 # The arguments the commands share.
 
 
-def add_robot(p, *, required: bool = True) -> None:
+def add_robot(p: argparse.ArgumentParser, *, required: bool = True) -> None:
     p.add_argument(
         "--robot",
         required=required,
@@ -66,11 +68,13 @@ def add_robot(p, *, required: bool = True) -> None:
     )
 
 
-def add_sigma(p, default=None) -> None:
+def add_sigma(p: argparse.ArgumentParser, default: float | None = None) -> None:
     p.add_argument("--sigma-mm", type=float, default=default, help="noise std. dev. per coordinate [mm]")
 
 
-def add_optional_number(p, option: str, *, type, metavar: str, help: str) -> None:
+def add_optional_number(
+    p: argparse.ArgumentParser, option: str, *, type: type[int] | type[float], metavar: str, help: str
+) -> None:
     """An optional number ``option`` of ``type`` (int or float), None when not given (``help`` says
     what that means)."""
     p.add_argument(option, type=type, default=None, metavar=metavar, help=help)
@@ -89,7 +93,7 @@ MODEL_OUT_METAVAR = "MODEL.yaml|NAME.urdf"
 """A calibrated model file: YAML, or for a URDF robot a URDF with its sidecar."""
 
 
-def add_q_work(p) -> None:
+def add_q_work(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--q-work",
         default=None,
@@ -98,7 +102,7 @@ def add_q_work(p) -> None:
     )
 
 
-def add_extend(p) -> None:
+def add_extend(p: argparse.ArgumentParser) -> None:
     """``--extend EFFECT`` (repeatable): a model extension estimated with the geometry."""
     p.add_argument(
         "--extend",
@@ -111,7 +115,7 @@ def add_extend(p) -> None:
     )
 
 
-def add_json_out(p) -> None:
+def add_json_out(p: argparse.ArgumentParser) -> None:
     """``--json [FILE]``: the report as JSON to FILE, or to stdout without a FILE (``"-"``)."""
     p.add_argument(
         "--json",
@@ -123,14 +127,14 @@ def add_json_out(p) -> None:
     )
 
 
-def add_html(p) -> None:
+def add_html(p: argparse.ArgumentParser) -> None:
     """``--html FILE``: a self-contained 3-D page (Drake Meshcat) of the result."""
     p.add_argument(
         "--html", default=None, metavar="FILE.html", help="write a 3-D page (Meshcat) of the result"
     )
 
 
-def add_format(p) -> None:
+def add_format(p: argparse.ArgumentParser) -> None:
     """``--format F.yaml``: the format file of a measurement file of another layout."""
     p.add_argument(
         "--format",
@@ -140,7 +144,7 @@ def add_format(p) -> None:
     )
 
 
-def add_data_outputs(p, *, plots_help: str) -> None:
+def add_data_outputs(p: argparse.ArgumentParser, *, plots_help: str) -> None:
     """The outputs of a command on measured data: ``--json``, ``--plots``, ``--html``, and its
     ``--force`` and ``--format`` options."""
     add_json_out(p)
@@ -152,7 +156,7 @@ def add_data_outputs(p, *, plots_help: str) -> None:
     add_format(p)
 
 
-def data_outputs(args) -> dict:
+def data_outputs(args: argparse.Namespace) -> dict:
     """The keyword arguments of :func:`add_data_outputs`' options for the API."""
     return {
         "json_path": json_file(args.json),
@@ -163,20 +167,38 @@ def data_outputs(args) -> dict:
     }
 
 
-def passed(args, *names: str) -> dict:
+def passed(args: argparse.Namespace, *names: str) -> dict:
     """``{name: args.name}``: the parsed options whose dest is the API parameter's name."""
     return {name: getattr(args, name) for name in names}
 
 
-def json_file(target) -> str | None:
+def json_file(target: str | None) -> str | None:
     """The ``--json`` file to write (None for none or for stdout)."""
     return None if target in (None, "-") else target
 
 
-def print_json(data) -> None:
+def print_json(data: Any) -> None:
     """Write ``data`` as indented JSON to stdout (``--json`` without a file; files are the API's)."""
     json.dump(data, sys.stdout, indent=2)
     sys.stdout.write("\n")
+
+
+def print_result(
+    args: argparse.Namespace,
+    record: Callable[[], Any],
+    summary: Callable[[], str],
+    written: tuple[tuple[str | None, str], ...] = (),
+) -> int:
+    """A command's result on stdout: ``record()`` as JSON for ``--json -``, else ``summary()`` and a
+    line per file ``(path, what)`` written (those given); the exit status 0."""
+    if args.json == "-":
+        print_json(record())
+        return 0
+    print(summary())
+    for path, what in written:
+        if path:
+            print(f"  {what}: {path}")
+    return 0
 
 
 class _Parser(argparse.ArgumentParser):

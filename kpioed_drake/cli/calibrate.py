@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import (
     DATA_HELP,
@@ -11,14 +13,15 @@ from kpioed_drake.cli import (
     add_q_work,
     add_robot,
     data_outputs,
-    print_json,
+    passed,
+    print_result,
 )
 
 API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
@@ -51,23 +54,8 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
-    report = api.calibrate(
-        args.robot,
-        args.data,
-        sigma_mm=args.sigma_mm,
-        q_work_deg=args.q_work,
-        extend=args.extend,
-        outlier_alpha=args.outlier_alpha,
-        out=args.out,
-        strict=args.strict,
-        **data_outputs(args),
-    )
-    if args.json == "-":
-        print_json(report.to_dict())
-        return 0
-    print(report.summary())
-    for path, what in ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page")):
-        if path:
-            print(f"  {what}: {path}")
-    return 0
+def run(args: argparse.Namespace) -> int:
+    same = passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
+    report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **data_outputs(args))
+    written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
+    return print_result(args, report.to_dict, report.summary, written)

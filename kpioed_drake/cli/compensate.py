@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import add_robot, passed
 from kpioed_drake.compensation.workflow import ANGLES
@@ -10,7 +12,7 @@ API_NAMES = {"effects": "effect"}
 """API parameter -> this command's option dest where they differ (messages name the option)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compensate",
         help="compensate a program (nominal joint values) or reach target points with a calibrated model",
@@ -47,7 +49,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     names = ("program", "targets", "out", "nominal", "target", "angles", "allow_unreachable")
     report = api.compensate(args.robot, effects=args.effect, **passed(args, *names))
     print(report.summary())

@@ -20,16 +20,9 @@ import sys
 
 from kpioed_drake import api
 from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
-from kpioed_drake.design import (
-    DEFAULT_START,
-    DESIGN_METHODS,
-    SOLVERS,
-    START_METHODS,
-    DesignError,
-    discrimination_lines,
-    format_summary,
-)
+from kpioed_drake.design import DesignError, discrimination_lines, format_summary
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
+from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
 from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
 from kpioed_drake.estimation.criteria import TABLE
 from kpioed_drake.estimation.problem import KPI_AGGREGATES
@@ -38,7 +31,7 @@ API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path"
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "design",
         help="compute measurement poses (KPI, standard, D, O1 optimal or heuristic)",
@@ -46,6 +39,37 @@ def register(sub) -> None:
         "q1_deg, q2_deg, ...).",
     )
     add_robot(p)
+    _add_solve_options(p)
+    add_sigma(p)
+    _add_kpi_options(p)
+    p.add_argument(
+        "--given",
+        default=None,
+        metavar="D.csv",
+        help="design CSV of poses already measured: their information is held fixed and --n new poses "
+        "are optimised (--out gets the new poses; the values are those of the combined design)",
+    )
+    add_optional_number(
+        p,
+        "--target-var",
+        type=float,
+        metavar="V",
+        help="find the fewest poses whose design reaches tr(Cs)/3 <= V [mm^2] (warm-started search; "
+        "--n is not used)",
+    )
+    p.add_argument("--out", required=True, metavar="FILE", help="design CSV to write")
+    p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
+    p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
+    p.add_argument("--plot", default=None, metavar="FILE.png", help="picture of the poses (.png, .pdf, .svg)")
+    add_html(p)
+    add_extend(p)
+    _add_discriminate_options(p)
+    p.set_defaults(func=run, api_names=API_NAMES)
+
+
+def _add_solve_options(p: argparse.ArgumentParser) -> None:
+    """What to optimise and how: ``--criterion``, ``--n``, ``--no-collision``, ``--solver``,
+    ``--seed``, ``--start``, ``--certify``, ``--starts``."""
     p.add_argument(
         "--criterion",
         default=None,
@@ -76,29 +100,10 @@ def register(sub) -> None:
         "per robot and setup (then cached on disk, $KPIOED_CACHE or ~/.cache/kpioed) and 1-4 s per design",
     )
     p.add_argument("--starts", type=int, default=1, help="number of starts, the best is kept (default 1)")
-    add_sigma(p)
-    _add_kpi_options(p)
-    p.add_argument(
-        "--given",
-        default=None,
-        metavar="D.csv",
-        help="design CSV of poses already measured: their information is held fixed and --n new poses "
-        "are optimised (--out gets the new poses; the values are those of the combined design)",
-    )
-    add_optional_number(
-        p,
-        "--target-var",
-        type=float,
-        metavar="V",
-        help="find the fewest poses whose design reaches tr(Cs)/3 <= V [mm^2] (warm-started search; "
-        "--n is not used)",
-    )
-    p.add_argument("--out", required=True, metavar="FILE", help="design CSV to write")
-    p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
-    p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
-    p.add_argument("--plot", default=None, metavar="FILE.png", help="picture of the poses (.png, .pdf, .svg)")
-    add_html(p)
-    add_extend(p)
+
+
+def _add_discriminate_options(p: argparse.ArgumentParser) -> None:
+    """``--discriminate A|B`` and its ``--condition-span``."""
     p.add_argument(
         "--discriminate",
         default=None,
@@ -118,10 +123,9 @@ def register(sub) -> None:
         "rounded up; 0 forbids it); with joint_elasticity, backlash or a compliance: the payload at the "
         "reflector in block 2, e.g. 10kg (opt-in; default: the poses alone)",
     )
-    p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def _add_kpi_options(p) -> None:
+def _add_kpi_options(p: argparse.ArgumentParser) -> None:
     """The working poses of the KPI: ``--q-work`` (repeatable), ``--q-work-file``, weights, aggregate."""
     p.add_argument(
         "--q-work",
@@ -164,7 +168,7 @@ def _weights(text: str | None) -> list[float] | None:
         raise InputError(f"--kpi-weights: expected comma-separated numbers, got {text!r}") from None
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.criterion is None and args.discriminate is None:
         raise InputError("--criterion is required (or --discriminate A|B)")
     q_work = args.q_work[0] if args.q_work and len(args.q_work) == 1 else args.q_work

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import (
     DATA_HELP,
@@ -10,14 +12,15 @@ from kpioed_drake.cli import (
     add_robot,
     add_sigma,
     data_outputs,
-    print_json,
+    passed,
+    print_result,
 )
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diagnose",
         help="test measured data against the geometric model and name the missing effect",
@@ -44,23 +47,11 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
-    report = api.diagnose(
-        args.robot,
-        args.data,
-        sigma_mm=args.sigma_mm,
-        out=args.out,
-        **data_outputs(args),
-    )
-    if args.json == "-":
-        print_json(report.to_json())
-        return 0
-    print(report.summary())
-    for path, what in (
+def run(args: argparse.Namespace) -> int:
+    report = api.diagnose(args.robot, args.data, **passed(args, "sigma_mm", "out"), **data_outputs(args))
+    written = (
         (args.out, "extended model (use it as --robot FILE)"),
         (args.plots, "plots"),
         (args.html, "3-D page"),
-    ):
-        if path:
-            print(f"  {what}: {path}")
-    return 0
+    )
+    return print_result(args, report.to_json, report.summary, written)

@@ -23,7 +23,7 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
     add_robot(p)
     p.add_argument("--design", required=True, help=DESIGN_HELP)
@@ -43,7 +43,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     options = dict(sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend, html=args.html)
     d = api.evaluate(args.robot, args.design, json_path=json_file(args.json), certify=args.certify, **options)
     if args.json == "-":

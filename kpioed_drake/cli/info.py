@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import add_robot, print_json
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="robot parameters, identifiable count, reach, q_work")
     add_robot(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     d = api.info(args.robot)
     if args.json:
         print_json(d)

@@ -3,6 +3,8 @@ next poses to measure."""
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import (
     DATA_HELP,
@@ -11,14 +13,14 @@ from kpioed_drake.cli import (
     add_robot,
     json_file,
     passed,
-    print_json,
+    print_result,
 )
 
 API_NAMES = {"target_var_mm2": "target_var", "json_path": "json", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "next",
         help="online calibration: calibrate on the data so far; stop at the target TCP variance or "
@@ -51,7 +53,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
     result = api.next(
         args.robot,
@@ -61,10 +63,5 @@ def run(args) -> int:
         data_format=args.format,
         **same,
     )
-    if args.json == "-":
-        print_json(result)
-        return 0
-    print(result["summary"])
-    if args.out and not result["done"]:
-        print(f"  next poses: {args.out}")
-    return 0
+    written = ((None if result["done"] else args.out, "next poses"),)
+    return print_result(args, lambda: result, lambda: result["summary"], written)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot
 from kpioed_drake.files.designs import OFFSET_COLUMNS
@@ -10,7 +12,7 @@ API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate measurements of a design CSV (writes the measurement CSV layout)"
     )
@@ -44,7 +46,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     table, truth = api.simulate(
         args.robot,
         args.design,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
 from kpioed_drake.errors import EXIT_SOLVER
 from kpioed_drake.study import DEFAULT, VARIANTS, regenerate_tables
@@ -10,7 +12,7 @@ API_NAMES = {"out_dir": "out"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="run (or resume) the paper's study: Tables 6-8, Figures 7-8")
     p.add_argument(
         "--out", required=True, metavar="DIR", help="output folder (results.csv, tables, report.md)"
@@ -42,7 +44,7 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.tables_only:
         res = regenerate_tables(args.out, jobs=args.jobs, progress=not args.no_progress)
         print(f"{res.n_tasks} bounds ({res.n_run} computed, {res.n_skipped} resumed, {res.n_errors} failed); "

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
+
 from kpioed_drake import api
-from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, print_json
+from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, passed, print_result
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "validate",
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
@@ -35,19 +37,10 @@ def register(sub) -> None:
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
+    outputs = {"json_path": json_file(args.json), "plots_dir": args.plots, "data_format": args.format}
+    keep = args.keep_tracker or None
     result = api.validate(
-        args.robot,
-        args.data,
-        data_format=args.format,
-        tracker_frame=args.tracker_frame,
-        keep_tracker=args.keep_tracker or None,
-        force=args.force,
-        json_path=json_file(args.json),
-        plots_dir=args.plots,
+        args.robot, args.data, keep_tracker=keep, **passed(args, "tracker_frame", "force"), **outputs
     )
-    if args.json == "-":
-        print_json(result.to_dict())
-        return 0
-    print(result.summary())
-    return 0
+    return print_result(args, result.to_dict, result.summary)

@@ -36,7 +36,8 @@ Modules, in dependency order:
   tr(Cs)/3 of any n-pose design and a design's efficiency (:func:`certify`; rigorous over the poses evaluated,
   a search over the continuous feasible set; docs/certificate.md);
 - :mod:`~kpioed_drake.design.polish`: the final exchange on the exact criterion after the optimiser
-  (the optimiser's poses and the approximate design's candidates as one pool);
+  (the optimiser's poses and the approximate design's candidates as one pool) and the greedy
+  removal of poses (:func:`remove_poses`);
 - :mod:`~kpioed_drake.design.report`: :class:`DesignReport`, its JSON record and summary;
 - :mod:`~kpioed_drake.design.starts`: where the solves start (the heuristic or the rounded approximate
   design; :func:`resolve_start`);
@@ -84,6 +85,7 @@ from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.design.optimize import min_new_poses, optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
+from kpioed_drake.design.polish import remove_poses
 from kpioed_drake.design.report import DesignError, DesignReport, format_summary, json_record
 from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
@@ -103,7 +105,7 @@ from kpioed_drake.design.settings import (
     method_label,
 )
 from kpioed_drake.design.starts import resolve_start
-from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target, remove_poses
+from kpioed_drake.design.target import MAX_TARGET_POSES, design_for_target
 from kpioed_drake.design.workflow import demo, read_working_poses, run_design
 from kpioed_drake.estimation.criteria import CRITERIA
 

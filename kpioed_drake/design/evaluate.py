@@ -32,10 +32,10 @@ def evaluate_file(
     *,
     sigma_mm: float | None = None,
     q_work_deg: str | None = None,
-    extend=(),
+    extend: tuple[str, ...] | list[str] = (),
     json_path: str | Path | None = None,
     html: str | Path | None = None,
-    cell_path=None,
+    cell_path: str | Path | None = None,
     certify: bool = True,
 ) -> dict:
     """KPI variance, standard criterion and feasibility of a design file (``kpioed evaluate``).

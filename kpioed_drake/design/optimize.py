@@ -11,6 +11,17 @@ result raises :class:`~kpioed_drake.design.report.DesignError` unless ``allow_in
 Sequential re-identification (paper, section 3.1 and Outlook): with ``given`` poses already
 measured, their information ``F1^T F1`` is held fixed and only the new poses are optimised, the
 same as the block solves of a sweep; the result's criteria are those of the combined design.
+
+Starts (``start``): ``heuristic`` (paper 3.2) or ``approximate`` (``kpi`` only, without ``given``:
+:func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses: the
+approximate design of their weighted mean). With ``given`` poses the approximate start is two
+solves, from the certified design's candidates and from those of the approximate design with the
+measured information. ``approx``, the approximate design the first approximate start is rounded
+from (without ``given``), e.g. the certificate's
+:func:`~kpioed_drake.design.approximate.certificate.certified_design` of the same problem and
+``collision``, starts the optimiser nearer the optimum than the cheaper default
+(:func:`~kpioed_drake.design.approximate.design.start_approximation`). The polish runs for the
+``kpi`` criterion with an approximate start and one solve over all poses.
 """
 
 from __future__ import annotations
@@ -25,7 +36,7 @@ from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.objective import DesignObjective
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_blocks, solve_checked
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design
+from kpioed_drake.design.polish import POLISH_ROUNDS, Polished, polish_design, remove_poses
 from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.design.settings import (
     ACTIVE_ROWS_PER_POSE,
@@ -108,6 +119,19 @@ def _given_record(problem: Problem, given: np.ndarray | None) -> dict | None:
     }
 
 
+def _base_record(
+    problem: Problem, criterion: str, collision: bool, seed: int, given: np.ndarray | None
+) -> dict:
+    """The fields of :class:`DesignReport` every design method fills the same way."""
+    return dict(
+        criterion=criterion,
+        collision=collision,
+        robot=problem.robot.name,
+        seed=int(seed),
+        given=_given_record(problem, given),
+    )
+
+
 def _heuristic_result(
     problem: Problem, *, n: int, seed: int, collision: bool, given: np.ndarray | None, base: dict
 ) -> DesignReport:
@@ -163,40 +187,24 @@ def optimize_design(
         collision: impose collision and laser-beam clearance (paper "CA").
         solver: ``snopt`` or ``ipopt``.
         seed: seed of the start; start k uses ``seed + k``.
-        starts: number of starts; the best feasible result is kept (with ``given`` poses the
-            approximate start is two solves, from the certified design's candidates and from
-            those of the approximate design with the measured information; starts after the
-            first are heuristic).
+        starts: number of starts; the best feasible result is kept (starts after the first are
+            heuristic; with ``given``, see the module's note on starts).
         q0: (n, 6) [rad] start of the first solve instead of ``start``'s.
         allow_infeasible: return a failed or infeasible result instead of raising.
-        active_rows: clearance rows per pose passed to the solver (its smallest ones; None: all
-            rows); see :class:`~kpioed_drake.design.exact.program.DesignProgram`.
-        pose_block: poses per constraint binding (default
-            :data:`~kpioed_drake.design.settings.POSE_BLOCK`; None: one binding for all poses).
-        max_block: most poses one solve varies (default
-            :data:`~kpioed_drake.design.settings.MAX_BLOCK_POSES`). A design of more poses is
-            optimised by sweeps over blocks of about ``sweep_block`` poses, each solved with the
-            others fixed; ``status`` then reports the sweeps and ``sweeps`` their number. None:
-            always one solve over all poses.
-        sweep_block: poses per block in sweeps (default
-            :data:`~kpioed_drake.design.settings.SWEEP_BLOCK_POSES`).
+        active_rows, pose_block, max_block, sweep_block: the solves' sizes (defaults in
+            :mod:`~kpioed_drake.design.settings`): clearance rows per pose passed to the solver
+            (None: all), poses per constraint binding (None: one binding), most poses one solve
+            varies (more: sweeps over blocks of about ``sweep_block`` poses, the others fixed;
+            ``status`` reports them, ``sweeps`` counts them; None: always one solve).
         given: (m, 6) [rad] poses already measured (sequential re-identification): their
             information is held fixed and the ``n`` new poses are optimised (at least
             :func:`min_new_poses`). The given poses are neither moved nor checked.
-        start: how the starting poses are made, one of
-            :data:`~kpioed_drake.design.settings.START_METHODS`: ``heuristic`` (paper 3.2) or
-            ``approximate`` (``kpi`` only, without ``given``:
-            :func:`~kpioed_drake.design.approximate.design.approximate_start`; several working poses:
-            the approximate design of their weighted mean); None: :func:`resolve_start`.
-            Recorded in the result's ``start`` (``q0`` when the caller's ``q0`` was kept).
-        approx: the approximate design the first approximate start is rounded from (without
-            ``given``), e.g. the certificate's
-            :func:`~kpioed_drake.design.approximate.certificate.certified_design` of the same
-            problem and ``collision``, whose rounding starts the optimiser nearer the optimum than
-            the cheaper default (:func:`~kpioed_drake.design.approximate.design.start_approximation`).
-        polish: most rounds of the final exchange on the exact criterion after the optimiser
-            (``kpi`` criterion with an approximate start, one solve over all poses;
-            :func:`~kpioed_drake.design.polish.polish_design`); 0: none.
+        start: how the starting poses are made (module note; one of
+            :data:`~kpioed_drake.design.settings.START_METHODS`; None: :func:`resolve_start`),
+            recorded in the result's ``start`` (``q0`` when the caller's ``q0`` was kept).
+        approx: the approximate design the first approximate start is rounded from (module note).
+        polish: most rounds of the final exchange on the exact criterion
+            (:func:`~kpioed_drake.design.polish.polish_design`; module note); 0: none.
 
     Returns:
         :class:`~kpioed_drake.design.report.DesignReport` of the ``n`` new poses; its criteria
@@ -214,48 +222,15 @@ def optimize_design(
     )
     n = int(n)
     start = resolve_start(start, criterion, given=given, worst_case=problem.worst_case)
-    base = dict(
-        criterion=criterion,
-        collision=collision,
-        robot=problem.robot.name,
-        seed=int(seed),
-        given=_given_record(problem, given),
-    )
+    base = _base_record(problem, criterion, collision, seed, given)
     if criterion == "heuristic":
         res = _heuristic_result(problem, n=n, seed=seed, collision=collision, given=given, base=base)
         return _finish(res, allow_infeasible)
     if q0 is not None:
         q0 = checked_poses(problem, q0, n, "q0")
-    M_given = None
-    if given is not None:
-        F_given = problem.F1(given)
-        M_given = F_given.T @ F_given
-    setup = SolveSetup(
-        problem=problem,
-        criterion=criterion,
-        collision=collision,
-        solver=solver,
-        pose_block=pose_block,
-        active_rows=active_rows,
-    )
-    run = _Run(
-        setup=setup,
-        objective=DesignObjective(problem, criterion, fixed_information=M_given),
-        n=n,
-        seed=int(seed),
-        given=given,
-        M_given=M_given,
-        blocks=None if max_block is None or n <= max_block else int(sweep_block),
-    )
-    methods = start_methods(start, starts, given=given, q0=q0)
-    runs = [_solve_from(run, k, m, q0=q0, approx=approx if k == 0 else None) for k, m in enumerate(methods)]
-    best = _best(runs)
-    polished = None
-    if polish and criterion == "kpi" and run.blocks is None and runs[best].pool is not None:
-        polished = _polish(run, runs[best], int(polish))
-    res = _result(
-        run, runs, best, polished, start="q0" if (best == 0 and q0 is not None) else start, base=base
-    )
+    setup = SolveSetup(problem, criterion, collision, solver, pose_block, active_rows)
+    run = _make_run(setup, n=n, seed=seed, given=given, max_block=max_block, sweep_block=sweep_block)
+    res = _optimized(run, start, starts=starts, q0=q0, approx=approx, polish=polish, base=base)
     return _finish(res, allow_infeasible)
 
 
@@ -272,6 +247,26 @@ class _Run:
     blocks: int | None  # poses per block of the sweeps; None: one solve over all poses
 
 
+def _make_run(
+    setup: SolveSetup, *, n: int, seed: int, given: np.ndarray | None, max_block: int | None, sweep_block: int
+) -> _Run:
+    """What every start of one :func:`optimize_design` call shares: the objective (with the
+    ``given`` poses' information held fixed) and the sweep blocks (None up to ``max_block`` poses)."""
+    M_given = None
+    if given is not None:
+        F_given = setup.problem.F1(given)
+        M_given = F_given.T @ F_given
+    return _Run(
+        setup=setup,
+        objective=DesignObjective(setup.problem, setup.criterion, fixed_information=M_given),
+        n=n,
+        seed=int(seed),
+        given=given,
+        M_given=M_given,
+        blocks=None if max_block is None or n <= max_block else int(sweep_block),
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class _Start:
     """One start's solve: its outcome, the independent check, the criterion at its starting poses,
@@ -282,6 +277,21 @@ class _Start:
     initial: float
     pool: ApproximateDesign | None
     start_s: float
+
+
+def _optimized(
+    run: _Run, start: str, *, starts: int, q0: np.ndarray | None, approx, polish: int, base: dict
+) -> DesignReport:
+    """Solve from each start, keep the best, polish it where the polish applies: the report."""
+    methods = start_methods(start, starts, given=run.given, q0=q0)
+    runs = [_solve_from(run, k, m, q0=q0, approx=approx if k == 0 else None) for k, m in enumerate(methods)]
+    best = _best(runs)
+    polished = None
+    if polish and run.setup.criterion == "kpi" and run.blocks is None and runs[best].pool is not None:
+        polished = _polish(run, runs[best], int(polish))
+    return _result(
+        run, runs, best, polished, start="q0" if (best == 0 and q0 is not None) else start, base=base
+    )
 
 
 def _solve_from(run: _Run, k: int, method: str, *, q0, approx) -> _Start:
@@ -385,3 +395,57 @@ def _finish(res: DesignReport, allow_infeasible: bool) -> DesignReport:
         res,
         fields=("allow_infeasible", "seed", "starts"),
     )
+
+
+def first_target_n(problem: Problem, V: float, given: np.ndarray | None, max_poses: int) -> int:
+    """The first N of :func:`~kpioed_drake.design.target.design_for_target`'s search for the target
+    V [mm^2]: :func:`min_new_poses`, after checking that the ``given`` poses alone do not reach V
+    and that ``max_poses`` allows N (else :class:`~kpioed_drake.errors.InputError`)."""
+    n_given = 0 if given is None else len(np.atleast_2d(given))
+    n_min = min_new_poses(problem, n_given)
+    if given is not None:
+        try:
+            alone = problem.criteria(given)["kpi_avg_var_mm2"]
+        except InputError:
+            alone = np.inf
+        if alone <= V:
+            raise InputError(
+                f"the {n_given} given poses already reach tr(Cs)/3 = {alone:.4g} <= {V:.4g} mm^2: "
+                "no new poses are needed"
+            )
+    if max_poses < n_min:
+        raise InputError(f"max_poses {max_poses} is below the fewest poses {n_min}")
+    return n_min
+
+
+def target_attempt(
+    problem: Problem, n: int, V: float, previous: DesignReport | None, *, shrink: bool, settings: dict
+) -> tuple[DesignReport, dict]:
+    """One solve of :func:`~kpioed_drake.design.target.design_for_target`'s search: ``n`` poses
+    (``optimize_design`` with ``settings``, infeasible results kept) started from ``previous``
+    reduced to ``n`` poses by :func:`~kpioed_drake.design.polish.remove_poses` (``shrink``, the
+    bisection) or grown with heuristic poses (the doubling; no ``q0`` if ``previous`` is None
+    or infeasible).
+
+    Returns:
+        The design and its row of the search's trail: ``n_poses``, ``kpi_avg_var_mm2`` [mm^2],
+        ``reached`` (solved, feasible and at most V), ``success``, ``feasible``, ``solve_s``.
+    """
+    q0 = None
+    if previous is not None and shrink:
+        q0 = remove_poses(problem, previous.q, n, given=settings["given"])
+    elif previous is not None:
+        more = heuristic_design(
+            problem, n=n - len(previous.q), seed=settings["seed"] + n, collision=settings["collision"]
+        )
+        q0 = np.concatenate([previous.q, more]) if previous.feasible else None
+    res = optimize_design(problem, n=n, q0=q0, allow_infeasible=True, **settings)
+    row = {
+        "n_poses": n,
+        "kpi_avg_var_mm2": res.kpi_avg_var_mm2,
+        "reached": bool(res.success and res.feasible and res.kpi_avg_var_mm2 <= V),
+        "success": res.success,
+        "feasible": res.feasible,
+        "solve_s": res.solve_s,
+    }
+    return res, row

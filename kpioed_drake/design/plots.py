@@ -10,12 +10,16 @@ Units: millimetres in W (robot base frame, z up); angles in radians.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from kpioed_drake.outputs import pyplot
 from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import Cell, Robot
+
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
 
 
 def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 20, n_cap: int = 6):
@@ -41,11 +45,11 @@ def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 2
 def plot_design_poses(
     robot: Robot,
     cell: Cell,
-    q,
+    q: np.ndarray,
     path: str | Path,
     *,
-    q_work=None,
-    infeasible=None,
+    q_work: np.ndarray | None = None,
+    infeasible: np.ndarray | None = None,
     title: str | None = None,
     show_beams: bool = True,
     elev: float = 25.0,
@@ -89,24 +93,43 @@ def plot_design_poses(
     if bad.any():
         ax.scatter(*refl[bad].T, s=16, color="red", depthshade=False, label="infeasible pose")
     if q_work is not None:
-        fw = forward_kinematics(robot, np.atleast_2d(np.asarray(q_work, dtype=float)))
-        pw = flange_point(fw, cell.p_FQ)
-        cw = np.concatenate([fw.o, pw[:, None, :]], axis=1)
-        for i in range(len(cw)):
-            label = None if i else "working pose q_work"
-            ax.plot(*cw[i].T, color="black", lw=2.5 if len(cw) == 1 else 1.5, label=label)
-        ax.scatter(*pw.T, s=40, color="black", marker="x", depthshade=False, label="TCP (KPI)")
-        for c in robot.capsules if len(cw) == 1 else ():
-            A = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.a
-            B = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.b
-            ax.plot_surface(*_capsule_mesh(A, B, c.radius, 12, 4), color="gray", alpha=0.08, linewidth=0)
+        _draw_working_poses(ax, robot, cell, q_work)
+    _draw_cell(ax, cell, chain)
+    ax.view_init(elev=elev, azim=azim)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title or f"{robot.name}: {n} measurement poses")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def _draw_working_poses(ax: Axes3D, robot: Robot, cell: Cell, q_work: np.ndarray) -> None:
+    """The working pose(s) ``q_work`` [rad] in black with their TCP (one pose: with its capsules)."""
+    fw = forward_kinematics(robot, np.atleast_2d(np.asarray(q_work, dtype=float)))
+    pw = flange_point(fw, cell.p_FQ)
+    cw = np.concatenate([fw.o, pw[:, None, :]], axis=1)
+    for i in range(len(cw)):
+        label = None if i else "working pose q_work"
+        ax.plot(*cw[i].T, color="black", lw=2.5 if len(cw) == 1 else 1.5, label=label)
+    ax.scatter(*pw.T, s=40, color="black", marker="x", depthshade=False, label="TCP (KPI)")
+    for c in robot.capsules if len(cw) == 1 else ():
+        A = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.a
+        B = fw.o[0, c.frame] + fw.R[0, c.frame] @ c.b
+        ax.plot_surface(*_capsule_mesh(A, B, c.radius, 12, 4), color="gray", alpha=0.08, linewidth=0)
+
+
+def _draw_cell(ax: Axes3D, cell: Cell, chain: np.ndarray) -> None:
+    """The obstacles, the tracker and the floor, and the axes around them and the poses' ``chain``
+    (n, 8, 3) [mm]."""
     for ob in cell.obstacles:
         color = "tab:red" if ob.moves_with_car else "tab:brown"
         ax.plot_surface(*_capsule_mesh(ob.a, ob.b, ob.radius), color=color, alpha=0.15, linewidth=0)
     ax.scatter(
         *cell.p_WT, s=120, marker="*", color="orange", edgecolor="k", depthshade=False, label="laser tracker"
     )
-
     pts = np.concatenate(
         [chain.reshape(-1, 3), cell.p_WT[None, :]]
         + [np.stack([ob.a - ob.radius, ob.b + ob.radius]) for ob in cell.obstacles],
@@ -124,12 +147,3 @@ def plot_design_poses(
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_zlabel("z [mm]")
-    ax.view_init(elev=elev, azim=azim)
-    ax.legend(loc="upper left", fontsize=8)
-    ax.set_title(title or f"{robot.name}: {n} measurement poses")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path

@@ -9,6 +9,9 @@ and the optimiser is run again from the exchanged design. A round is kept only i
 succeeds, passes the independent check and lowers the criterion; rounds stop when the exchange
 changes nothing or a round does not help.
 
+:func:`remove_poses` is the greedy removal the other way round (the fewest-poses search of
+:mod:`~kpioed_drake.design.target` shrinks a design with it).
+
 Units: millimetres and radians; ``Phi`` in mm^2 (``n`` times tr(Cs)/3 at the design's noise).
 """
 
@@ -22,6 +25,7 @@ from kpioed_drake.design.approximate.design import exchange_counts, kpi_factor, 
 from kpioed_drake.design.approximate.search import pose_rows
 from kpioed_drake.design.exact.check import DesignCheck
 from kpioed_drake.design.exact.solve import SolveOutcome, SolveSetup, solve_checked
+from kpioed_drake.estimation.problem import Problem
 
 POLISH_ROUNDS = 2
 """Most exchange-and-solve rounds after the optimiser (the first usually gives the gain)."""
@@ -53,7 +57,7 @@ class Polished:
 
 
 def exchanged(
-    problem, q: np.ndarray, pool_q: np.ndarray, pool_F: np.ndarray, *, M0=None
+    problem: Problem, q: np.ndarray, pool_q: np.ndarray, pool_F: np.ndarray, *, M0: np.ndarray | None = None
 ) -> np.ndarray | None:
     """The design ``q`` (n, nj) [rad] after an exchange over ``q`` and ``pool_q`` (m, nj) [rad] with
     rows ``pool_F`` (m, 3, k), or None if the exchange keeps every pose. ``M0``: (k, k) information
@@ -107,3 +111,35 @@ def polish_design(
             break
         out.sol, out.check, out.rounds = new, new_check, out.rounds + 1
     return out
+
+
+def remove_poses(problem: Problem, q: np.ndarray, m: int, *, given: np.ndarray | None = None) -> np.ndarray:
+    """Greedily remove poses of ``q`` (n, 6) [rad] down to ``m``, each time the one whose removal
+    raises the KPI (``problem.criteria``'s ``kpi_avg_var_mm2``; with ``given`` poses held fixed)
+    least.
+
+    Returns:
+        (m, 6) the kept poses [rad], in their original order.
+    """
+    n_par = problem.n_params
+    F = problem.F1(q).reshape(len(q), -1, n_par)
+    M0 = np.zeros((n_par, n_par))
+    if given is not None:
+        Fg = problem.F1(given)
+        M0 = Fg.T @ Fg
+    Js_each = problem.Js_each()
+    K = len(Js_each)
+    Js = Js_each.reshape(3 * K, n_par)
+    keep = np.arange(len(q))
+    while len(keep) > m:
+        Fk = F[keep]
+        M_i = (np.einsum("iak,ial->kl", Fk, Fk) + M0)[None] - np.einsum("iak,ial->ikl", Fk, Fk)
+        sign, _ = np.linalg.slogdet(M_i)
+        ok = sign > 0
+        kpi = np.full(len(keep), np.inf)
+        if ok.any():
+            X = np.linalg.solve(M_i[ok], np.broadcast_to(Js.T, (int(ok.sum()), n_par, 3 * K)))
+            v = np.einsum("rk,ikr->ir", Js, X).reshape(-1, K, 3).sum(axis=2) / 3.0  # (n_ok, K)
+            kpi[ok] = v.max(axis=1) if problem.worst_case else v @ problem.weights
+        keep = np.delete(keep, int(np.argmin(kpi)))
+    return q[keep]

@@ -72,7 +72,7 @@ vectorised call (see
 :class:`~kpioed_drake.design.exact.program.DesignProgram`)."""
 
 
-def as_poses(q, n_joints: int = N_JOINTS) -> np.ndarray:
+def as_poses(q: np.ndarray, n_joints: int = N_JOINTS) -> np.ndarray:
     """``q`` as an (n, n_joints) float array of poses [rad] (a flat vector is pose-major)."""
     return np.asarray(q, dtype=float).reshape(-1, n_joints)
 

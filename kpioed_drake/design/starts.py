@@ -27,7 +27,9 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
 
-def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: bool = False) -> str:
+def resolve_start(
+    start: str | None, criterion: str, *, given: np.ndarray | None = None, worst_case: bool = False
+) -> str:
     """The start method of :func:`~kpioed_drake.design.optimize.optimize_design`: ``start``, or for
     None :data:`~kpioed_drake.design.settings.DEFAULT_START` where it applies (``kpi`` criterion, not
     the worst case of several working poses, whose approximate design would be that of their mean)
@@ -51,7 +53,7 @@ def resolve_start(start: str | None, criterion: str, *, given=None, worst_case: 
     return start
 
 
-def start_methods(start: str, starts: int, *, given, q0) -> list[str]:
+def start_methods(start: str, starts: int, *, given: np.ndarray | None, q0: np.ndarray | None) -> list[str]:
     """The start method of each solve: ``q0`` first if given; with ``given`` poses and the
     approximate start, its two roundings (``approximate``: the certified design's candidates;
     ``given``: those of the approximate design with the measured information) count as one start,
@@ -90,7 +92,9 @@ def start_poses(
     return heuristic_design(problem, n=n, seed=seed, collision=collision), None
 
 
-def checked_poses(problem: Problem, q, n: int | None, name: str, *, limits: bool = True) -> np.ndarray:
+def checked_poses(
+    problem: Problem, q: np.ndarray, n: int | None, name: str, *, limits: bool = True
+) -> np.ndarray:
     """``q`` as a finite (n, n_joints) array (any n >= 1 if ``n`` is None), within the joint limits if
     ``limits`` (not for measured poses: they enter only through their information, and a pose
     measured at a limit comes back from a file in degrees a rounding beyond it).

@@ -13,7 +13,10 @@ The search is warm-started:
   design reaches V, each solve started from the previous design plus heuristic poses;
 - bisection between the largest N that failed and the smallest that reached V, each solve started
   from the smallest design that reached V with the poses removed that raise its KPI least
-  (:func:`remove_poses`, greedy).
+  (:func:`~kpioed_drake.design.polish.remove_poses`, greedy).
+
+Each step is one call, :func:`~kpioed_drake.design.optimize.target_attempt` (its start and its
+solve), so the search leaves this module once per design tried.
 
 A design "reaches" V if its solve succeeded, it passes the independent check and its KPI is at most
 V. The optimum of a local solver is not exactly monotone in N, so N is the smallest of the search:
@@ -27,50 +30,18 @@ The lower bound for N poses is :func:`~kpioed_drake.design.approximate.certifica
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
 from kpioed_drake.design.approximate.certificate import certify
-from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.design.optimize import min_new_poses, optimize_design
+from kpioed_drake.design.optimize import first_target_n, target_attempt
 from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
 MAX_TARGET_POSES = 600
 """Most poses the search tries by default (doubling stops here)."""
-
-
-def remove_poses(problem: Problem, q: np.ndarray, m: int, *, given: np.ndarray | None = None) -> np.ndarray:
-    """Greedily remove poses of ``q`` (n, 6) [rad] down to ``m``, each time the one whose removal
-    raises the KPI (``problem.criteria``'s ``kpi_avg_var_mm2``; with ``given`` poses held fixed)
-    least.
-
-    Returns:
-        (m, 6) the kept poses [rad], in their original order.
-    """
-    n_par = problem.n_params
-    F = problem.F1(q).reshape(len(q), -1, n_par)
-    M0 = np.zeros((n_par, n_par))
-    if given is not None:
-        Fg = problem.F1(given)
-        M0 = Fg.T @ Fg
-    Js_each = problem.Js_each()
-    K = len(Js_each)
-    Js = Js_each.reshape(3 * K, n_par)
-    keep = np.arange(len(q))
-    while len(keep) > m:
-        Fk = F[keep]
-        M_i = (np.einsum("iak,ial->kl", Fk, Fk) + M0)[None] - np.einsum("iak,ial->ikl", Fk, Fk)
-        sign, _ = np.linalg.slogdet(M_i)
-        ok = sign > 0
-        kpi = np.full(len(keep), np.inf)
-        if ok.any():
-            X = np.linalg.solve(M_i[ok], np.broadcast_to(Js.T, (int(ok.sum()), n_par, 3 * K)))
-            v = np.einsum("rk,ikr->ir", Js, X).reshape(-1, K, 3).sum(axis=2) / 3.0  # (n_ok, K)
-            kpi[ok] = v.max(axis=1) if problem.worst_case else v @ problem.weights
-        keep = np.delete(keep, int(np.argmin(kpi)))
-    return q[keep]
 
 
 def design_for_target(
@@ -84,7 +55,7 @@ def design_for_target(
     given: np.ndarray | None = None,
     max_poses: int = MAX_TARGET_POSES,
     bound: bool = True,
-    **options,
+    **options: Any,
 ) -> DesignReport:
     """The design of the fewest poses whose KPI reaches ``target_var_mm2`` (warm-started search).
 
@@ -116,65 +87,32 @@ def design_for_target(
             f"target_var_mm2 must be a positive variance [mm^2], got {target_var_mm2!r}",
             fields=("target_var_mm2",),
         )
-    n_given = 0 if given is None else len(np.atleast_2d(given))
-    n_min = min_new_poses(problem, n_given)
-    if given is not None:
-        try:
-            alone = problem.criteria(given)["kpi_avg_var_mm2"]
-        except InputError:
-            alone = np.inf
-        if alone <= V:
-            raise InputError(
-                f"the {n_given} given poses already reach tr(Cs)/3 = {alone:.4g} <= {V:.4g} mm^2: "
-                "no new poses are needed"
-            )
-    if max_poses < n_min:
-        raise InputError(f"max_poses {max_poses} is below the fewest poses {n_min}")
-    trail: list[dict] = []
+    n_min = first_target_n(problem, V, given, max_poses)
     settings = dict(
         criterion=criterion, collision=collision, solver=solver, seed=seed, given=given, **options
     )
-
-    def attempt(n: int, q0: np.ndarray | None) -> tuple[DesignReport, bool]:
-        res = optimize_design(problem, n=n, q0=q0, allow_infeasible=True, **settings)
-        ok = bool(res.success and res.feasible and res.kpi_avg_var_mm2 <= V)
-        trail.append(
-            {
-                "n_poses": n,
-                "kpi_avg_var_mm2": res.kpi_avg_var_mm2,
-                "reached": ok,
-                "success": res.success,
-                "feasible": res.feasible,
-                "solve_s": res.solve_s,
-            }
+    # one solve per step: doubling from n_min until a design reaches V (each grown from the last
+    # design), then bisection between the largest N that failed and the smallest that reached V
+    # (each shrunk from the smallest design that reached V)
+    trail: list[dict] = []
+    lo, hi, n, best, last = n_min - 1, None, n_min, None, None
+    while hi is None or hi - lo > 1:
+        res, row = target_attempt(
+            problem, n, V, last if hi is None else best, shrink=hi is not None, settings=settings
         )
-        return res, ok
-
-    # doubling: grow the last design with heuristic poses until it reaches V
-    lo, n, q0 = n_min - 1, n_min, None
-    while True:
-        res, ok = attempt(n, q0)
-        if ok:
+        trail.append(row)
+        if row["reached"]:
             hi, best = n, res
-            break
-        if n >= max_poses:
+        elif hi is None and n >= max_poses:
             raise DesignError(
                 f"{problem.robot.name}: no design of up to {max_poses} poses reached tr(Cs)/3 <= {V:.4g} "
-                f"mm^2 (the last: {res.kpi_avg_var_mm2:.4g} mm^2)",
+                f"mm^2 (the last: {row['kpi_avg_var_mm2']:.4g} mm^2)",
                 res,
             )
-        lo, n_next = n, min(2 * n, max_poses)
-        more = heuristic_design(problem, n=n_next - n, seed=seed + n_next, collision=collision)
-        q0 = np.concatenate([res.q, more]) if res.feasible else None
-        n = n_next
-    # bisection: shrink the smallest design that reached V
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        res, ok = attempt(mid, remove_poses(problem, best.q, mid, given=given))
-        if ok:
-            hi, best = mid, res
         else:
-            lo = mid
+            lo = n
+        last = res
+        n = min(2 * n, max_poses) if hi is None else (lo + hi) // 2
     bound_mm2, note = _bound(problem, best.q, bound=bound, given=given, collision=collision, seed=seed)
     best.target = {
         "target_var_mm2": V,

@@ -28,7 +28,7 @@ from kpioed_drake.design.settings import method_label
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import design_for_target
 from kpioed_drake.errors import InputError
-from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.estimation.problem import Problem, make_problem
 from kpioed_drake.files import designs
 from kpioed_drake.files.tables import read_joint_table
 from kpioed_drake.outputs import Outputs, atomic_write_json
@@ -77,9 +77,9 @@ def run_design(
     robot_name: str,
     options: DesignOptions | None = None,
     *,
-    q_work_deg=None,
+    q_work_deg: str | list[str] | np.ndarray | None = None,
     q_work_file: str | Path | None = None,
-    kpi_weights=None,
+    kpi_weights: list[float] | np.ndarray | None = None,
     given: str | Path | None = None,
     out: str | Path | None = None,
     json_path: str | Path | None = None,
@@ -240,7 +240,7 @@ def _write(res: DesignReport, problem, *, out, json_path, plot, html) -> None:
         staged.commit()
 
 
-def first_kpi_covariance(problem, q) -> np.ndarray:
+def first_kpi_covariance(problem: Problem, q: np.ndarray) -> np.ndarray:
     """(3, 3) covariance Cs [mm^2] of the TCP at the first working pose for the design ``q``."""
     Cp, _ = problem.covariances(q)
     Js = problem.Js_each()[0]

@@ -142,7 +142,9 @@ def pool_certificate(problem: Problem, q_pool: np.ndarray) -> PoolCertificate:
     )
 
 
-def verify_search(problem: Problem, approx: ApproximateDesign, *, seed: int = 0):
+def verify_search(
+    problem: Problem, approx: ApproximateDesign, *, seed: int = 0
+) -> tuple[ApproximateDesign, np.ndarray]:
     """A broader search for poses of large ``g`` with ``approx``'s ``Y``.
 
     Evaluates ``g`` on :data:`VERIFY_POOL` fresh random feasible poses (seed ``seed``), on random
@@ -377,11 +379,37 @@ def certify(
     value = problem.criteria(q if given is None else np.concatenate([given, q]))["kpi_avg_var_mm2"]
 
     G0 = None if given is None else pose_rows(problem, given)
+    approx, g_near, n_starts, refined = _refined(
+        problem, q, approx, G0, value=value, collision=collision, seed=seed, refinements=refinements
+    )
+    bound = _dual_bound(approx, g_near, n, G0)
+    if given is not None:  # both bounds are valid: keep the larger
+        bound = max(bound, given_bound(problem, q, approx, given=given, collision=collision))
+    return _certificate_record(approx, bound, value, n, g_near, n_starts, refined, given)
 
-    def dual_bound(approx, g_near) -> float:
-        fixed = 0.0 if G0 is None else float(np.sum((G0 @ approx.Y) ** 2))
-        return approx.dual / (max(approx.g_max, g_near) * n + fixed)
 
+def _dual_bound(approx: ApproximateDesign, g_near: float, n: int, G0: np.ndarray | None) -> float:
+    """The bound of :func:`certify` from ``approx``'s dual ``Y``: its maximum of ``g`` raised to
+    ``g_near``, with the given poses' rows ``G0`` (or None) as one more term."""
+    fixed = 0.0 if G0 is None else float(np.sum((G0 @ approx.Y) ** 2))
+    return approx.dual / (max(approx.g_max, g_near) * n + fixed)
+
+
+def _refined(
+    problem: Problem,
+    q: np.ndarray,
+    approx: ApproximateDesign,
+    G0: np.ndarray | None,
+    *,
+    value: float,
+    collision: bool,
+    seed: int,
+    refinements: int,
+) -> tuple[ApproximateDesign, float, int, int]:
+    """:func:`certify`'s search near the design ``q`` and its continuations of the column generation
+    (while poses found there lie beyond the search): the approximate design, ``g_near``, the local
+    searches near the design and the continuations run."""
+    n = q.shape[0]
     g_near, found, n_starts = _near_design(problem, q, approx, collision=collision)
     small = not is_large(n, problem.robot.n_joints)
     refined = 0
@@ -389,7 +417,7 @@ def certify(
         len(found)
         and refined < refinements
         and g_near > approx.g_max * (1.0 + REFINE_ABOVE)
-        and (small or dual_bound(approx, g_near) < REFINE_BELOW_EFFICIENCY * value)
+        and (small or _dual_bound(approx, g_near, n, G0) < REFINE_BELOW_EFFICIENCY * value)
     ):
         warm = _with_candidates(problem, approx, found)
         try:
@@ -402,9 +430,20 @@ def certify(
         refined += 1
         g_near, found, more = _near_design(problem, q, approx, collision=collision)
         n_starts += more
-    bound = dual_bound(approx, g_near)
-    if given is not None:  # both bounds are valid: keep the larger
-        bound = max(bound, given_bound(problem, q, approx, given=given, collision=collision))
+    return approx, g_near, n_starts, refined
+
+
+def _certificate_record(
+    approx: ApproximateDesign,
+    bound: float,
+    value: float,
+    n: int,
+    g_near: float,
+    n_starts: int,
+    refined: int,
+    given: np.ndarray | None,
+) -> dict:
+    """The dict :func:`certify` returns."""
     return {
         "bound_mm2": bound,
         "efficiency": bound / value,

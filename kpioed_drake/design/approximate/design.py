@@ -37,6 +37,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Iterator
 
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
@@ -94,7 +95,7 @@ little faster than :data:`CLARABEL_TOL` for a start of the same value to a few 1
 
 
 @contextlib.contextmanager
-def quiet_solver_notes():
+def quiet_solver_notes() -> Iterator[None]:
     """Drake's log at WARNING within: Clarabel's "returns InsufficientProgress" notes (INFO) are
     expected where a tight tolerance is tried before a looser one, and would reach the user."""
     log = logging.getLogger("drake")
@@ -235,6 +236,39 @@ def distinct_rows(F_old: np.ndarray, F_new: np.ndarray) -> np.ndarray:
     return keep
 
 
+def _first_pool(
+    problem: Problem,
+    warm: ApproximateDesign | None,
+    *,
+    collision: bool,
+    seed: int,
+    pool: int,
+    first_working: int,
+    working: int,
+) -> tuple[np.ndarray, np.ndarray, int, int, float, np.ndarray]:
+    """Where :func:`approximate_design` starts: the candidates ``q`` and their rows ``F``, the
+    rounds, local searches and seconds already spent (``warm``'s, else 0) and the first working set."""
+    if warm is None:
+        q = heuristic_design(  # as many draws as the certificate's pool: two hands facing the
+            problem, n=pool, seed=seed, collision=collision, margin_mm=0.0, max_draws=10**7
+        )  # tracker are a few feasible poses in a thousand
+        q = np.concatenate([q, corner_poses(problem, q, seed=seed, collision=collision)])
+        return q, pose_rows(problem, q), 0, 0, 0.0, np.arange(min(len(q), first_working))
+    work = np.union1d(warm.support, np.argsort(-dual_values(warm.F, warm.Y))[:working])
+    return warm.q, warm.F, warm.rounds, warm.n_searched, warm.solve_s, work
+
+
+def _with_found(
+    problem: Problem, q: np.ndarray, F: np.ndarray, w: np.ndarray, q_new: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates ``q``, their rows ``F`` and weights ``w`` with the poses ``q_new`` whose rows
+    are not already among ``F`` (weight 0)."""
+    F_new = pose_rows(problem, q_new)
+    keep = distinct_rows(F, F_new)
+    q, F = np.concatenate([q, q_new[keep]]), np.concatenate([F, F_new[keep]])
+    return q, F, np.concatenate([w, np.zeros(int(keep.sum()))])
+
+
 def approximate_design(
     problem: Problem,
     *,
@@ -272,16 +306,9 @@ def approximate_design(
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     K = kpi_factor(problem)
-    if warm is None:
-        q = heuristic_design(  # as many draws as the certificate's pool: two hands facing the
-            problem, n=pool, seed=seed, collision=collision, margin_mm=0.0, max_draws=10**7
-        )  # tracker are a few feasible poses in a thousand
-        q = np.concatenate([q, corner_poses(problem, q, seed=seed, collision=collision)])
-        F, done, n_searched, before_s = pose_rows(problem, q), 0, 0, 0.0
-        work = np.arange(min(len(q), first_working))
-    else:
-        q, F, done, n_searched, before_s = warm.q, warm.F, warm.rounds, warm.n_searched, warm.solve_s
-        work = np.union1d(warm.support, np.argsort(-dual_values(F, warm.Y))[:working])
+    q, F, done, n_searched, before_s, work = _first_pool(
+        problem, warm, collision=collision, seed=seed, pool=pool, first_working=first_working, working=working
+    )
     rounds = done
     while rounds < max(max_rounds, done + 1):
         rounds += 1
@@ -297,10 +324,7 @@ def approximate_design(
         g_max = max(float(g.max()), float(g_found[ok].max(initial=0.0)))
         new = ok & (g_found > 1.0)
         if new.any():
-            F_new = pose_rows(problem, q_max[new])
-            keep = distinct_rows(F, F_new)
-            q, F = np.concatenate([q, q_max[new][keep]]), np.concatenate([F, F_new[keep]])
-            w = np.concatenate([w, np.zeros(int(keep.sum()))])
+            q, F, w = _with_found(problem, q, F, w, q_max[new])
         converged = g_max <= 1.0 + tol
         if converged:
             break
@@ -364,8 +388,13 @@ def rank3_changes(F: np.ndarray, M: np.ndarray, K: np.ndarray, sign: float) -> n
 
 
 def exchange_counts(
-    F: np.ndarray, K: np.ndarray, counts: np.ndarray, *, max_iter: int = EXCHANGE_ITER, M0=None
-):
+    F: np.ndarray,
+    K: np.ndarray,
+    counts: np.ndarray,
+    *,
+    max_iter: int = EXCHANGE_ITER,
+    M0: np.ndarray | None = None,
+) -> np.ndarray:
     """Improve an exact design over candidates by exchanges (Mitchell's DETMAX for the L-criterion).
 
     Each step adds a copy of the candidate whose addition lowers ``Phi`` most, then removes the

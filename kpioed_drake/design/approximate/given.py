@@ -116,7 +116,9 @@ def solve_given_pool(F: np.ndarray, K: np.ndarray, R0: np.ndarray, n: int) -> np
     return Y if np.all(np.isfinite(Y)) and np.any(Y) else None
 
 
-def bound_of(K: np.ndarray, Y: np.ndarray, fixed: float, g_max: float, n) -> np.ndarray | float:
+def bound_of(
+    K: np.ndarray, Y: np.ndarray, fixed: float, g_max: float, n: int | np.ndarray
+) -> np.ndarray | float:
     """``tr(K^T Y)^2 / (fixed + n g_max)`` [mm^2] (``n`` an int or an array of counts)."""
     return float(np.sum(K * Y)) ** 2 / (fixed + np.asarray(n) * g_max)
 
@@ -145,7 +147,7 @@ class GivenDesign:
     rounds: int
     n_searched: int
 
-    def bound(self, K: np.ndarray, n) -> np.ndarray | float:
+    def bound(self, K: np.ndarray, n: int | np.ndarray) -> np.ndarray | float:
         """Lower bound [mm^2] on tr(Cs)/3 of the measured and any ``n`` more feasible poses."""
         return bound_of(K, self.Y, self.fixed, self.g_max, n)
 

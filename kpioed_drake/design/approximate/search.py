@@ -29,6 +29,7 @@ from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.jointmap import commandable_projection
+from kpioed_drake.robot.kinematics import Frames
 
 SEARCH_BATCH = 8
 """Starts per SNOPT solve of the local maximisation: faster than one start per solve or all starts in
@@ -42,7 +43,7 @@ SEARCH_OPTIONS = {
 deep in incidence violation)."""
 
 
-def pose_rows(problem: Problem, q) -> np.ndarray:
+def pose_rows(problem: Problem, q: np.ndarray) -> np.ndarray:
     """Each pose's 3 rows of the weighted identification Jacobian: (m, 3, k) for ``q`` (m, 6) [rad]."""
     q = np.asarray(q, dtype=float).reshape(-1, problem.robot.n_joints)
     return problem.F1(q).reshape(q.shape[0], -1, problem.n_params)
@@ -62,13 +63,13 @@ class DualObjective:
     def __init__(self, problem: Problem, Y: np.ndarray):
         self.problem, self.Y = problem, Y
 
-    def value(self, q, *, frames=None) -> float:
+    def value(self, q: np.ndarray, *, frames: Frames | None = None) -> float:
         """``-sum_i g(q_i)`` of ``q`` (n, 6) [rad]."""
         q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
         F = self.problem.F1(q, frames=frames).reshape(q.shape[0], -1, self.problem.n_params)
         return -float(dual_values(F, self.Y).sum())
 
-    def value_and_grad(self, q, *, frames=None) -> tuple[float, np.ndarray]:
+    def value_and_grad(self, q: np.ndarray, *, frames: Frames | None = None) -> tuple[float, np.ndarray]:
         """The value and its gradient (n, 6) [1/rad]."""
         q = np.asarray(q, dtype=float).reshape(-1, self.problem.robot.n_joints)
         F1, dF = self.problem.F1(q, with_dq=True, frames=frames)
@@ -77,7 +78,9 @@ class DualObjective:
         return -float(np.sum(FY * FY)), -2.0 * np.einsum("iac,ijac->ij", FY, dFY)
 
 
-def maximize_dual(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, collision: bool = True):
+def maximize_dual(
+    problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, collision: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima of ``g(x) = ||F_x Y||_F^2`` over the feasible poses, one from each start.
 
     SNOPT solves the separable problem ``max sum_i g(x_i)`` (independent problems solved together)

@@ -51,7 +51,9 @@ def given_information(problem: Problem, given: np.ndarray | None) -> np.ndarray:
     return F0.T @ F0
 
 
-def greedy_order(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, avail=None) -> list[int]:
+def greedy_order(
+    F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, avail: np.ndarray | None = None
+) -> list[int]:
     """Indices of ``n`` rows of ``F`` (m, 3, k), each the one that lowers the criterion most with
     ``M0`` and those before; ``avail`` (m,) bool: each row used at most once (else with repeats)."""
     G = F.transpose(0, 2, 1) @ F
@@ -67,7 +69,9 @@ def greedy_order(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, avail=
     return out
 
 
-def given_counts(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, max_iter: int = EXCHANGE_ITER):
+def given_counts(
+    F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, max_iter: int = EXCHANGE_ITER
+) -> tuple[np.ndarray, float]:
     """Counts (m,) of ``n`` new poses among candidate rows ``F`` (m, 3, k) for measured information
     ``M0`` (k, k): greedy additions (:func:`greedy_order`), then the exchanges of
     :func:`~.design.exchange_counts` with ``M0`` held fixed.
@@ -81,7 +85,7 @@ def given_counts(F: np.ndarray, K: np.ndarray, M0: np.ndarray, n: int, *, max_it
     return c, _criterion(K, M0 + np.einsum("i,iak,ial->kl", c, F, F))
 
 
-def given_start(problem: Problem, approx, *, n: int, given: np.ndarray) -> np.ndarray:
+def given_start(problem: Problem, approx: ApproximateDesign, *, n: int, given: np.ndarray) -> np.ndarray:
     """(n, n_joints) [rad] the optimiser's start for ``n`` poses added to ``given``: the candidates
     of ``approx`` (an :class:`ApproximateDesign` of ``problem`` or a
     :class:`~.given.GivenDesign`: candidates ``q`` and rows ``F``, the noise included, every

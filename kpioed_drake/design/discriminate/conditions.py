@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 
 import numpy as np
 import scipy.optimize
@@ -49,15 +50,17 @@ from kpioed_drake.design.discriminate.explanations import (
     DEFAULT_ALPHA,
     OPTION,
     TARGET_POWER,
+    Pair,
     lambda_for_power,
     noncentralities,
 )
-from kpioed_drake.effects import COMPLIANCE_FAMILIES, T_REF_C, extension_columns
+from kpioed_drake.effects import COMPLIANCE_FAMILIES, T_REF_C, Effect, extension_columns
 from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.files.designs import OFFSET_COLUMNS
 from kpioed_drake.files.tables import read_joint_table
+from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.tracker.measurement import measurement_jacobian
 
 SPAN_OPTION = "condition_span"
@@ -92,7 +95,7 @@ _START_SPAN = {"temperature_C": 1.0, "time_s": 60.0, PAYLOAD: 1.0}
 """First span tried when sizing one [K, s, kg]."""
 
 
-def condition_of(effect) -> str | None:
+def condition_of(effect: Effect) -> str | None:
     """The condition that changes ``effect``'s signature at a fixed pose: ``temperature_C`` or
     ``time_s`` (which it needs), ``payload_kg`` (a gravity-torque effect), or None."""
     if effect.family in PAYLOAD_FAMILIES:
@@ -100,12 +103,12 @@ def condition_of(effect) -> str | None:
     return CONDITIONS.get(effect.family)
 
 
-def acts_through_torque(pair) -> bool:
+def acts_through_torque(pair: Pair) -> bool:
     """Whether an explanation of ``pair`` acts through the gravity torque (a payload plan can help)."""
     return any(condition_of(h.effect) == PAYLOAD for h in pair)
 
 
-def needed_conditions(pair) -> list[str]:
+def needed_conditions(pair: Pair) -> list[str]:
     """The conditions (``temperature_C``, ``time_s``) the explanations of ``pair`` need, in order."""
     out = []
     for h in pair:
@@ -115,7 +118,7 @@ def needed_conditions(pair) -> list[str]:
     return out
 
 
-def plan_conditions(pair, spans: dict) -> list[str]:
+def plan_conditions(pair: Pair, spans: dict) -> list[str]:
     """The conditions of a plan for ``pair``: those it needs, then ``payload_kg`` if a span for it
     is given (``spans``, :func:`parse_condition_span`) and an explanation acts through the torque."""
     out = needed_conditions(pair)
@@ -124,7 +127,7 @@ def plan_conditions(pair, spans: dict) -> list[str]:
     return out
 
 
-def parse_condition_span(text, pair) -> dict[str, float]:
+def parse_condition_span(text: str | None, pair: Pair) -> dict[str, float]:
     """The spans of ``--condition-span`` (``"3K"``, ``"600s"``, ``"10min"``, ``"2h"``, ``"3K,600s"``,
     ``"10kg"``) as ``{condition: span}`` [K, s or kg]; None: ``{}`` (the default spans).
 
@@ -178,7 +181,7 @@ def parse_condition_span(text, pair) -> dict[str, float]:
     return out
 
 
-def read_given_conditions(path, n: int) -> dict[str, np.ndarray]:
+def read_given_conditions(path: str | Path, n: int) -> dict[str, np.ndarray]:
     """The ``temperature_C`` and ``time_s`` columns of the given (first) data file, where present
     ((n,) each; a measurement CSV has them, a design CSV not)."""
     if path is None:
@@ -196,7 +199,9 @@ def nice_ceil(x: float) -> float:
     return float(np.ceil(x / e * (1 - 1e-12)) * e)
 
 
-def condition_rows(problem: Problem, q, cond: dict, with_dq: bool, frames=None):
+def condition_rows(
+    problem: Problem, q: np.ndarray, cond: dict, with_dq: bool, frames: Frames | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Weighted rows (n, 3, k) of geometry and ``problem``'s extensions for the poses ``q`` at the
     conditions ``cond`` (``temperature_C``, ``time_s``: (n,) or scalars), and with ``with_dq`` their
     derivative (n, 6, 3, k) (else None)."""
@@ -218,7 +223,9 @@ class SequenceProblem(Problem):
     row_conditions: tuple = ()
     """((condition, (N,) values [C or s]), ...)."""
 
-    def F1(self, q, *, with_dq: bool = False, frames=None):
+    def F1(
+        self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         q = np.atleast_2d(q)
         cond = {c: np.asarray(v) for c, v in self.row_conditions}
         if any(len(v) != len(q) for v in cond.values()):
@@ -279,7 +286,9 @@ class PlanProblem(DiscriminationProblem):
         one, two = self.conditions(1, n), self.conditions(2, n)
         return {c: np.concatenate([one[c], two[c]]) for c in UNITS}
 
-    def F1(self, q, *, with_dq: bool = False, frames=None):
+    def F1(
+        self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         q = np.atleast_2d(q)
         g = self.given_q
         m = len(g) if g is not None and len(q) >= len(g) and np.array_equal(q[: len(g)], g) else 0
@@ -300,7 +309,11 @@ class PlanProblem(DiscriminationProblem):
 
 
 def plan_problem(
-    dprob: DiscriminationProblem, spans: dict, *, given=None, given_conditions=None
+    dprob: DiscriminationProblem,
+    spans: dict,
+    *,
+    given: np.ndarray | None = None,
+    given_conditions: dict | None = None,
 ) -> PlanProblem:
     """The :class:`PlanProblem` of ``dprob`` with block 2 ``spans`` {condition: span} [K, s] after
     block 1; block 1 at the given data's mean temperature and last time (``T_REF_C`` and 0 without)."""
@@ -325,14 +338,16 @@ def with_spans(plan: PlanProblem, spans: dict) -> PlanProblem:
     return dataclasses.replace(plan, spans=tuple(sorted(spans.items())))
 
 
-def plan_lambdas(plan: PlanProblem, base: Problem, pair, q_all) -> np.ndarray:
+def plan_lambdas(plan: PlanProblem, base: Problem, pair: Pair, q_all: np.ndarray) -> np.ndarray:
     """(2,) non-centralities of the two tests for the rows of ``q_all`` (given poses first) under
     ``plan`` (a backlash's signature as its sign, not smoothed as in the criterion)."""
     exact = dataclasses.replace(plan, backlash_tau0=())
     return noncentralities(exact.F1(q_all), explanation_indices(base, pair), pair)
 
 
-def plan_assessment(plan: PlanProblem, base: Problem, pair, q_all, *, alpha: float = DEFAULT_ALPHA) -> dict:
+def plan_assessment(
+    plan: PlanProblem, base: Problem, pair: Pair, q_all: np.ndarray, *, alpha: float = DEFAULT_ALPHA
+) -> dict:
     """Non-centrality and power of both tests (as :func:`~kpioed_drake.design.discriminate.design.assessment`)
     of the given poses and the poses of ``q_all`` after them measured as planned."""
     return tests_record(pair, plan_lambdas(plan, base, pair, q_all), len(np.atleast_2d(q_all)), alpha)
@@ -360,11 +375,11 @@ def _span_for(plan, base, pair, q_all, k: int, cond: str, need: float) -> float:
 def required_spans(
     plan: PlanProblem,
     base: Problem,
-    pair,
-    q_all,
+    pair: Pair,
+    q_all: np.ndarray,
     *,
-    fixed=(),
-    conditions=None,
+    fixed: tuple[str, ...] = (),
+    conditions: list[str] | None = None,
     alpha: float = DEFAULT_ALPHA,
     target: float = TARGET_POWER,
 ) -> dict[str, float]:

@@ -43,6 +43,7 @@ measurement plan instead, poses and their conditions (:mod:`~kpioed_drake.design
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +51,7 @@ from kpioed_drake.design.discriminate.explanations import (
     CONDITION_FAMILIES,
     DEFAULT_ALPHA,
     OPTION,
+    Pair,
     condition_message,
     condition_spread,
     discriminate_error,
@@ -63,6 +65,7 @@ from kpioed_drake.design.report import DesignError, DesignReport
 from kpioed_drake.effects import extension_columns, gravity_torques, reference_poses
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.tracker.measurement import measurement_jacobian
 
 BACKLASH_SMOOTHING = 0.05
@@ -90,10 +93,19 @@ class DiscriminationProblem(Problem):
     def Js_each(self) -> np.ndarray:
         return self.rows
 
-    def F1(self, q, *, with_dq: bool = False, frames=None):
+    def F1(
+        self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         return self.smoothed(q, super().F1(q, with_dq=with_dq, frames=frames), with_dq=with_dq, frames=frames)
 
-    def smoothed(self, q, out, *, with_dq: bool = False, frames=None):
+    def smoothed(
+        self,
+        q: np.ndarray,
+        out: np.ndarray | tuple[np.ndarray, np.ndarray],
+        *,
+        with_dq: bool = False,
+        frames: Frames | None = None,
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """``out`` (F1 (3n, k), with ``with_dq`` also dF1 (n, 6, 3, k)) of the poses ``q`` with each
         backlash column replaced by its smoothed signature (:attr:`backlash_tau0`)."""
         if not self.backlash_tau0:
@@ -127,7 +139,7 @@ def _offsets(problem: Problem) -> list[int]:
     return out
 
 
-def explanation_indices(problem: Problem, pair) -> list[np.ndarray]:
+def explanation_indices(problem: Problem, pair: Pair) -> list[np.ndarray]:
     """For each explanation, the indices of its parameters in ``problem``'s parameter vector."""
     keys = [e.key for e in problem.extensions]
     offs = _offsets(problem)
@@ -138,7 +150,7 @@ def explanation_indices(problem: Problem, pair) -> list[np.ndarray]:
     return out
 
 
-def discrimination_problem(base: Problem, pair) -> DiscriminationProblem:
+def discrimination_problem(base: Problem, pair: Pair) -> DiscriminationProblem:
     """The :class:`DiscriminationProblem` of ``base`` (extended by both explanations)."""
     rows = np.zeros((2, 3, base.n_params))
     for r, (h, idx) in enumerate(zip(pair, explanation_indices(base, pair), strict=True)):
@@ -158,7 +170,7 @@ def discrimination_problem(base: Problem, pair) -> DiscriminationProblem:
     return DiscriminationProblem(**fields, rows=np.sqrt(3.0) * rows, backlash_tau0=tuple(smooth))
 
 
-def assessment(base: Problem, pair, q, *, alpha: float = DEFAULT_ALPHA) -> dict:
+def assessment(base: Problem, pair: Pair, q: np.ndarray, *, alpha: float = DEFAULT_ALPHA) -> dict:
     """Non-centrality and power of both tests for the poses ``q`` (n, 6) [rad]."""
     F1 = base.F1(np.atleast_2d(q))
     return tests_record(
@@ -166,7 +178,7 @@ def assessment(base: Problem, pair, q, *, alpha: float = DEFAULT_ALPHA) -> dict:
     )
 
 
-def tests_record(pair, lam, n: int, alpha: float) -> dict:
+def tests_record(pair: Pair, lam: np.ndarray, n: int, alpha: float) -> dict:
     """``n_poses`` and per explanation its test, ``lambda`` (of ``lam`` (2,)), ``df`` and ``power``."""
     out = {"n_poses": int(n)}
     for h, other, x in zip(pair, pair[::-1], lam, strict=True):
@@ -219,7 +231,7 @@ def _kpi_values(base: Problem, q) -> dict:
         return {"kpi_avg_var_mm2": float("nan"), "param_crit": float("nan")}
 
 
-def checked_pair(problem: Problem, pair_text: str, alpha: float):
+def checked_pair(problem: Problem, pair_text: str, alpha: float) -> Pair:
     """The two explanations of ``pair_text`` (:func:`parse_pair`), neither also an extension of
     ``problem``, and ``alpha`` in (0, 1); else :class:`~kpioed_drake.errors.InputError`."""
     pair = parse_pair(pair_text, problem.model)
@@ -241,7 +253,9 @@ def heuristic_start(options: dict) -> str:
     return start
 
 
-def optimize_discrimination(dprob: Problem, *, n: int, given, **options) -> DesignReport:
+def optimize_discrimination(
+    dprob: Problem, *, n: int, given: np.ndarray | None, **options: Any
+) -> DesignReport:
     """:func:`~kpioed_drake.design.optimize.optimize_design` of ``dprob``'s worst case from the
     heuristic start; a failure is reported as the discriminate design's."""
     start = heuristic_start(options)
@@ -262,7 +276,7 @@ def discrimination_design(
     n: int,
     given: np.ndarray | None = None,
     alpha: float = DEFAULT_ALPHA,
-    **options,
+    **options: Any,
 ) -> tuple[DiscriminationReport, Problem]:
     """Poses that tell the two explanations of ``pair_text`` apart (module docstring).
 
@@ -332,7 +346,7 @@ def result_fields(res: DesignReport, crit: dict, alone: dict | None) -> dict:
 
 
 def discrimination_record(
-    pair, alpha: float, criterion: str, res: DesignReport, before: dict, after: dict
+    pair: Pair, alpha: float, criterion: str, res: DesignReport, before: dict, after: dict
 ) -> dict:
     """The ``discrimination`` record: pair, assumed sizes, level, criterion, ``1/v_h`` of the
     optimiser's ``res``, and both tests ``before`` and ``after``."""

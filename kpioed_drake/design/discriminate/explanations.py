@@ -26,6 +26,7 @@ from kpioed_drake.effects import (
 )
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
+from kpioed_drake.tracker.measurement import TrackerModel
 
 OPTION = "discriminate"
 """The API parameter the messages name (their ``fields``; the command line shows ``--discriminate``)."""
@@ -97,7 +98,11 @@ class Explanation:
         return out
 
 
-def _default(effect: Effect, model) -> Effect:
+Pair = tuple[Explanation, Explanation]
+"""The two competing explanations of ``"A|B"`` (:func:`parse_pair`)."""
+
+
+def _default(effect: Effect, model: TrackerModel) -> Effect:
     """``effect`` with the assumed size of :data:`DEFAULT_SIZES`."""
     size = DEFAULT_SIZES[effect.family]
     if effect.family == "joint_elasticity" or effect.family in COMPLIANCE_FAMILIES:
@@ -111,7 +116,7 @@ def _default(effect: Effect, model) -> Effect:
     return effect.with_values([size])
 
 
-def parse_pair(text: str, model) -> tuple[Explanation, Explanation]:
+def parse_pair(text: str, model: TrackerModel) -> Pair:
     """The two explanations of ``"A|B"`` (texts of :func:`~kpioed_drake.effects.parse_effect`,
     values optional, e.g. ``"joint_scale:2=300|gear_cyclic:2:1"``).
 
@@ -140,7 +145,7 @@ def parse_pair(text: str, model) -> tuple[Explanation, Explanation]:
     return out[0], out[1]
 
 
-def noncentralities(F1: np.ndarray, indices, pair) -> np.ndarray:
+def noncentralities(F1: np.ndarray, indices: list[np.ndarray], pair: Pair) -> np.ndarray:
     """(2,) exact non-centralities ``lambda_h`` of the two tests for a weighted Jacobian ``F1``
     (m, k) (geometry, extensions, A, B): the part of h's columns outside the span of all the
     others (a least-squares projection, so also where the geometry is not determined)."""
@@ -174,7 +179,7 @@ def lambda_for_power(target: float, df: int, alpha: float = DEFAULT_ALPHA) -> fl
 
 
 def condition_spread(
-    base: Problem, pair, q, *, alpha: float = DEFAULT_ALPHA, target: float = TARGET_POWER
+    base: Problem, pair: Pair, q: np.ndarray, *, alpha: float = DEFAULT_ALPHA, target: float = TARGET_POWER
 ) -> list[dict]:
     """What spread of temperature or time the poses ``q`` (n, 6) need to tell the pair apart.
 
@@ -211,7 +216,7 @@ def condition_spread(
     return out
 
 
-def condition_message(pair, spans, n: int, source: str, alpha: float) -> str:
+def condition_message(pair: Pair, spans: list[dict], n: int, source: str, alpha: float) -> str:
     """The input error of a pair with a condition family: the spans the data needs."""
     parts = []
     for r in spans:

@@ -20,6 +20,7 @@ returned for the JSON record and the 3-D page).
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +55,7 @@ from kpioed_drake.design.discriminate.explanations import (
     DEFAULT_ALPHA,
     OPTION,
     TARGET_POWER,
+    Pair,
     condition_message,
     condition_spread,
     discriminate_error,
@@ -113,7 +115,9 @@ def plan_lines(rec: dict) -> list[str]:
     return lines
 
 
-def payload_advice(base: Problem, pair, given, q, *, alpha: float = DEFAULT_ALPHA) -> dict:
+def payload_advice(
+    base: Problem, pair: Pair, given: np.ndarray | None, q: np.ndarray, *, alpha: float = DEFAULT_ALPHA
+) -> dict:
     """What a payload would add to a poses-only design of a pair with a gravity-torque effect: the
     payload [kg] at which every torque explanation's test reaches power :data:`TARGET_POWER` when
     the designed poses ``q`` (n, 6) are measured again with it at the reflector (block 2 of a payload
@@ -178,9 +182,9 @@ def plan_design(
     n: int,
     given: np.ndarray | None = None,
     given_conditions: dict | None = None,
-    condition_span=None,
+    condition_span: str | None = None,
     alpha: float = DEFAULT_ALPHA,
-    **options,
+    **options: Any,
 ) -> tuple[DesignReport, Problem]:
     """Poses and conditions that tell the two explanations of ``pair_text`` apart (module docstring).
 

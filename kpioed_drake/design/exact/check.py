@@ -11,6 +11,8 @@ from __future__ import annotations
 import threading
 from typing import NamedTuple
 
+import numpy as np
+
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.tracker.feasibility import FeasibilityChecker, PoseReport
 
@@ -41,7 +43,7 @@ def _checker(problem: Problem) -> FeasibilityChecker:
     return ch
 
 
-def check_design(problem: Problem, q, *, collision: bool = True) -> DesignCheck:
+def check_design(problem: Problem, q: np.ndarray, *, collision: bool = True) -> DesignCheck:
     """Independent feasibility check of a design (Drake geometry queries, all checks).
 
     Args:

@@ -40,7 +40,9 @@ def incidence_row_beyond(max_incidence: float, deg: float) -> float:
     return math.cos(max_incidence + math.radians(deg)) - math.cos(max_incidence)
 
 
-def incidence_rows(problem: Problem, q, *, frames: Frames | None = None, target: int | None = None):
+def incidence_rows(
+    problem: Problem, q: np.ndarray, *, frames: Frames | None = None, target: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Incidence constraint ``cos(beta) - cos(beta_max)`` (>= 0 is feasible) and its gradient.
 
     With ``z`` the reflector axis (flange z), ``p`` the reflector, ``p_WT`` the tracker (all in W
@@ -99,7 +101,7 @@ class DesignConstraints:
         names = inc + (list(self.clearance.rows.names) if self.clearance else [])
         self.row_names = tuple(names)
 
-    def incidence(self, q, frames: Frames):
+    def incidence(self, q: np.ndarray, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
         """Incidence rows of every target: values (n, T) [-] and jac (n, T, 6) [1/rad]."""
         if self.n_incidence == 1:
             c, dc = incidence_rows(self.problem, q, frames=frames)
@@ -112,12 +114,12 @@ class DesignConstraints:
         """Rows of one pose: incidence plus every clearance."""
         return len(self.row_names)
 
-    def frames(self, q) -> Frames:
+    def frames(self, q: np.ndarray) -> Frames:
         """Forward kinematics of ``q`` (n, 6) as every evaluator of the design problem uses it."""
         robot = self.problem.robot
         return forward_kinematics(robot, as_poses(q, robot.n_joints), self.problem.model.geometry)
 
-    def evaluate(self, q, *, frames: Frames | None = None):
+    def evaluate(self, q: np.ndarray, *, frames: Frames | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Constraint values and their per-pose Jacobian.
 
         Args:
@@ -136,7 +138,9 @@ class DesignConstraints:
         v, J = self.clearance.evaluate(q, frames=frames)
         return np.concatenate([c, v], axis=1), np.concatenate([dc, J], axis=1)
 
-    def evaluate_active(self, q, active: np.ndarray | None, m: int, *, frames: Frames | None = None):
+    def evaluate_active(
+        self, q: np.ndarray, active: np.ndarray | None, m: int, *, frames: Frames | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Incidence and the ``m`` smallest clearances of every pose, with their Jacobian.
 
         "All clearances >= b" holds exactly when "the m smallest clearances >= b" does, so these
@@ -225,7 +229,7 @@ robot with a joint in mm, e.g. lift7's column, can end 2e-4 deg beyond the limit
 conditions satisfied"; docs/design.md)."""
 
 
-def restore_incidence(problem: Problem, q) -> np.ndarray:
+def restore_incidence(problem: Problem, q: np.ndarray) -> np.ndarray:
     """``q`` (n, nj) with every pose whose incidence is beyond the limit by more than the independent
     check's tolerance (:data:`~kpioed_drake.tracker.feasibility.TOL_DEG`) but at most
     :data:`RESTORE_MAX_DEG` moved back to the optimiser's bound (the limit minus

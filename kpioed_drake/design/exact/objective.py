@@ -52,14 +52,16 @@ class DesignObjective:
         self.worst_case = self.criterion.name == "kpi" and problem.worst_case
         self.Js_each = problem.Js_each() if self.worst_case else None
 
-    def value(self, q, *, frames: Frames | None = None) -> float:
+    def value(self, q: np.ndarray, *, frames: Frames | None = None) -> float:
         """Criterion of the design ``q`` (n, 6) [rad] (``frames``: its forward kinematics, if known)."""
         F1 = self.problem.F1(as_poses(q, self.problem.robot.n_joints), frames=frames)
         if self.worst_case:
             return float(np.max(kpi_each(F1, self.Js_each, M0=self.M0, with_grad=False)))
         return self.criterion.evaluate(F1, self.Js, self.scale, with_grad=False, M0=self.M0)
 
-    def values_and_grads(self, q, *, frames: Frames | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def values_and_grads(
+        self, q: np.ndarray, *, frames: Frames | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Each working pose's variance tr(Cs_k)/3 (K,) [mm^2] and its gradient (K, n, 6) [mm^2/rad]
         (worst case only: the constraints ``t >= v_k(q)`` of the epigraph form)."""
         q = as_poses(q, self.problem.robot.n_joints)
@@ -68,7 +70,7 @@ class DesignObjective:
         n = q.shape[0]
         return values, np.einsum("Knak,njak->Knj", G.reshape(len(values), n, -1, F1.shape[1]), dF1)
 
-    def value_and_grad(self, q, *, frames: Frames | None = None) -> tuple[float, np.ndarray]:
+    def value_and_grad(self, q: np.ndarray, *, frames: Frames | None = None) -> tuple[float, np.ndarray]:
         """Criterion and its gradient (n, 6) w.r.t. the joint angles [criterion units / rad].
 
         ``d phi/d q[k, j] = sum_{a, c} (d phi/d F1)[3k + a, c] * (d F1[3k + a, c] / d q[k, j])``.

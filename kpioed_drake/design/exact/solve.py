@@ -14,7 +14,7 @@ import dataclasses
 import time
 
 import numpy as np
-from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
+from pydrake.solvers import IpoptSolver, MathematicalProgramResult, SnoptSolver, SolverOptions
 
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.constraints import restore_incidence
@@ -93,7 +93,7 @@ def solver_options(solver: str, n: int, *, n_joints: int = N_JOINTS) -> dict[str
     }
 
 
-def make_solver(solver: str):
+def make_solver(solver: str) -> SnoptSolver | IpoptSolver:
     """pydrake's ``SnoptSolver`` or ``IpoptSolver`` for ``solver`` (``snopt`` or ``ipopt``).
 
     Raises:
@@ -105,7 +105,7 @@ def make_solver(solver: str):
     return s
 
 
-def status_text(solver: str, result) -> str:
+def status_text(solver: str, result: MathematicalProgramResult) -> str:
     """The solver's exit status as one line (e.g. ``snopt info 1: optimality conditions satisfied``)."""
     details = result.get_solver_details()
     if solver == "snopt":
