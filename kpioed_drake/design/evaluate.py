@@ -9,6 +9,7 @@ optionally with the optimality certificate
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ def evaluate_file(
     *,
     sigma_mm: float | None = None,
     q_work_deg: str | None = None,
-    extend: tuple[str, ...] | list[str] = (),
+    extend: Sequence[str] = (),
     json_path: str | Path | None = None,
     html: str | Path | None = None,
     cell_path: str | Path | None = None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -112,7 +113,7 @@ class DesignReport:
         only when set; the certificate's fields
         (:func:`~kpioed_drake.design.approximate.certificate.certificate_fields`) always (null when not
         computed)."""
-        out = {
+        out: dict[str, Any] = {
             "robot": self.robot,
             "criterion": self.criterion,
             "n_poses": self.n,

@@ -12,6 +12,7 @@ KR 16) in the default cell.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -77,9 +78,9 @@ def run_design(
     robot_name: str,
     options: DesignOptions | None = None,
     *,
-    q_work_deg: str | list[str] | np.ndarray | None = None,
+    q_work_deg: str | Sequence | np.ndarray | None = None,
     q_work_file: str | Path | None = None,
-    kpi_weights: list[float] | np.ndarray | None = None,
+    kpi_weights: str | Sequence | np.ndarray | None = None,
     given: str | Path | None = None,
     out: str | Path | None = None,
     json_path: str | Path | None = None,

@@ -76,6 +76,7 @@ class DriveBounds:
     scale_ppm: float
     """Ratio (scale) error and a drive-train coupling [ppm]."""
     backlash_deg: float
+    """Backlash (half the play) [deg]."""
     elastic_deg: float
     """Elastic twist at the largest gravity torque of the data [deg]."""
     elastic_c: float

@@ -52,8 +52,11 @@ class Capsule:
     """A capsule attached to ``frame`` (-1 = world, 0 = base, i = link i) [mm]."""
 
     name: str
+    """The capsule's name (collision reports name it)."""
     frame: int
+    """The frame it is fixed in: -1 world, 0 base, i link i."""
     radius: float
+    """[mm]"""
     a: np.ndarray  # (3,) [mm] in the frame
     b: np.ndarray  # (3,) [mm]
 

@@ -269,16 +269,27 @@ class SidecarSpec:
     named link's frame): the robot is the union of the chains from the root to their links (a tree:
     two arms on one torso), each joint estimated once; instead of ``tip_link``/``targets_mm``."""
     tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
+    """The tracker position in W [mm] (a calibrated model's estimate; overrides the cell's)."""
     tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    """The tracker orientation (roll, pitch, yaw) [deg], with ``tracker_position_mm``."""
     base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
+    """The root link's position in W when the URDF does not weld it to ``world`` [mm]."""
     base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    """The root link's orientation in W (roll, pitch, yaw) [deg]."""
     limits: list[LimitSpec] = dataclasses.field(default_factory=list)
+    """Joint limits replacing the URDF's (by joint name)."""
     capsules: list[LinkCapsuleSpec] = dataclasses.field(default_factory=list)
+    """Collision capsules replacing the URDF's collision geometry."""
     masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
+    """Link masses (and centres of mass) replacing the URDF's."""
     self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+    """Link pairs checked against each other (link indices 0..n)."""
     beam_links: list[int] = dataclasses.field(default_factory=list)
+    """Links the laser beam must not touch."""
     q_work: list[float] = dataclasses.field(default_factory=list)
+    """The working pose, one value per joint [deg; prismatic mm]."""
     car_shift_x_mm: float = 0.0
+    """Moves the car obstacles along x [mm]."""
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
     joint_map: JointMapSpec | None = None
     """Controller angles to model angles, as in the YAML files (default: the ``<mimic>`` joints')."""

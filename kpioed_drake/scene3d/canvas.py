@@ -39,15 +39,25 @@ ROBOT = Rgba(1.0, 0.42, 0.0, 1.0)
 INFEASIBLE = Rgba(0.85, 0.0, 0.1, 1.0)
 """Robot colour of an infeasible pose."""
 BEAM = Rgba(0.05, 0.8, 0.1, 1.0)
+"""The laser beam from the tracker to the reflector."""
 CLEARANCE = Rgba(0.95, 0.0, 0.95, 1.0)
+"""The shortest distance of a pose to a collision (a line between the two closest points)."""
 TRACKER = Rgba(0.15, 0.15, 0.18, 1.0)
+"""The laser tracker."""
 CAR = Rgba(0.55, 0.58, 0.6, 0.45)
+"""The car's capsules (translucent)."""
 MOUNT = Rgba(0.45, 0.45, 0.45, 1.0)
+"""The mount the robot stands on."""
 WALL = Rgba(0.9, 0.9, 0.85, 0.3)
+"""The wall behind the robot (translucent)."""
 FLOOR = Rgba(0.78, 0.78, 0.74, 1.0)
+"""The floor."""
 WORK = Rgba(0.2, 0.5, 1.0, 0.3)
+"""The working pose's robot (translucent blue)."""
 ELLIPSOID = Rgba(0.0, 0.8, 0.9, 0.75)
+"""The TCP's confidence ellipsoid at the working pose."""
 COMPARE = Rgba(0.6, 0.45, 0.85, 0.7)
+"""A second design or model drawn for comparison."""
 
 _URL = re.compile(
     r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|wss?:|//)|url\(\s*["']?\s*(?:https?:|//)|@import"""
