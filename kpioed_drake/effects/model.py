@@ -1,7 +1,5 @@
-"""Non-geometric effects: the :class:`Effect` type, its text syntax and SPEC's realistic sizes.
-
-See :mod:`kpioed_drake.effects` for the families, the conventions and the measurement model.
-"""
+"""Non-geometric effects: the :class:`Effect` type, its text syntax and SPEC's realistic sizes
+(the families, conventions and measurement model: :mod:`kpioed_drake.effects`)."""
 
 from __future__ import annotations
 
@@ -294,14 +292,19 @@ def parse_effect(
     return _parse_tracker_thermal(family, given, rng, spec)
 
 
+def _joint_part(parts: list[str], n_parts: int, usage: str, spec: str, nj: int) -> int:
+    """The joint of an effect text of ``n_parts`` colon-separated parts (``usage``: its syntax)."""
+    if len(parts) != n_parts:
+        raise InputError(f"effect {spec!r}: expected {usage}")
+    return _joint(parts[1], spec, nj)
+
+
 def _parse_elasticity(
     parts: list[str], given: str | None, rng: np.random.Generator | None, spec: str, nj: int
 ) -> Effect:
     """``joint_elasticity:JOINT[=c]``: with a value, unknown, or drawn as a tool displacement."""
     family = "joint_elasticity"
-    if len(parts) != 2:
-        raise InputError(f"effect {spec!r}: expected joint_elasticity:JOINT[=c], e.g. joint_elasticity:2")
-    joint = _joint(parts[1], spec, nj)
+    joint = _joint_part(parts, 2, "joint_elasticity:JOINT[=c], e.g. joint_elasticity:2", spec, nj)
     if joint == 1:
         raise InputError(
             f"effect {spec!r}: joint 1 turns about the vertical axis; gravity exerts no torque on it, "
@@ -320,9 +323,7 @@ def _parse_gear(
 ) -> Effect:
     """``gear_cyclic:JOINT:N[=a,b]`` (a, b in deg): with values, unknown, or drawn."""
     family = "gear_cyclic"
-    if len(parts) != 3:
-        raise InputError(f"effect {spec!r}: expected gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2")
-    joint = _joint(parts[1], spec, nj)
+    joint = _joint_part(parts, 3, "gear_cyclic:JOINT:N[=a,b], e.g. gear_cyclic:4:2", spec, nj)
     if not re.fullmatch(r"[1-9]\d*", parts[2]):
         raise InputError(f"effect {spec!r}: harmonic N must be a positive integer (SPEC: 1 or 2)")
     n = int(parts[2])
