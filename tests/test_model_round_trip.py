@@ -172,3 +172,14 @@ def test_bad_estimated_errors_name_the_file_and_field(tmp_path, capsys):
     assert main(["validate", "--robot", str(bad), str(data)]) == 2
     err = capsys.readouterr().err
     assert "bad.yaml: estimated_errors" in err and "finite" in err
+
+
+def test_a_diagnosis_of_an_extended_urdf_file_fits_on_its_reference(tmp_path):
+    """``diagnose --robot ext.urdf`` fits on the robot the file's fit started from (its estimated
+    errors folded out), so its geometric fit is the nominal robot's to the last digits, not a fit whose
+    errors are counted twice."""
+    data = _campaign(tmp_path, HUMANOID, 100, ["gear_cyclic:4:1"])
+    _round_trip(tmp_path, HUMANOID, data, ["gear_cyclic:4:1"], ".urdf")
+    nominal = api.diagnose(HUMANOID, data).to_json()["baseline"]
+    from_file = api.diagnose(str(tmp_path / "ext.urdf"), data).to_json()["baseline"]
+    assert_allclose(from_file["rms_mm"], nominal["rms_mm"], rtol=1e-9)

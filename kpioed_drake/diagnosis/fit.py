@@ -48,7 +48,8 @@ class FitProblem:
     changes the problem others hold.
 
     Attributes:
-        robot: the robot.
+        robot: the robot; of an extended model file, the robot its fit started from (the nominal
+            model's, :mod:`kpioed_drake.robot.reference`), on which the effects are evaluated.
         data: the measurements.
         sigma: noise per coordinate [mm].
         cell: the cell (default: the robot's cell file).
@@ -73,6 +74,8 @@ class FitProblem:
             object.__setattr__(self, "cell", load_cell(robot=self.robot))
         if self.nominal is None:
             object.__setattr__(self, "nominal", nominal_model(self.robot, self.cell))
+        if self.robot.reference is not None:  # an extended model file: its fit's robot, as the nominal's
+            object.__setattr__(self, "robot", self.robot.reference.robot)
         if self.conditions is None:
             conditions = estimator.data_conditions(self.robot, self.data, p_FP=self.nominal.p_FP)
             object.__setattr__(self, "conditions", conditions)
