@@ -17,6 +17,7 @@ from kpioed_drake import api
 from kpioed_drake.calibration.validate import predicted_world
 from kpioed_drake.cli import main
 from kpioed_drake.effects import model_effects
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.robot.models import load_cell, load_robot
@@ -183,3 +184,16 @@ def test_a_diagnosis_of_an_extended_urdf_file_fits_on_its_reference(tmp_path):
     nominal = api.diagnose(HUMANOID, data).to_json()["baseline"]
     from_file = api.diagnose(str(tmp_path / "ext.urdf"), data).to_json()["baseline"]
     assert_allclose(from_file["rms_mm"], nominal["rms_mm"], rtol=1e-9)
+
+
+def test_a_design_problem_of_an_extended_urdf_file_has_its_calibrated_frames(tmp_path):
+    """The design problem of an extended URDF file pairs the reference robot with the estimated
+    errors: its constraints' frames are the file's calibrated frames (not the errors applied twice)."""
+    data = _campaign(tmp_path, HUMANOID, 100, ["gear_cyclic:4:1"])
+    _, _, out = _round_trip(tmp_path, HUMANOID, data, ["gear_cyclic:4:1"], ".urdf")
+    written = load_robot(str(out))
+    problem = make_problem(written)
+    assert problem.robot is problem.model.robot
+    q = random_poses(written, 4, np.random.default_rng(8))
+    frames = forward_kinematics(problem.robot, q, problem.model.geometry)
+    assert_allclose(frames.o, forward_kinematics(written, q).o, atol=1e-9)

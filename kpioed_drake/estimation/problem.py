@@ -314,6 +314,7 @@ def make_problem(
     weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
     sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
     model = nominal_model(robot, cell)
+    robot = model.robot  # an extended model file's: the robot its fit started from (robot/reference.py)
     exts = _parse_extensions(extend, model)
     exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
     if fixed is not None:
