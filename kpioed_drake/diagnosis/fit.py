@@ -76,6 +76,10 @@ class FitProblem:
             object.__setattr__(self, "nominal", nominal_model(self.robot, self.cell))
         if self.robot.reference is not None:  # an extended model file: its fit's robot, as the nominal's
             object.__setattr__(self, "robot", self.robot.reference.robot)
+        if self.robot.payload_point is None:  # a payload acts where it acts in the fit's conditions
+            robot = dataclasses.replace(self.robot, payload_point=self.nominal.p_FP)
+            object.__setattr__(self, "robot", robot)
+            object.__setattr__(self, "nominal", dataclasses.replace(self.nominal, robot=robot))
         if self.conditions is None:
             conditions = estimator.data_conditions(self.robot, self.data, p_FP=self.nominal.p_FP)
             object.__setattr__(self, "conditions", conditions)
