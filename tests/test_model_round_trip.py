@@ -187,8 +187,8 @@ def test_a_diagnosis_of_an_extended_urdf_file_fits_on_its_reference(tmp_path):
 
 
 def test_a_design_problem_of_an_extended_urdf_file_has_its_calibrated_frames(tmp_path):
-    """The design problem of an extended URDF file pairs the reference robot with the estimated
-    errors: its constraints' frames are the file's calibrated frames (not the errors applied twice)."""
+    """The design problem of an extended URDF file is made at the file's calibrated geometry, the one
+    its feasibility checker's plant has (not the reference's errors applied twice)."""
     data = _campaign(tmp_path, HUMANOID, 100, ["gear_cyclic:4:1"])
     _, _, out = _round_trip(tmp_path, HUMANOID, data, ["gear_cyclic:4:1"], ".urdf")
     written = load_robot(str(out))

@@ -313,8 +313,10 @@ def make_problem(
     q_work = _checked_q_work(robot, q_work)
     weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
     sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
+    # a design is made at the robot's own (an extended model file's calibrated) geometry, the one the
+    # feasibility checker's plant has; the reference of robot/reference.py reproduces a fit only
+    robot = dataclasses.replace(robot, estimated_errors=None) if robot.reference is not None else robot
     model = nominal_model(robot, cell)
-    robot = model.robot  # an extended model file's: the robot its fit started from (robot/reference.py)
     exts = _parse_extensions(extend, model)
     exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
     if fixed is not None:
