@@ -69,7 +69,23 @@ def add_robot(p: argparse.ArgumentParser, *, required: bool = True) -> None:
 
 
 def add_sigma(p: argparse.ArgumentParser, default: float | None = None) -> None:
-    p.add_argument("--sigma-mm", type=float, default=default, help="noise std. dev. per coordinate [mm]")
+    """``--sigma-mm``: the measurement noise per coordinate; ``default`` None where the command finds it."""
+    shown = "" if default is None else f" ({default:g})"
+    p.add_argument(
+        "--sigma-mm", type=float, default=default, help=f"noise std. dev. per coordinate [mm]{shown}"
+    )
+
+
+def add_seed(p: argparse.ArgumentParser, *, of: str) -> None:
+    """``--seed`` (default 0): the seed of the command's random draws, ``of`` naming them."""
+    p.add_argument("--seed", type=int, default=0, help=f"seed of {of} (0)")
+
+
+def add_force(p: argparse.ArgumentParser) -> None:
+    """``--force``: go on with data that fails the plausibility checks."""
+    p.add_argument(
+        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
+    )
 
 
 def add_optional_number(
@@ -87,6 +103,13 @@ DATA_HELP = (
     "[, temperature_C, time_s, payload_kg, target] (docs/data-formats.md), or see --format"
 )
 """The help of a command's measurement file argument."""
+
+
+def add_data(p: argparse.ArgumentParser, *, help: str = DATA_HELP) -> None:
+    """The positional measurement file ``DATA.csv``."""
+    p.add_argument("data", metavar="DATA.csv", help=help)
+
+
 DESIGN_HELP = f"design CSV: {JOINT_COLUMNS}"
 """The help of a design file argument."""
 MODEL_OUT_METAVAR = "MODEL.yaml|NAME.urdf"
@@ -150,9 +173,7 @@ def add_data_outputs(p: argparse.ArgumentParser, *, plots_help: str) -> None:
     add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help=plots_help)
     add_html(p)
-    p.add_argument(
-        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
-    )
+    add_force(p)
     add_format(p)
 
 

@@ -6,12 +6,13 @@ import argparse
 
 from kpioed_drake import api
 from kpioed_drake.cli import (
-    DATA_HELP,
     MODEL_OUT_METAVAR,
+    add_data,
     add_data_outputs,
     add_extend,
     add_q_work,
     add_robot,
+    add_sigma,
     data_outputs,
     passed,
     print_result,
@@ -27,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help=DATA_HELP)
-    p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
+    add_data(p)
+    add_sigma(p, default=0.02)
     add_q_work(p)
     p.add_argument(
         "--out",

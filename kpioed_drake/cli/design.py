@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from kpioed_drake import api
-from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_sigma, passed
+from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_seed, add_sigma, passed
 from kpioed_drake.design import DesignError, discrimination_lines, format_summary
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
 from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
@@ -83,7 +83,7 @@ def _add_solve_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=int, default=60, help="number of poses (default 60)")
     p.add_argument("--no-collision", action="store_true", help="no collision or laser-beam constraints")
     p.add_argument("--solver", choices=SOLVERS, default="snopt", help="NLP solver (default snopt)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the start (default 0)")
+    add_seed(p, of="the start")
     p.add_argument(
         "--start",
         choices=START_METHODS,

@@ -6,8 +6,8 @@ import argparse
 
 from kpioed_drake import api
 from kpioed_drake.cli import (
-    DATA_HELP,
     MODEL_OUT_METAVAR,
+    add_data,
     add_data_outputs,
     add_robot,
     add_sigma,
@@ -30,11 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "and plausibility, and the structure of what stays unexplained (docs/diagnosis.md).",
     )
     add_robot(p)
-    p.add_argument(
-        "data",
-        metavar="DATA.csv",
-        help=DATA_HELP,
-    )
+    add_data(p)
     add_sigma(p)  # None: measured on repeated poses or checked against the residuals
     p.add_argument(
         "--out",

@@ -8,9 +8,13 @@ import argparse
 from kpioed_drake import api
 from kpioed_drake.cli import (
     DATA_HELP,
+    add_data,
+    add_force,
     add_format,
     add_json_out,
     add_robot,
+    add_seed,
+    add_sigma,
     json_file,
     passed,
     print_result,
@@ -27,13 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "write the next poses to measure",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help=f"the measurements so far; {DATA_HELP}")
+    add_data(p, help=f"the measurements so far; {DATA_HELP}")
     p.add_argument(
         "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
     )
     p.add_argument("--n", type=int, default=5, help="poses to design when not done, at most --max-plan (5)")
-    p.add_argument("--sigma-mm", type=float, default=0.02, help="tracker noise per coordinate [mm] (0.02)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the design's starts and the certificate (0)")
+    add_sigma(p, default=0.02)
+    add_seed(p, of="the design's starts and the certificate")
     p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
     p.add_argument(
         "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
@@ -47,9 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_json_out(p)
     add_format(p)
-    p.add_argument(
-        "--force", action="store_true", help="go on with data that fails the plausibility checks (warned)"
-    )
+    add_force(p)
     p.set_defaults(func=run, api_names=API_NAMES)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from kpioed_drake import api
-from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot
+from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot, add_seed, add_sigma
 from kpioed_drake.files.designs import OFFSET_COLUMNS
 
 API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
@@ -18,8 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_robot(p)
     p.add_argument("--design", required=True, help=DESIGN_HELP)
-    p.add_argument("--sigma-mm", type=float, default=0.02, help="noise std. dev. per coordinate [mm] (0.02)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (geometric errors, tracker frame, noise)")
+    add_sigma(p, default=0.02)
+    add_seed(p, of="the geometric errors, the tracker frame and the noise")
     p.add_argument(
         "--effect",
         action="append",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from kpioed_drake import api
+from kpioed_drake.cli import add_seed
 from kpioed_drake.errors import EXIT_SOLVER
 from kpioed_drake.study import DEFAULT, VARIANTS, regenerate_tables
 
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--heuristic-draws", type=int, default=None, help="seeded heuristic draws (default 10, quick 3)"
     )
-    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    add_seed(p, of="the first run")
     p.add_argument("--robots", default=None, help="comma-separated robot names (default: the study's)")
     p.add_argument(
         "--variant",

@@ -5,7 +5,15 @@ from __future__ import annotations
 import argparse
 
 from kpioed_drake import api
-from kpioed_drake.cli import DATA_HELP, add_format, add_json_out, add_robot, json_file, passed, print_result
+from kpioed_drake.cli import (
+    add_data,
+    add_format,
+    add_json_out,
+    add_robot,
+    json_file,
+    passed,
+    print_result,
+)
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -17,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
     )
     add_robot(p)
-    p.add_argument("data", metavar="DATA.csv", help=DATA_HELP)
+    add_data(p)
     add_format(p)
     p.add_argument(
         "--tracker-frame",
