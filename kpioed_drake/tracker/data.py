@@ -67,6 +67,10 @@ class Measurements:
         extra: ``((name, (n,) values), ...)``: the file's numeric columns that no part of the model
             reads (another branch's joints, a temperature under another name), kept so that the
             diagnosis can test the unexplained rest against them and nothing in the file is lost.
+        R_TP: (n, 3, 3) measured orientation of the probe frame P in the tracker frame (a 6-DoF
+            probe; columns = the probe's axes in tracker coordinates), or None (points only).
+        sigma_rot_rad: (n, 3) standard deviations of the orientation's small rotation about the
+            tracker's x, y, z axes [rad] (per row), or None (the command's default).
     """
 
     q: np.ndarray
@@ -79,6 +83,8 @@ class Measurements:
     frame: str = "tracker"
     target: np.ndarray | None = None
     extra: tuple[tuple[str, np.ndarray], ...] = ()
+    R_TP: np.ndarray | None = None
+    sigma_rot_rad: np.ndarray | None = None
 
     def __post_init__(self):
         if self.rows is None:
@@ -113,11 +119,14 @@ class Measurements:
         frame: str = "tracker",
         target: np.ndarray | Sequence[int] | None = None,
         extra: Mapping[str, np.ndarray] | Sequence[tuple[str, np.ndarray]] = (),
+        R_TP: np.ndarray | None = None,
+        sigma_rot_rad: np.ndarray | None = None,
     ) -> Measurements:
         """Validated measurements from arrays in internal units (q [rad], eta [mm]).
 
         ``target``: (n,) 0-based target index of each row (None: all target 0). ``extra``:
-        ``{name: (n,)}`` or pairs, numeric columns the model does not read.
+        ``{name: (n,)}`` or pairs, numeric columns the model does not read. ``R_TP`` (n, 3, 3) and
+        ``sigma_rot_rad`` (n, 3): a 6-DoF probe's measured orientations and their noise.
 
         Raises:
             InputError: shapes other than (n, 6), (n, 3) and (n,), a non-finite value, a
@@ -139,6 +148,8 @@ class Measurements:
             frame=frame,
             target=None if target is None else np.asarray(target),
             extra=tuple((str(k), np.asarray(v, dtype=float)) for k, v in dict(extra).items()),
+            R_TP=arr(R_TP),
+            sigma_rot_rad=arr(sigma_rot_rad),
         )
         data.check()
         if data.target is not None:
@@ -203,11 +214,31 @@ class Measurements:
             if v.shape != (n,) or not np.all(np.isfinite(v)):
                 raise InputError(f"{self.source}: column {name}: expected one finite number per row")
         self._check_plausible()
+        self._check_orientation()
         t = self.target
         if t is not None:
             ok = t.shape == (n,) and np.all(np.isfinite(t)) and np.all(t == np.round(t)) and np.all(t >= 0)
             if not ok:
                 raise InputError(f"{self.source}: target: expected (n,) integer indices >= 0 (0-based)")
+
+    def _check_orientation(self) -> None:
+        """A 6-DoF probe's orientations: (n, 3, 3) rotation matrices, sigmas (n, 3) finite and > 0."""
+        n, R, s = self.n, self.R_TP, self.sigma_rot_rad
+        if R is not None:
+            if R.shape != (n, 3, 3) or not np.all(np.isfinite(R)):
+                raise InputError(f"{self.source}: orientations: expected (n, 3, 3) finite rotation matrices")
+            err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+            bad = np.flatnonzero((err > 1e-6) | (np.linalg.det(R) < 0))
+            if bad.size:
+                raise InputError(
+                    f"{self.source}: row {self.rows[bad[0]]}: the orientation is not a rotation "
+                    f"(R^T R - I up to {err[bad[0]]:.2g}, or a reflection)"
+                )
+        if s is not None:
+            if R is None:
+                raise InputError(f"{self.source}: orientation sigmas without orientations")
+            if s.shape != (n, 3) or not np.all(np.isfinite(s)) or np.any(s <= 0):
+                raise InputError(f"{self.source}: orientation sigmas: expected (n, 3) finite values > 0")
 
     def _check_plausible(self) -> None:
         """Every measured value within :data:`PLAUSIBLE` (the first one beyond named by row and column)."""
@@ -237,6 +268,8 @@ class Measurements:
             rows=self.rows[idx],
             target=pick(self.target),
             extra=tuple((k, v[idx]) for k, v in self.extra),
+            R_TP=pick(self.R_TP),
+            sigma_rot_rad=pick(self.sigma_rot_rad),
         )
 
     def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
