@@ -12,8 +12,8 @@ reads), :mod:`.tracker` (the measurement model and the tracker's data), :mod:`.e
 :mod:`.compensation`, :mod:`.online`, :mod:`.diagnosis`, :mod:`.study` (the workflows), and
 :mod:`.cli` (the ``kpioed`` command). Modules: :mod:`.errors` (exit statuses, the errors),
 :mod:`.outputs` (atomic writes, output paths), :mod:`.arguments` (checks of command arguments),
-:mod:`.options` (options records from YAML), :mod:`.paper` (the paper's numbers), :mod:`.api`
-(one function per command).
+:mod:`.options` (options records from YAML), :mod:`.paper` (the paper's numbers),
+:mod:`.progress` (progress of long runs on stderr), :mod:`.api` (one function per command).
 """
 
 import os

@@ -32,6 +32,7 @@ RANK = {
     "errors": 0,
     "outputs": 0,
     "paper": 0,
+    "progress": 0,
     "options": 0,
     "robot": 1,
     "files": 1.5,

@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 
+from kpioed_drake import progress
 from kpioed_drake.design.approximate.design import ApproximateDesign
 from kpioed_drake.design.exact.check import DesignCheck, check_design
 from kpioed_drake.design.exact.objective import DesignObjective
@@ -284,7 +285,11 @@ def _optimized(
 ) -> DesignReport:
     """Solve from each start, keep the best, polish it where the polish applies: the report."""
     methods = start_methods(start, starts, given=run.given, q0=q0)
-    runs = [_solve_from(run, k, m, q0=q0, approx=approx if k == 0 else None) for k, m in enumerate(methods)]
+    runs = []
+    with progress.stage(f"design of {run.n} poses", total=len(methods), unit="start"):
+        for k, m in enumerate(methods):
+            runs.append(_solve_from(run, k, m, q0=q0, approx=approx if k == 0 else None))
+            progress.step(criterion=float(runs[-1].sol.value))
     best = _best(runs)
     polished = None
     if polish and run.setup.criterion == "kpi" and run.blocks is None and runs[best].pool is not None:

@@ -37,6 +37,7 @@ import threading
 
 import numpy as np
 
+from kpioed_drake import progress
 from kpioed_drake.design.approximate import certcache
 from kpioed_drake.design.approximate.design import (
     ROUND_TOL,
@@ -49,6 +50,7 @@ from kpioed_drake.design.approximate.design import (
 )
 from kpioed_drake.design.approximate.given import bound_of, given_design
 from kpioed_drake.design.approximate.search import (
+    announce_cold_search,
     corner_poses,
     dual_values,
     feasible,
@@ -223,6 +225,7 @@ def certified_design(
         disk_key = certcache.problem_key(unit, collision=collision, seed=seed, settings=search_settings())
         approx = certcache.load(disk_key)
         if approx is None:
+            announce_cold_search(unit)
             approx = _search(unit, collision=collision, seed=seed, warm=None)
             certcache.store(disk_key, approx)
             approx = _c_order(approx)  # as a stored design loads: the same bits for every later use
@@ -274,15 +277,20 @@ def _search(
     problem: Problem, *, collision: bool, seed: int, warm: ApproximateDesign | None
 ) -> ApproximateDesign:
     """The column generation and broader searches of :func:`certified_design` (not cached)."""
-    approx = approximate_design(problem, collision=collision, seed=seed, max_rounds=CERTIFY_ROUNDS, warm=warm)
-    for k in range(1, VERIFY_ROUNDS + 1):
-        approx, found = verify_search(problem, approx, seed=seed + k)
-        if len(found) == 0 or k == VERIFY_ROUNDS:
-            break
-        warm = _with_candidates(problem, approx, found)
+    with progress.stage("certificate search", total=VERIFY_ROUNDS * (CERTIFY_ROUNDS + 1), unit="round"):
         approx = approximate_design(
-            problem, collision=collision, seed=seed + k, max_rounds=approx.rounds + CERTIFY_ROUNDS, warm=warm
+            problem, collision=collision, seed=seed, max_rounds=CERTIFY_ROUNDS, warm=warm
         )
+        for k in range(1, VERIFY_ROUNDS + 1):
+            approx, found = verify_search(problem, approx, seed=seed + k)
+            progress.step(g_max=approx.g_max)
+            if len(found) == 0 or k == VERIFY_ROUNDS:
+                break
+            warm = _with_candidates(problem, approx, found)
+            rounds = approx.rounds + CERTIFY_ROUNDS
+            approx = approximate_design(
+                problem, collision=collision, seed=seed + k, max_rounds=rounds, warm=warm
+            )
     return approx
 
 

@@ -12,18 +12,16 @@ Over finitely many candidates the optimum is a second-order-cone program (Sagnol
 
     sqrt(Phi*) = max_Y tr(K^T Y)   s.t.  ||F_i Y||_F <= 1  for every candidate i
 
-is solved with Drake's ``MathematicalProgram`` and Clarabel. The cones' multipliers ``lambda_i`` give the
-weights ``w = lambda / sum(lambda)``. At the optimum ``Y`` is proportional to ``M(w)^-1 K``, so
-``g(x) = ||F_x Y||_F^2`` is proportional to the directional derivative
-``d(x, w) = tr(A M^-1 M_x M^-1)`` of the general equivalence theorem.
+is solved with Drake's ``MathematicalProgram`` and Clarabel; the cones' multipliers ``lambda_i`` give
+the weights ``w = lambda / sum(lambda)``. At the optimum ``Y`` is proportional to ``M(w)^-1 K``, so
+``g(x) = ||F_x Y||_F^2`` is proportional to ``d(x, w) = tr(A M^-1 M_x M^-1)`` (equivalence theorem).
 
 Candidates from the continuous feasible set (paper eq. 24b) come by column generation: random
 feasible poses (the paper's heuristic, zero margin) and variants with joints at their limits, then
 rounds of (1) the cone program over the working candidates, (2) pricing: ``g`` on every candidate
-and local maxima of ``g`` over the feasible poses (:mod:`kpioed_drake.design.approximate.search`), (3) maxima
-with ``g > 1`` join the candidates, until nothing searched has ``g > 1 + tol``. The local
-maximisation is a search, not a proof that no feasible pose has a larger ``g``
-(:mod:`kpioed_drake.design.approximate.certificate`: what is rigorous).
+and local maxima of ``g`` over the feasible poses (:mod:`.search`), (3) maxima with ``g > 1`` join the
+candidates, until nothing searched has ``g > 1 + tol``. The local maximisation is a search, not a
+proof that no feasible pose has a larger ``g`` (:mod:`.certificate`: what is rigorous).
 
 :func:`efficient_rounding` (Pukelsheim and Rieder 1992) and :func:`approximate_start`: n poses.
 
@@ -42,6 +40,7 @@ from collections.abc import Iterator
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
 
+from kpioed_drake import progress
 from kpioed_drake.design.approximate.search import corner_poses, dual_values, maximize_dual, pose_rows
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.errors import InputError
@@ -322,6 +321,7 @@ def approximate_design(
         q_max, g_found, ok = maximize_dual(problem, q[first], sol.Y, collision=collision)
         n_searched += len(first)
         g_max = max(float(g.max()), float(g_found[ok].max(initial=0.0)))
+        progress.step(g_max=g_max)
         new = ok & (g_found > 1.0)
         if new.any():
             q, F, w = _with_found(problem, q, F, w, q_max[new])

@@ -21,10 +21,12 @@ Units: millimetres and radians.
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 from pydrake.solvers import SnoptSolver, SolverOptions
 
+from kpioed_drake import progress
 from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.estimation.problem import Problem
@@ -154,3 +156,43 @@ def perturbed_poses(
     qp = np.asarray(q, dtype=float) + np.random.default_rng(seed).normal(scale=scale_rad, size=np.shape(q))
     qp = commandable_projection(problem.robot, qp)
     return qp[feasible(problem, qp, collision=collision)]
+
+
+COLD_SEARCH_UNITS = 45_000.0
+"""CPU time of a cold :func:`certified_design` of a six-joint robot in units of one evaluation of
+``F1`` and ``dF1/dq`` at :data:`~kpioed_drake.design.approximate.search.SEARCH_BATCH` poses
+(measured: kr16, 60 poses, 44,900 units; the 18-joint twin with two targets about 160,000, hence
+the growth :data:`COLD_SEARCH_GROWTH` with the joints): a rough estimate, to tell a user before a
+run of minutes."""
+COLD_SEARCH_GROWTH = 1.15
+"""Exponent of the joint count in :func:`cold_search_estimate_s`."""
+
+
+def cold_search_estimate_s(problem: Problem, *, evaluations: int = 5) -> float:
+    """A rough estimate of a cold certificate search's time here [s]: ``evaluations`` timed
+    evaluations of ``F1`` with ``dF1/dq`` at seeded poses in the limits, times
+    :data:`COLD_SEARCH_UNITS` grown with the joint count."""
+    robot = problem.robot
+    q = np.random.default_rng(0).uniform(robot.lower, robot.upper, size=(SEARCH_BATCH, robot.n_joints))
+    problem.F1(q, with_dq=True)
+    t0 = time.process_time()
+    for _ in range(evaluations):
+        problem.F1(q, with_dq=True)
+    unit = (time.process_time() - t0) / evaluations
+    return unit * COLD_SEARCH_UNITS * (robot.n_joints / 6.0) ** COLD_SEARCH_GROWTH
+
+
+ANNOUNCE_ABOVE_S = 20.0
+"""A cold search estimated longer than this is announced (:func:`progress.note`)."""
+
+
+def announce_cold_search(problem: Problem) -> None:
+    """The estimate of a long cold search, before it starts (shown where progress is)."""
+    if not progress.shown():
+        return
+    est = cold_search_estimate_s(problem)
+    if est > ANNOUNCE_ABOVE_S:
+        progress.note(
+            f"first design of this robot and cell: searching the poses of its certificate, about "
+            f"{max(1, round(est / 60))} min here (stored: later designs of it start at once)"
+        )
