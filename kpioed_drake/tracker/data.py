@@ -161,10 +161,12 @@ class Measurements:
     def from_table(
         cls, table: pd.DataFrame, robot: Robot | None = None, *, source: str = "data"
     ) -> Measurements:
-        """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`.
+        """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`; a
+        6-DoF probe's native orientation columns (``qw, qx, qy, qz``, ``sigma_r*_deg``) too.
 
         Raises:
-            InputError: a missing column, a non-finite value, angles outside the robot's limits.
+            InputError: a missing column, a non-finite value, angles outside the robot's limits, an
+                orientation that is not a unit quaternion.
         """
         qcols = q_columns(robot)
         for c in qcols + XYZ_COLUMNS:
