@@ -4,6 +4,11 @@
   arrays, with row/column messages); measurement files in two formats of it, the native CSV and a
   layout a format file describes;
 - :mod:`.formats`: format files (the layout of another tool's measurement file) and their checks;
+- :mod:`.orientations`: orientation conventions (Euler angles of every sequence, intrinsic or
+  extrinsic; quaternions, scalar first or last; matrices) -> rotation matrices, and Euler-angle
+  sigmas -> sigmas about the tracker axes (pure numpy);
+- :mod:`.orientation_columns`: a 6-DoF probe's orientation columns of a measurement file (the
+  native ``qw, qx, qy, qz``, a format file's ``orientation`` block) -> ``R_TP``, ``sigma_rot_rad``;
 - :mod:`.designs`: design files (read through :mod:`.tables`, written atomically), a measurement
   plan's condition offsets, working poses given as text.
 

@@ -9,7 +9,8 @@ Measurement files (:func:`read_measurement_table`) come in two formats of the on
 (:data:`MEASUREMENT_FORMATS`): the native CSV of SPEC (joint columns, ``x_mm``, ``y_mm``, ``z_mm``
 in the tracker frame T [mm] (eta of paper eq. 3), optional ``temperature_C``, ``time_s``,
 ``payload_kg`` and ``target``: the target (SMR) numbered 1..T without gaps, 0-based inside) and a
-layout a format file describes (:mod:`kpioed_drake.files.formats`). Messages name the file, the row
+layout a format file describes (:mod:`kpioed_drake.files.formats`); a 6-DoF probe's orientation
+columns, in either: :mod:`kpioed_drake.files.orientation_columns`. Messages name the file, the row
 (:data:`ROW_CONVENTION`) and the column.
 """
 
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.files import orientation_columns as oc
 from kpioed_drake.files.formats import ANGLE_UNITS, LENGTH_UNITS, TIME_UNITS, WHITESPACE, DataFormat
 from kpioed_drake.robot.jointmap import FileJoints, file_joints, joints_from_file
 from kpioed_drake.robot.models import Robot
@@ -340,14 +342,10 @@ def read_joint_table(
 
 def _native(path: Path, robot, fmt: None) -> dict:
     """The native measurement CSV (module docstring): :meth:`Measurements.from_arrays` arguments."""
-    t = read_joint_table(
-        path,
-        robot,
-        required=XYZ_COLUMNS,
-        optional=(*OPTIONAL_COLUMNS, TARGET_COLUMN),
-        suggest=OPTIONAL_COLUMNS,
-    )
-    known = {*(t.joints.columns if t.joints else ()), *XYZ_COLUMNS, *OPTIONAL_COLUMNS, TARGET_COLUMN}
+    optional = (*OPTIONAL_COLUMNS, TARGET_COLUMN, *oc.NATIVE_COLUMNS)
+    suggest = OPTIONAL_COLUMNS + oc.SIGMA_COLUMNS
+    t = read_joint_table(path, robot, required=XYZ_COLUMNS, optional=optional, suggest=suggest)
+    known = {*(t.joints.columns if t.joints else ()), *XYZ_COLUMNS, *optional}
     extra = {}
     for c in t.header:
         if c not in known:  # a numeric column the model does not read is kept; a text column is not data
@@ -357,6 +355,8 @@ def _native(path: Path, robot, fmt: None) -> dict:
                 pass
     eta = np.stack([t.values[c] for c in XYZ_COLUMNS], axis=1)
     opt = {c: t.values.get(c) for c in OPTIONAL_COLUMNS}
+    if set(oc.NATIVE_COLUMNS) & set(t.header):  # a 6-DoF probe's orientation
+        opt |= oc.native_orientation(path, t.header, t.values, t.rows)
     if t.target is not None:
         opt["target"] = t.target
     return dict(q=t.q, eta=eta, source=str(path), rows=t.rows, extra=extra, **opt)
@@ -407,6 +407,10 @@ def _foreign(path: Path, robot, fmt: DataFormat) -> dict:
     scale = np.where(spec.linear, LENGTH_UNITS[fmt.length_unit], ANGLE_UNITS[fmt.angle_unit])
     q = joints_from_file(robot, J, path=path, rows=rows, scale=scale, controller=controller)
     extra = _conditions(path, fmt, cols, rows, spec)
+    if fmt.orientation is not None:  # a 6-DoF probe's orientation: its columns read here, turned there
+        o, names = fmt.orientation, ("columns", "sigma_columns")
+        fields = {f"orientation.{k}[{i}]": c for k in names for i, c in enumerate(getattr(o, k))}
+        extra |= oc.format_orientation(path, o, {c: cols.column(c, f) for f, c in fields.items()}, rows)
     if fmt.targets:
         return _several_per_row(path, fmt, cols, q, rows, extra, spec)
     eta = np.stack([cols.expression(getattr(fmt.position, a), f"position.{a}") for a in "xyz"], axis=1)

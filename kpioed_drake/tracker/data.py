@@ -19,6 +19,7 @@ import pandas as pd
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.files.formats import FRAMES, DataFormat, as_format
+from kpioed_drake.files.orientation_columns import NATIVE_COLUMNS, native_columns, native_orientation
 from kpioed_drake.files.tables import (
     OPTIONAL_COLUMNS,
     TARGET_COLUMN,
@@ -160,10 +161,12 @@ class Measurements:
     def from_table(
         cls, table: pd.DataFrame, robot: Robot | None = None, *, source: str = "data"
     ) -> Measurements:
-        """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`.
+        """From a DataFrame in the file format (degrees), e.g. from :func:`simulation.simulate`; a
+        6-DoF probe's native orientation columns (``qw, qx, qy, qz``, ``sigma_r*_deg``) too.
 
         Raises:
-            InputError: a missing column, a non-finite value, angles outside the robot's limits.
+            InputError: a missing column, a non-finite value, angles outside the robot's limits, an
+                orientation that is not a unit quaternion.
         """
         qcols = q_columns(robot)
         for c in qcols + XYZ_COLUMNS:
@@ -177,12 +180,15 @@ class Measurements:
             check_joint_angles(source, q_deg, robot)
         opt = {c: np.asarray(table[c], dtype=float) if c in table else None for c in OPTIONAL_COLUMNS}
         target = None
+        rows = np.arange(2, len(q_deg) + 2)
         if TARGET_COLUMN in table:
-            rows = np.arange(2, len(q_deg) + 2)
             values = np.asarray(table[TARGET_COLUMN], dtype=float)
             n_targets, model = (None, "") if robot is None else (robot.n_targets, robot.source or robot.name)
             target = parse_targets(source, values, rows, n_targets=n_targets, model=model)
-        known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN}
+        header = [str(c) for c in table.columns]
+        orientation = {c: _finite(table, c, source) for c in NATIVE_COLUMNS if c in header}
+        opt |= native_orientation(source, header, orientation, rows)
+        known = set(qcols) | set(XYZ_COLUMNS) | set(OPTIONAL_COLUMNS) | {TARGET_COLUMN} | set(NATIVE_COLUMNS)
         extra = {}
         for c in table.columns:
             if str(c) not in known:
@@ -273,7 +279,8 @@ class Measurements:
         )
 
     def to_frame(self, robot: Robot | None = None) -> pd.DataFrame:
-        """A DataFrame in the file format (degrees, mm; ``robot``'s joint columns, default six revolute)."""
+        """A DataFrame in the file format (degrees, mm; ``robot``'s joint columns, default six revolute;
+        a 6-DoF probe's orientation as the native ``qw, qx, qy, qz`` and ``sigma_r*_deg`` columns)."""
         q = q_to_file(robot, self.q)
         cols = {c: q[:, i] for i, c in enumerate(q_columns(robot))}
         cols.update({c: self.eta[:, i] for i, c in enumerate(XYZ_COLUMNS)})
@@ -282,8 +289,18 @@ class Measurements:
                 cols[c] = getattr(self, c)
         if self.target is not None:
             cols[TARGET_COLUMN] = self.target + 1
+        cols.update(native_columns(self.R_TP, self.sigma_rot_rad))
         cols.update({k: v for k, v in self.extra if k not in cols})
         return pd.DataFrame(cols)
+
+
+def _finite(table: pd.DataFrame, name: str, source: str) -> np.ndarray:
+    """Column ``name`` of ``table`` as finite numbers (the first other value named by its row)."""
+    v = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        raise InputError(f"{source}: row {bad[0] + 2}, column {name!r}: not a finite number")
+    return v
 
 
 def per_pose(value: float | np.ndarray | Sequence[float], n: int, name: str) -> np.ndarray:
