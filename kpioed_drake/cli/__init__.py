@@ -116,12 +116,16 @@ MODEL_OUT_METAVAR = "MODEL.yaml|NAME.urdf"
 """A calibrated model file: YAML, or for a URDF robot a URDF with its sidecar."""
 
 
-def add_q_work(p: argparse.ArgumentParser) -> None:
+def add_q_work(p: argparse.ArgumentParser, *, several: bool = False) -> None:
+    """``--q-work``: the working pose overriding the model's; with ``several`` repeatable (several KPIs)."""
+    more = "; repeat it for several KPIs (working poses, or a working path sampled at K points)"
     p.add_argument(
         "--q-work",
+        action="append" if several else "store",
         default=None,
         metavar="q1,...,qN",
-        help="working pose, one value per joint [deg; a prismatic joint's mm], overrides the model's",
+        help="working pose, one value per joint [deg; a prismatic joint's mm], overrides the model's"
+        + (more if several else ""),
     )
 
 

@@ -4,19 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import (
-    MODEL_OUT_METAVAR,
-    add_data,
-    add_data_outputs,
-    add_extend,
-    add_q_work,
-    add_robot,
-    add_sigma,
-    data_outputs,
-    passed,
-    print_result,
-)
+from kpioed_drake import api, cli
 
 API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -27,18 +15,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "calibrate",
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
     )
-    add_robot(p)
-    add_data(p)
-    add_sigma(p, default=0.02)
-    add_q_work(p)
+    cli.add_robot(p)
+    cli.add_data(p)
+    cli.add_sigma(p, default=0.02)
+    cli.add_q_work(p)
     p.add_argument(
         "--out",
         default=None,
-        metavar=MODEL_OUT_METAVAR,
+        metavar=cli.MODEL_OUT_METAVAR,
         help="write the calibrated robot model file: YAML, or for a URDF robot NAME.urdf (its sidecar "
         "NAME.kpioed.yaml beside it)",
     )
-    add_data_outputs(p, plots_help="write residual plots (PNG) to DIR")
+    cli.add_data_outputs(p, plots_help="write residual plots (PNG) to DIR")
     p.add_argument(
         "--outlier-alpha",
         type=float,
@@ -51,12 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="refuse poses that do not determine every parameter (default: hold those at nominal, warn)",
     )
-    add_extend(p)
+    cli.add_extend(p)
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
-    same = passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
-    report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **data_outputs(args))
+    same = cli.passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
+    report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **cli.data_outputs(args))
     written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
-    return print_result(args, report.to_dict, report.summary, written)
+    return cli.print_result(args, report.to_dict, report.summary, written)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import add_robot, passed
+from kpioed_drake import api, cli
 from kpioed_drake.compensation.workflow import ANGLES
 
 API_NAMES = {"effects": "effect"}
@@ -17,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "compensate",
         help="compensate a program (nominal joint values) or reach target points with a calibrated model",
     )
-    add_robot(p)
+    cli.add_robot(p)
     p.add_argument("--program", default=None, metavar="P.csv", help="nominal joint values (q1_deg, ...)")
     p.add_argument("--targets", default=None, metavar="T.csv", help="points in W (x_mm, y_mm, z_mm)")
     p.add_argument("--out", required=True, metavar="Q.csv", help="compensated joint values to write")
@@ -51,6 +50,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     names = ("program", "targets", "out", "nominal", "target", "angles", "allow_unreachable")
-    report = api.compensate(args.robot, effects=args.effect, **passed(args, *names))
+    report = api.compensate(args.robot, effects=args.effect, **cli.passed(args, *names))
     print(report.summary())
     return 0

@@ -18,8 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from kpioed_drake import api
-from kpioed_drake.cli import add_extend, add_html, add_optional_number, add_robot, add_seed, add_sigma, passed
+from kpioed_drake import api, cli
 from kpioed_drake.design import DesignError, discrimination_lines, format_summary
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
 from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
@@ -38,9 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Compute a design of measurement poses and write it as a CSV (a column per joint: "
         "q1_deg, q2_deg, ...).",
     )
-    add_robot(p)
+    cli.add_robot(p)
     _add_solve_options(p)
-    add_sigma(p)
+    cli.add_sigma(p)
     _add_kpi_options(p)
     p.add_argument(
         "--given",
@@ -49,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="design CSV of poses already measured: their information is held fixed and --n new poses "
         "are optimised (--out gets the new poses; the values are those of the combined design)",
     )
-    add_optional_number(
+    cli.add_optional_number(
         p,
         "--target-var",
         type=float,
@@ -61,8 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="JSON record of the run")
     p.add_argument("--allow-infeasible", action="store_true", help="write the design even if it fails")
     p.add_argument("--plot", default=None, metavar="FILE.png", help="picture of the poses (.png, .pdf, .svg)")
-    add_html(p)
-    add_extend(p)
+    cli.add_html(p)
+    cli.add_extend(p)
     _add_discriminate_options(p)
     p.set_defaults(func=run, api_names=API_NAMES)
 
@@ -83,7 +82,7 @@ def _add_solve_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=int, default=60, help="number of poses (default 60)")
     p.add_argument("--no-collision", action="store_true", help="no collision or laser-beam constraints")
     p.add_argument("--solver", choices=SOLVERS, default="snopt", help="NLP solver (default snopt)")
-    add_seed(p, of="the start")
+    cli.add_seed(p, of="the start")
     p.add_argument(
         "--start",
         choices=START_METHODS,
@@ -127,15 +126,7 @@ def _add_discriminate_options(p: argparse.ArgumentParser) -> None:
 
 def _add_kpi_options(p: argparse.ArgumentParser) -> None:
     """The working poses of the KPI: ``--q-work`` (repeatable), ``--q-work-file``, weights, aggregate."""
-    p.add_argument(
-        "--q-work",
-        action="append",
-        default=None,
-        metavar="q1,...,qN",
-        help="working pose, one value per joint [deg; a prismatic joint's mm], overrides the model's; repeat "
-        "it for several KPIs (working poses, or a "
-        "working path sampled at K points)",
-    )
+    cli.add_q_work(p, several=True)
     p.add_argument(
         "--q-work-file",
         default=None,
@@ -181,9 +172,9 @@ def run(args: argparse.Namespace) -> int:
             kpi_weights=_weights(args.kpi_weights),
             target_var_mm2=args.target_var,
             json_path=args.json,
-            **passed(args, "discriminate", "condition_span", "n", "solver", "seed", "starts", "sigma_mm"),
-            **passed(args, "q_work_file", "kpi_aggregate", "given", "extend", "out", "plot", "html"),
-            **passed(args, "allow_infeasible", "start", "certify"),
+            **cli.passed(args, "discriminate", "condition_span", "n", "solver", "seed", "starts", "sigma_mm"),
+            **cli.passed(args, "q_work_file", "kpi_aggregate", "given", "extend", "out", "plot", "html"),
+            **cli.passed(args, "allow_infeasible", "start", "certify"),
         )
     except DesignError as exc:
         if exc.result is not None:

@@ -4,17 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import (
-    MODEL_OUT_METAVAR,
-    add_data,
-    add_data_outputs,
-    add_robot,
-    add_sigma,
-    data_outputs,
-    passed,
-    print_result,
-)
+from kpioed_drake import api, cli
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -29,25 +19,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         "thermal_expansion, tracker_scale and tracker_drift; each cause with its competing explanations "
         "and plausibility, and the structure of what stays unexplained (docs/diagnosis.md).",
     )
-    add_robot(p)
-    add_data(p)
-    add_sigma(p)  # None: measured on repeated poses or checked against the residuals
+    cli.add_robot(p)
+    cli.add_data(p)
+    cli.add_sigma(p)  # None: measured on repeated poses or checked against the residuals
     p.add_argument(
         "--out",
         default=None,
-        metavar=MODEL_OUT_METAVAR,
+        metavar=cli.MODEL_OUT_METAVAR,
         help="write the extended model of the named causes (the geometric one if none is named): YAML, or "
         "for a URDF robot NAME.urdf with its sidecar",
     )
-    add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
+    cli.add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
-    report = api.diagnose(args.robot, args.data, **passed(args, "sigma_mm", "out"), **data_outputs(args))
+    report = api.diagnose(
+        args.robot, args.data, **cli.passed(args, "sigma_mm", "out"), **cli.data_outputs(args)
+    )
     written = (
         (args.out, "extended model (use it as --robot FILE)"),
         (args.plots, "plots"),
         (args.html, "3-D page"),
     )
-    return print_result(args, report.to_json, report.summary, written)
+    return cli.print_result(args, report.to_json, report.summary, written)

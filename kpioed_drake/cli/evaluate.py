@@ -5,18 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import (
-    DESIGN_HELP,
-    add_extend,
-    add_html,
-    add_json_out,
-    add_q_work,
-    add_robot,
-    add_sigma,
-    json_file,
-    print_json,
-)
+from kpioed_drake import api, cli
 from kpioed_drake.design import certificate_line
 
 API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
@@ -25,8 +14,8 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
-    add_robot(p)
-    p.add_argument("--design", required=True, help=DESIGN_HELP)
+    cli.add_robot(p)
+    p.add_argument("--design", required=True, help=cli.DESIGN_HELP)
     p.add_argument(
         "--certify",
         action=argparse.BooleanOptionalAction,
@@ -35,19 +24,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(collision avoidance) and the design's efficiency (bound/value), on by default; 4-13 s once per "
         "robot and setup (then cached on disk, $KPIOED_CACHE or ~/.cache/kpioed) and 1-4 s per design",
     )
-    add_sigma(p)
-    add_q_work(p)
-    add_extend(p)
-    add_json_out(p)
-    add_html(p)
+    cli.add_sigma(p)
+    cli.add_q_work(p)
+    cli.add_extend(p)
+    cli.add_json_out(p)
+    cli.add_html(p)
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
     options = dict(sigma_mm=args.sigma_mm, q_work_deg=args.q_work, extend=args.extend, html=args.html)
-    d = api.evaluate(args.robot, args.design, json_path=json_file(args.json), certify=args.certify, **options)
+    d = api.evaluate(
+        args.robot, args.design, json_path=cli.json_file(args.json), certify=args.certify, **options
+    )
     if args.json == "-":
-        print_json(d)
+        cli.print_json(d)
         return 0
     s = d["feasibility"]
     print(f"{d['robot']}: {d['n_poses']} poses, {d['n_params']} parameters, sigma {d['sigma_mm']} mm")

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import add_robot, print_json
+from kpioed_drake import api, cli
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="robot parameters, identifiable count, reach, q_work")
-    add_robot(p)
+    cli.add_robot(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
 
@@ -18,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     d = api.info(args.robot)
     if args.json:
-        print_json(d)
+        cli.print_json(d)
         return 0
     print(f"robot        {d['robot']}")
     print(f"reach        {d['reach_mm']:.1f} mm")

@@ -5,20 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import (
-    DATA_HELP,
-    add_data,
-    add_force,
-    add_format,
-    add_json_out,
-    add_robot,
-    add_seed,
-    add_sigma,
-    json_file,
-    passed,
-    print_result,
-)
+from kpioed_drake import api, cli
 
 API_NAMES = {"target_var_mm2": "target_var", "json_path": "json", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -30,14 +17,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="online calibration: calibrate on the data so far; stop at the target TCP variance or "
         "write the next poses to measure",
     )
-    add_robot(p)
-    add_data(p, help=f"the measurements so far; {DATA_HELP}")
+    cli.add_robot(p)
+    cli.add_data(p, help=f"the measurements so far; {cli.DATA_HELP}")
     p.add_argument(
         "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
     )
     p.add_argument("--n", type=int, default=5, help="poses to design when not done, at most --max-plan (5)")
-    add_sigma(p, default=0.02)
-    add_seed(p, of="the design's starts and the certificate")
+    cli.add_sigma(p, default=0.02)
+    cli.add_seed(p, of="the design's starts and the certificate")
     p.add_argument("--no-certify", dest="certify", action="store_false", help="skip the certificate")
     p.add_argument(
         "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
@@ -49,21 +36,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PLAN.csv",
         help="the plan carried from step to step: read if it exists, then replaced (removed when done)",
     )
-    add_json_out(p)
-    add_format(p)
-    add_force(p)
+    cli.add_json_out(p)
+    cli.add_format(p)
+    cli.add_force(p)
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
-    same = passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
+    same = cli.passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
     result = api.next(
         args.robot,
         args.data,
         target_var_mm2=args.target_var,
-        json_path=json_file(args.json),
+        json_path=cli.json_file(args.json),
         data_format=args.format,
         **same,
     )
     written = ((None if result["done"] else args.out, "next poses"),)
-    return print_result(args, lambda: result, lambda: result["summary"], written)
+    return cli.print_result(args, lambda: result, lambda: result["summary"], written)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import DESIGN_HELP, add_optional_number, add_robot, add_seed, add_sigma
+from kpioed_drake import api, cli
 from kpioed_drake.files.designs import OFFSET_COLUMNS
 
 API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
@@ -16,10 +15,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate measurements of a design CSV (writes the measurement CSV layout)"
     )
-    add_robot(p)
-    p.add_argument("--design", required=True, help=DESIGN_HELP)
-    add_sigma(p, default=0.02)
-    add_seed(p, of="the geometric errors, the tracker frame and the noise")
+    cli.add_robot(p)
+    p.add_argument("--design", required=True, help=cli.DESIGN_HELP)
+    cli.add_sigma(p, default=0.02)
+    cli.add_seed(p, of="the geometric errors, the tracker frame and the noise")
     p.add_argument(
         "--effect",
         action="append",
@@ -31,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--payload-kg", type=float, default=0.0, help="payload at the reflector [kg] (0)")
     p.add_argument("--no-geometric-errors", action="store_true", help="the true robot is the nominal one")
-    add_optional_number(
+    cli.add_optional_number(
         p,
         "--targets",
         type=int,

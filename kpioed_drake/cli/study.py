@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import add_seed
+from kpioed_drake import api, cli
 from kpioed_drake.errors import EXIT_SOLVER
 from kpioed_drake.study import DEFAULT, VARIANTS, regenerate_tables
 
@@ -27,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--heuristic-draws", type=int, default=None, help="seeded heuristic draws (default 10, quick 3)"
     )
-    add_seed(p, of="the first run")
+    cli.add_seed(p, of="the first run")
     p.add_argument("--robots", default=None, help="comma-separated robot names (default: the study's)")
     p.add_argument(
         "--variant",

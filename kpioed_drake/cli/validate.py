@@ -4,16 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from kpioed_drake import api
-from kpioed_drake.cli import (
-    add_data,
-    add_format,
-    add_json_out,
-    add_robot,
-    json_file,
-    passed,
-    print_result,
-)
+from kpioed_drake import api, cli
 
 API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -24,9 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "validate",
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
     )
-    add_robot(p)
-    add_data(p)
-    add_format(p)
+    cli.add_robot(p)
+    cli.add_data(p)
+    cli.add_format(p)
     p.add_argument(
         "--tracker-frame",
         choices=("kept", "cross", "in-sample"),
@@ -40,15 +31,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--force", action="store_true", help="go on with implausible data (a warning instead of a refusal)"
     )
-    add_json_out(p)
+    cli.add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
     p.set_defaults(func=run, api_names=API_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
-    outputs = {"json_path": json_file(args.json), "plots_dir": args.plots, "data_format": args.format}
+    outputs = {"json_path": cli.json_file(args.json), "plots_dir": args.plots, "data_format": args.format}
     keep = args.keep_tracker or None
     result = api.validate(
-        args.robot, args.data, keep_tracker=keep, **passed(args, "tracker_frame", "force"), **outputs
+        args.robot, args.data, keep_tracker=keep, **cli.passed(args, "tracker_frame", "force"), **outputs
     )
-    return print_result(args, result.to_dict, result.summary)
+    return cli.print_result(args, result.to_dict, result.summary)
