@@ -13,7 +13,8 @@ reads), :mod:`.tracker` (the measurement model and the tracker's data), :mod:`.e
 :mod:`.cli` (the ``kpioed`` command). Modules: :mod:`.errors` (exit statuses, the errors),
 :mod:`.outputs` (atomic writes, output paths), :mod:`.arguments` (checks of command arguments),
 :mod:`.options` (options records from YAML), :mod:`.paper` (the paper's numbers),
-:mod:`.progress` (progress of long runs on stderr), :mod:`.api` (one function per command).
+:mod:`.progress` (progress of long runs on stderr), :mod:`.parallel` (independent tasks in forked
+worker processes), :mod:`.api` (one function per command).
 """
 
 import os

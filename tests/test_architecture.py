@@ -33,6 +33,7 @@ RANK = {
     "outputs": 0,
     "paper": 0,
     "progress": 0,
+    "parallel": 0,
     "options": 0,
     "robot": 1,
     "files": 1.5,

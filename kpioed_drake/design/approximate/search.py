@@ -26,7 +26,7 @@ import time
 import numpy as np
 from pydrake.solvers import SnoptSolver, SolverOptions
 
-from kpioed_drake import progress
+from kpioed_drake import parallel, progress
 from kpioed_drake.design.exact.constraints import DesignConstraints
 from kpioed_drake.design.exact.program import DesignProgram
 from kpioed_drake.estimation.problem import Problem
@@ -86,8 +86,10 @@ def maximize_dual(
     """Local maxima of ``g(x) = ||F_x Y||_F^2`` over the feasible poses, one from each start.
 
     SNOPT solves the separable problem ``max sum_i g(x_i)`` (independent problems solved together)
-    for :data:`SEARCH_BATCH` starts at a time, under the design's constraint rows (joint limits,
-    incidence, with ``collision`` the clearances; :class:`DesignProgram` with its margins).
+    for :data:`SEARCH_BATCH` starts at a time (the batches in worker processes,
+    :func:`kpioed_drake.parallel.independent`: the same poses with any number of workers), under
+    the design's constraint rows (joint limits, incidence, with ``collision`` the clearances;
+    :class:`DesignProgram` with its margins).
 
     Args:
         q_start: (s, 6) starting poses [rad].
@@ -97,22 +99,28 @@ def maximize_dual(
         q: (s, 6) poses reached [rad] (on the joint map's couplings); g: (s,) their ``g``;
         feasible: (s,) bool, :func:`feasible`.
     """
-    snopt, opts = SnoptSolver(), SolverOptions()
-    for name, val in SEARCH_OPTIONS.items():
-        opts.SetOption(snopt.solver_id(), name, val)
     if problem.worst_case:  # the constraint rows without the worst case's epigraph variable
         problem = dataclasses.replace(problem, kpi_aggregate="mean")
-    out = []
-    for k0 in range(0, q_start.shape[0], SEARCH_BATCH):
-        b = min(SEARCH_BATCH, q_start.shape[0] - k0)
-        dp = DesignProgram(problem, criterion="kpi", n=b, collision=collision)
-        dp.objective = DualObjective(problem, Y)
-        result = snopt.Solve(dp.prog, q_start[k0 : k0 + b].reshape(-1), opts)
-        out.append(np.asarray(result.GetSolution(dp.x)).reshape(b, problem.robot.n_joints))
+    batches = [q_start[k0 : k0 + SEARCH_BATCH] for k0 in range(0, q_start.shape[0], SEARCH_BATCH)]
+    out = parallel.independent(
+        lambda i: _local_maxima(problem, batches[i], Y, collision=collision), len(batches)
+    )
     q = np.clip(
         commandable_projection(problem.robot, np.concatenate(out)), problem.robot.lower, problem.robot.upper
     )
     return q, dual_values(pose_rows(problem, q), Y), feasible(problem, q, collision=collision)
+
+
+def _local_maxima(problem: Problem, q_start: np.ndarray, Y: np.ndarray, *, collision: bool) -> np.ndarray:
+    """One SNOPT solve of :func:`maximize_dual` from the b poses ``q_start`` (b, 6): the poses reached."""
+    snopt, opts = SnoptSolver(), SolverOptions()
+    for name, val in SEARCH_OPTIONS.items():
+        opts.SetOption(snopt.solver_id(), name, val)
+    b = q_start.shape[0]
+    dp = DesignProgram(problem, criterion="kpi", n=b, collision=collision)
+    dp.objective = DualObjective(problem, Y)
+    result = snopt.Solve(dp.prog, q_start.reshape(-1), opts)
+    return np.asarray(result.GetSolution(dp.x)).reshape(b, problem.robot.n_joints)
 
 
 COUPLING_TOL = 1e-7

@@ -1,0 +1,71 @@
+"""Independent tasks on both cores: worker processes forked from this one.
+
+The package's hot loops are numpy on small arrays and SNOPT, single-threaded by design (one BLAS
+thread, ``kpioed_drake/__init__.py``); where a job splits into independent pieces of equal kind (the
+certificate search's SNOPT batches, a diagnosis step's candidate refits) the pieces run in
+processes. Forked, not spawned: a worker inherits the loaded modules and the task's data (robot,
+problem, arrays) without pickling them, and starts in milliseconds. Results come back in order,
+so a run gives the same numbers with any number of workers.
+
+``KPIOED_WORKERS`` sets the number of workers (1: none, the loop in this process); by default the
+cores this process may run on, at most :data:`MAX_WORKERS`. Where ``fork`` is missing (Windows,
+macOS's default ``spawn`` is not used) or inside a worker, the loop runs here. Workers ignore
+SIGINT: Ctrl-C reaches the parent, which ends the command (``errors``); the workers end with it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
+
+WORKERS_ENV = "KPIOED_WORKERS"
+"""Environment variable: the worker processes of :func:`independent` (1: none)."""
+MAX_WORKERS = 4
+"""Most workers by default (the pieces of a step are few; more processes only add forks)."""
+
+_TASKS: list[Callable[[int], object]] = []  # the running call's task, inherited by its forked workers
+
+
+def workers() -> int:
+    """The worker processes :func:`independent` may use (module docstring)."""
+    if "fork" not in mp.get_all_start_methods() or mp.current_process().daemon:
+        return 1
+    given = os.environ.get(WORKERS_ENV, "").strip()
+    if given:
+        try:
+            return max(1, int(given))
+        except ValueError:
+            return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(cores, MAX_WORKERS))
+
+
+def _quiet_worker() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run(i: int) -> object:
+    return _TASKS[-1](i)
+
+
+def independent(task: Callable[[int], T], n: int, *, parallel: bool = True) -> list[T]:
+    """``[task(0), ..., task(n - 1)]``; with ``parallel`` and two tasks or more, in worker processes
+    forked from this one (at most :func:`workers`), each task whole in one worker, in order.
+
+    ``task`` must be a function of the index alone whose result pickles (arrays, numbers); it sees
+    this process's state as it was at the fork, and what it changes there stays in the worker.
+    """
+    k = min(workers(), n) if parallel else 1
+    if k <= 1:
+        return [task(i) for i in range(n)]
+    _TASKS.append(task)
+    try:
+        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as pool:
+            return pool.map(_run, range(n), chunksize=1)  # type: ignore[return-value]
+    finally:
+        _TASKS.pop()
