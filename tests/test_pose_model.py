@@ -1,0 +1,122 @@
+"""The orientation part of a 6-DoF probe's measurement (tracker/orientation.py): residual and
+Jacobian against finite differences (kr16 DH, ur10, the lift7 URDF chain with a prismatic joint),
+the first registration of the probe, the layout's probe segment and the gauge with orientations."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy.spatial.transform import Rotation
+
+from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.parameters import PROBE_NAMES, parameter_layout
+from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
+from kpioed_drake.tracker.orientation import (
+    chordal_mean,
+    inverse_right_jacobian,
+    orientation_jacobian,
+    orientation_residuals,
+    probe_orientation,
+    registered_probe,
+    rotation_log,
+    with_probe,
+)
+
+
+def _model(name, seed):
+    """A probe model of ``name`` with random errors on every parameter (tracker and probe rotations
+    included) and a random probe orientation on the flange."""
+    robot = load_robot(name)
+    rng = np.random.default_rng(seed)
+    model = with_probe(
+        nominal_model(robot, load_cell(robot=robot)), Rotation.random(random_state=seed).as_matrix()
+    )
+    p = model.p.copy()
+    angle = model.layout.is_angle
+    p += np.where(angle, rng.normal(0, 0.01, p.size), rng.normal(0, 0.5, p.size))
+    return model.with_params(p)
+
+
+def _poses(robot, n, seed):
+    return np.random.default_rng(seed).uniform(robot.lower, robot.upper, size=(n, robot.n_joints))
+
+
+@pytest.mark.parametrize("name", ["kr16", "ur10", "lift7"])
+def test_orientation_jacobian_matches_finite_differences(name):
+    model = _model(name, 3)
+    q = _poses(model.robot, 7, 4)
+    rng = np.random.default_rng(5)
+    R_meas = Rotation.from_rotvec(rng.normal(0, 0.3, (7, 3))).as_matrix() @ probe_orientation(model, q)
+    e, H = orientation_jacobian(model, q, R_meas)
+    assert np.all(np.linalg.norm(e, axis=1) > 0.05)  # residuals far from zero: Jr^-1 matters
+    h = 1e-6
+    fd = np.empty_like(H)
+    for k in range(model.p.size):
+        dp = np.zeros(model.p.size)
+        dp[k] = h
+        ep = orientation_residuals(model.with_params(model.p + dp), q, R_meas)
+        em = orientation_residuals(model.with_params(model.p - dp), q, R_meas)
+        fd[:, :, k] = -(ep - em) / (2 * h)  # de/dp = -H
+    assert_allclose(H, fd, atol=1e-7, rtol=1e-6)
+    lay = model.layout
+    assert not np.any(H[:, :, lay.tracker_position]) and not np.any(H[:, :, lay.targets])
+    assert np.abs(H[:, :, lay.probe_rotation]).max() > 0.5
+
+
+def test_inverse_right_jacobian_near_zero_and_log_round_trip():
+    rng = np.random.default_rng(1)
+    e = np.concatenate([rng.normal(0, 1e-6, (3, 3)), rng.normal(0, 1.0, (3, 3))])
+    Jinv = inverse_right_jacobian(e)
+    d = rng.normal(0, 1e-7, (6, 3))
+    R = Rotation.from_rotvec(e).as_matrix() @ Rotation.from_rotvec(d).as_matrix()
+    assert_allclose(rotation_log(R) - e, np.einsum("nab,nb->na", Jinv, d), atol=1e-12)
+
+
+def test_registered_probe_recovers_the_probe_orientation_from_exact_data():
+    model = _model("kr16", 8)
+    q = _poses(model.robot, 10, 9)
+    R_TP = probe_orientation(model, q)
+    start = registered_probe(with_probe(model.rebased(), np.eye(3)), q, R_TP)
+    assert_allclose(start.R_FP_ref, model.rebased().R_FP, atol=1e-12)
+    assert_allclose(orientation_residuals(start, q, R_TP), 0.0, atol=1e-12)
+    Rs = Rotation.from_rotvec(np.random.default_rng(2).normal(0, 0.01, (50, 3))).as_matrix()
+    assert np.linalg.norm(rotation_log(chordal_mean(Rs)[None])) < 0.01
+
+
+def test_probe_layout_appends_three_rotations_and_drops_the_points_gauge():
+    ur10 = load_robot("ur10")
+    points = parameter_layout(ur10)
+    pose = parameter_layout(ur10, probe=True)
+    assert pose.names[: points.size] == points.names and pose.names[points.size :] == PROBE_NAMES
+    assert {"theta5", "alpha5"} <= set(ur10.extra_gauge)
+    assert {"theta5", "alpha5"} <= set(pose.free_names) and not {"theta5", "alpha5"} & set(points.free_names)
+    assert pose.n_free == points.n_free + 3 + 2
+    assert pose.is_angle[pose.probe_rotation].all() and points.probe_rotation == slice(
+        points.size, points.size
+    )
+
+
+@pytest.mark.parametrize("name", ["kr16", "lift7"])
+def test_pose_rows_determine_every_free_parameter_of_the_gauge(name):
+    """With orientations, the free set of the probe layout has full rank on generic poses (nothing
+    more to hold), and the probe model's position rows are the point model's."""
+    model = _model(name, 11)
+    q = _poses(model.robot, 40, 12)
+    lay = model.layout
+    _, H = measurement_jacobian(model, q)
+    _, Hr = orientation_jacobian(model, q, probe_orientation(model, q))
+    A = np.concatenate(
+        [H[:, :, lay.free].reshape(-1, lay.n_free), 1000 * Hr[:, :, lay.free].reshape(-1, lay.n_free)]
+    )
+    A = A / np.linalg.norm(A, axis=0)
+    s = np.linalg.svd(A, compute_uv=False)
+    assert s[-1] > 1e-6 * s[0]
+
+
+def test_chain_gauge_with_orientations():
+    """lift7: the automatic gauge chosen on positions and orientations (the tracker's rotation turns
+    the measured frame the opposite way) holds what the points' gauge holds: the probe's full pose
+    on the last link absorbs what its point absorbed, and with the wrong sign of the tracker's
+    orientation columns the base rotations rx1, ry1, rz1 would wrongly be freed."""
+    robot = load_robot("lift7")
+    assert robot.pose_gauge == robot.gauge
+    assert {"rx1", "ry1", "rz1"} <= set(robot.pose_gauge)
