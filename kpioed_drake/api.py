@@ -248,6 +248,7 @@ def calibrate(
     force: bool = False,
     data_format: MaybePath = None,
     strict: bool = False,
+    sigma_deg: float = 0.01,
 ) -> CalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``):
     :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
@@ -272,9 +273,12 @@ def calibrate(
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter instead of holding the
             undetermined ones at nominal with a warning.
+        sigma_deg: a 6-DoF probe's orientation noise about each tracker axis [deg] for rows that
+            give none (data with orientations).
     """
     options = CalibrationOptions(
         sigma_mm=sigma_mm,
+        sigma_deg=sigma_deg,
         effects=tuple(extend or ()),
         outlier_alpha=outlier_alpha,
         force=force,
@@ -307,6 +311,7 @@ def simulate(
     truth_path: str | None = None,
     cell_path: MaybePath = None,
     n_targets: int | None = None,
+    orientation_sigma_deg: float | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``):
     :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
@@ -323,6 +328,8 @@ def simulate(
         cell_path: cell file (default ``models/cell.yaml``).
         n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
             default all): one row per pose and target, with a ``target`` column when several.
+        orientation_sigma_deg: also a 6-DoF probe's orientations with this noise about each
+            tracker axis [deg] (0: noise free; None: points only).
 
     Returns:
         (table, truth): the measurement table (pandas) and the truth dict.
@@ -333,6 +340,7 @@ def simulate(
         effects=cast(tuple[str, ...], tuple(effects)),  # texts or Effect objects (SimulationOptions.effects)
         geometric_errors=geometric_errors,
         n_targets=n_targets,
+        orientation_sigma_deg=orientation_sigma_deg,
     )
     return simulate_file(
         robot, design, out, options, payload_kg=payload_kg, truth_path=truth_path, cell_path=cell_path

@@ -2,13 +2,21 @@
 Jacobian against finite differences (kr16 DH, ur10, the lift7 URDF chain with a prismatic joint),
 the first registration of the probe, the layout's probe segment and the gauge with orientations."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
+from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.options import CalibrationOptions
+from kpioed_drake.robot.jointmap import q_columns, q_from_file
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import PROBE_NAMES, parameter_layout
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import ORIENTATION_COLUMNS, simulate
+from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
 from kpioed_drake.tracker.orientation import (
     chordal_mean,
@@ -120,3 +128,63 @@ def test_chain_gauge_with_orientations():
     robot = load_robot("lift7")
     assert robot.pose_gauge == robot.gauge
     assert {"rx1", "ry1", "rz1"} <= set(robot.pose_gauge)
+
+
+# --- simulate -> calibrate ------------------------------------------------------------------------
+def _pose_data(name, n, seed, *, orientation_sigma_deg=0.01, sigma_mm=0.02):
+    """Simulated pose data of ``n`` random poses (``simulate`` with orientations) as Measurements
+    (the Euler columns read as the UR10 files are: intrinsic XYZ), and the truth."""
+    robot = load_robot(name)
+    q = _poses(robot, n, seed)
+    options = SimulationOptions(sigma_mm=sigma_mm, seed=seed, orientation_sigma_deg=orientation_sigma_deg)
+    table, truth = simulate(robot, q, options)
+    q = q_from_file(robot, table[list(q_columns(robot))].to_numpy())
+    R_TP = Rotation.from_euler("XYZ", table[list(ORIENTATION_COLUMNS)].to_numpy(), degrees=True).as_matrix()
+    data = Measurements.from_arrays(q, table[["x_mm", "y_mm", "z_mm"]].to_numpy(), R_TP=R_TP)
+    return robot, data, truth
+
+
+def _z_scores(report, truth):
+    """Estimate minus truth over the a-priori std of every estimated parameter (the tracker's and the
+    probe's small rotations as the rotation between the estimated and the true frame)."""
+    res, true = report.result, truth["model"]
+    lay = res.model.layout
+    d = res.model.p - true.p
+    d[lay.tracker_rotation] = rotation_log((true.R_WT.T @ res.model.R_WT)[None])[0]
+    d[lay.probe_rotation] = rotation_log((res.model.R_FP @ true.R_FP.T)[None])[0]
+    return dict(zip(lay.free_names, d[lay.free] / res.std[: lay.n_free], strict=True))
+
+
+@pytest.mark.parametrize("name", ["kr16", "ur10"])
+def test_simulate_then_calibrate_recovers_the_truth_within_three_sigma(name):
+    robot, data, truth = _pose_data(name, 60, 7)
+    report = calibrate(robot, data, CalibrationOptions(sigma_mm=0.02, sigma_deg=0.01))
+    z = _z_scores(report, truth)
+    assert report.result.converged and not report.held_at_nominal
+    assert max(abs(v) for v in z.values()) < 3.0, z
+    assert 0.5 < np.mean(np.square(list(z.values()))) < 1.6
+    assert 0.8 < report.chi2_per_dof < 1.2
+    fig = report.orientation_figures()
+    assert fig is not None and 0.005 < fig.rms_deg < 0.015  # the 0.01 deg noise, per component
+    assert set(PROBE_NAMES) <= set(report.model.layout.free_names)
+
+
+def test_orientations_determine_what_an_on_axis_point_leaves_undetermined():
+    """ur10, probe origin on joint 6's axis (the model file's reflector (0, 0, 93) mm): positions alone
+    hold theta5 and alpha5 (the file's extra gauge; without it the rank test finds them), the
+    orientation rows estimate them within 3 sigma of the truth."""
+    robot, data, truth = _pose_data("ur10", 60, 21)
+    points = Measurements.from_arrays(data.q, data.eta)
+    by_points = calibrate(robot, points, CalibrationOptions(sigma_mm=0.02))
+    assert {"theta5", "alpha5"} & set(by_points.model.layout.free_names) == set()
+    loose = dataclasses.replace(robot, extra_gauge=())
+    unheld = calibrate(loose, points, CalibrationOptions(sigma_mm=0.02))
+    assert {"theta5", "alpha5"} & set(unheld.held_at_nominal)
+    by_pose = calibrate(robot, data, CalibrationOptions(sigma_mm=0.02, sigma_deg=0.01))
+    z = _z_scores(by_pose, truth)
+    assert abs(z["theta5"]) < 3 and abs(z["alpha5"]) < 3
+    names = by_pose.model.layout.names
+    for n in ("theta5", "alpha5"):  # the truth's errors there are far beyond the estimate's std
+        i = names.index(n)
+        error = truth["model"].p[i] - by_pose.nominal.p[i]
+        assert abs(error) > 5 * by_pose.result.std[list(by_pose.model.layout.free).index(i)]

@@ -30,6 +30,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_robot(p)
     add_data(p)
     add_sigma(p, default=0.02)
+    p.add_argument(
+        "--sigma-deg",
+        type=float,
+        default=0.01,
+        help="a 6-DoF probe's orientation noise about each tracker axis [deg], for data with orientations "
+        "whose rows give none (0.01: about a T-Mac's stated accuracy)",
+    )
     add_q_work(p)
     p.add_argument(
         "--out",
@@ -56,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    same = passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
+    same = passed(args, "sigma_mm", "sigma_deg", "extend", "outlier_alpha", "out", "strict")
     report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **data_outputs(args))
     written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
     return print_result(args, report.to_dict, report.summary, written)

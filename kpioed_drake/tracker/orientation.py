@@ -190,3 +190,13 @@ def orientation_jacobian(
     frames = model.frames(q) if frames is None else frames
     e = orientation_residuals(model, q, R_TP, frames=frames)
     return e, inverse_right_jacobian(e) @ angular_jacobian(model, q, frames=frames)
+
+
+def world_orientation_errors(
+    model: TrackerModel, q: np.ndarray, R_TP: np.ndarray, R_WT: np.ndarray
+) -> np.ndarray:
+    """(n, 3) ``log((R_WT R_meas) (R_WF R_FP)^T)`` [rad] in W axes: the measured orientations taken
+    to W with the tracker frame ``R_WT`` ((3, 3), or (n, 3, 3) one per row: a cross-registration's
+    halves) against the model's prediction (``model.R_FP``; its own tracker frame is not used)."""
+    R_WP = model.frames(q).at_link(None)[0] @ _R_FP(model)
+    return rotation_log(np.asarray(R_WT) @ np.asarray(R_TP, dtype=float) @ np.swapaxes(R_WP, 1, 2))
