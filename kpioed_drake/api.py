@@ -256,45 +256,36 @@ def calibrate(
     :class:`~kpioed_drake.calibration.options.CalibrationOptions`.
 
     Args:
-        robot: model name or YAML path.
-        data_path: the measurement CSV.
-        sigma_mm: noise standard deviation per coordinate [mm].
+        robot: model name or YAML path; data_path: the measurement CSV.
+        sigma_mm: noise standard deviation per coordinate [mm]; sigma_deg: a 6-DoF probe's
+            orientation noise per tracker axis [deg] where the rows give none.
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
         extend: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints): calibrate the
             geometry and these effects together (the extended model; ``out`` writes it with its
             ``effects:``); without it, the effects of an extended model file are re-estimated.
         outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
         out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
-        json_path: JSON report to write.
-        plots_dir: folder for the residual plots (PNG).
+        json_path: JSON report to write; plots_dir: folder for the residual plots (PNG).
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
-        cell_path: cell file (default ``models/cell.yaml``).
-        force: go on with implausible data, with a warning.
+        cell_path: cell file (default ``models/cell.yaml``); force: go on with implausible data (warned).
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter instead of holding the
             undetermined ones at nominal with a warning.
-        sigma_deg: a 6-DoF probe's orientation noise about each tracker axis [deg] for rows that
-            give none (data with orientations).
     """
-    options = CalibrationOptions(
-        sigma_mm=sigma_mm,
-        sigma_deg=sigma_deg,
-        effects=tuple(extend or ()),
-        outlier_alpha=outlier_alpha,
-        force=force,
-        strict=strict,
+    effects = tuple(extend or ())
+    same = dict(
+        sigma_mm=sigma_mm, sigma_deg=sigma_deg, outlier_alpha=outlier_alpha, force=force, strict=strict
     )
+    options = CalibrationOptions(effects=effects, **same)  # type: ignore[arg-type]
+    outputs = dict(out=out, json_path=json_path, plots_dir=plots_dir, html=html)
     return calibrate_file(
         robot,
         data_path,
         options,
         q_work_deg=q_work_deg,
-        out=out,
-        json_path=json_path,
-        plots_dir=plots_dir,
-        html=html,
         cell_path=cell_path,
         data_format=data_format,
+        **outputs,
     )
 
 
@@ -323,13 +314,11 @@ def simulate(
         sigma_mm: noise per coordinate [mm]; seed: seed of the true robot, tracker frame and noise.
         effects: non-geometric effects (e.g. ``["joint_elasticity:2"]``).
         geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
-        payload_kg: payload at the reflector [kg] (>= 0).
-        truth_path: also write the true parameters as JSON.
+        payload_kg: payload at the reflector [kg] (>= 0); truth_path: the true parameters' JSON.
         cell_path: cell file (default ``models/cell.yaml``).
         n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
             default all): one row per pose and target, with a ``target`` column when several.
-        orientation_sigma_deg: also a 6-DoF probe's orientations with this noise about each
-            tracker axis [deg] (0: noise free; None: points only).
+        orientation_sigma_deg: a 6-DoF probe's orientations too, noise per tracker axis [deg].
 
     Returns:
         (table, truth): the measurement table (pandas) and the truth dict.

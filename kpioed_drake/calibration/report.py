@@ -122,15 +122,15 @@ class CalibrationReport:
     def probe(self) -> dict | None:
         """The JSON's ``probe`` block: the estimated orientation of the probe frame P on the flange
         (deg) and its small rotations' standard deviations; None without orientations."""
-        R = self.model.R_FP
-        if not self.model.layout.probe or R is None:
+        R, sigma_rot = self.model.R_FP, self.result.sigma_rot
+        if not self.model.layout.probe or R is None or sigma_rot is None:
             return None
         lay = self.model.layout
         return {
             "R_FP": R.tolist(),
             "rpy_deg": np.rad2deg(RollPitchYaw(RotationMatrix(R)).vector()).tolist(),
             "rotation_std_deg": np.rad2deg(self.result.std[lay.free_probe_rotation]).tolist(),
-            "sigma_rot_deg_median": float(np.rad2deg(np.median(self.result.sigma_rot))),
+            "sigma_rot_deg_median": float(np.rad2deg(np.median(sigma_rot))),
             "note": "orientation of the 6-DoF probe's frame P on the flange (its origin: the reflector "
             "offset); rotation_std_deg: small rotations about the flange axes; sigma_rot_deg_median: the "
             "orientation noise the fit weighted with (the rows' own, else sigma_deg)",
