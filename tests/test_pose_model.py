@@ -5,12 +5,18 @@ the first registration of the probe, the layout's probe segment and the gauge wi
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.options import CalibrationOptions
+from kpioed_drake.calibration.validate import validate
+from kpioed_drake.cli import main
+from kpioed_drake.diagnosis.workflow import diagnose
+from kpioed_drake.errors import InputError
+from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.jointmap import q_columns, q_from_file
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.parameters import PROBE_NAMES, parameter_layout
@@ -188,3 +194,44 @@ def test_orientations_determine_what_an_on_axis_point_leaves_undetermined():
         i = names.index(n)
         error = truth["model"].p[i] - by_pose.nominal.p[i]
         assert abs(error) > 5 * by_pose.result.std[list(by_pose.model.layout.free).index(i)]
+
+
+# --- what pose data refuse or note ------------------------------------------------------------------
+def test_effects_and_diagnosis_refuse_pose_data_with_a_clear_message():
+    robot, data, _ = _pose_data("kr16", 40, 3)
+    with pytest.raises(InputError, match="orientations, and non-geometric effects"):
+        calibrate(robot, data, CalibrationOptions(effects=("joint_elasticity:2",)))
+    with pytest.raises(InputError, match="orientations, which the diagnosis"):
+        diagnose(robot, data)
+    with pytest.raises(InputError, match="orientation_sigma_deg with non-geometric effects"):
+        simulate(
+            robot, data.q, SimulationOptions(orientation_sigma_deg=0.01, effects=("joint_elasticity:2",))
+        )
+
+
+def test_validate_notes_orientations_a_model_cannot_predict():
+    robot, data, _ = _pose_data("kr16", 40, 3)
+    report = validate(robot, data, tracker_frame="cross")
+    assert report.rot_residuals_W is None and report.orientation_figures() is None
+    assert any("6-DoF orientations are not scored" in n for n in report.notes)
+
+
+def test_simulate_cli_writes_the_orientation_columns(tmp_path):
+    robot = load_robot("kr16")
+    write_design(tmp_path / "d.csv", _poses(robot, 12, 1), robot=robot)
+    args = [
+        "simulate",
+        "--robot",
+        "kr16",
+        "--design",
+        str(tmp_path / "d.csv"),
+        "--out",
+        str(tmp_path / "o.csv"),
+    ]
+    assert main([*args, "--orientation-sigma-deg", "0"]) == 0
+    table = pd.read_csv(tmp_path / "o.csv")
+    assert list(table.columns[6:12]) == ["x_mm", "y_mm", "z_mm", *ORIENTATION_COLUMNS]
+    R = Rotation.from_euler("XYZ", table[list(ORIENTATION_COLUMNS)].to_numpy(), degrees=True).as_matrix()
+    assert_allclose(np.einsum("nij,nkj->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    assert main(args[:-1] + [str(tmp_path / "p.csv")]) == 0
+    assert "rx_deg" not in pd.read_csv(tmp_path / "p.csv")  # points only without the option
