@@ -358,8 +358,9 @@ def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float,
     if p is not None and p < 1e-3:
         warnings.append(
             f"chi2/dof = {report.chi2_per_dof:.3g} (p = {p:.2g}): the residuals are larger than a noise of "
-            f"{sigma_mm:g} mm explains; the noise is larger than given or the geometric model misses an "
-            "effect (see `kpioed diagnose`); the a-posteriori covariance scales by chi2/dof"
+            f"{sigma_mm:g} mm{_and_orientation(report)} explains; the noise is larger than given or the "
+            "geometric model misses an effect (see `kpioed diagnose`); the a-posteriori covariance scales "
+            "by chi2/dof"
         )
         rest = non_geometric_warning(screen)
         if rest:
@@ -370,6 +371,11 @@ def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float,
             f"{sigma_mm:g} mm predicts; {param('sigma_mm')} is probably too large (the reported "
             "uncertainties are then pessimistic)"
         )
+
+
+def _and_orientation(report: CalibrationReport) -> str:
+    """`` (and the orientations' noise)`` of a fit with a probe's orientation rows, else ``""``."""
+    return "" if report.result.R_TP is None else " (and the orientations' given noise)"
 
 
 def _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped: list[str]):
