@@ -14,8 +14,10 @@ from kpioed_drake.calibration.fit import calibrate
 from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import validate
 from kpioed_drake.cli import main
+from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.jointmap import q_columns, q_from_file
 from kpioed_drake.robot.models import load_cell, load_robot
@@ -25,6 +27,8 @@ from kpioed_drake.simulation.truth import ORIENTATION_COLUMNS, simulate
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
 from kpioed_drake.tracker.orientation import (
+    angular_jacobian,
+    angular_jacobian_dq,
     chordal_mean,
     inverse_right_jacobian,
     orientation_jacobian,
@@ -235,3 +239,55 @@ def test_simulate_cli_writes_the_orientation_columns(tmp_path):
     assert_allclose(np.einsum("nij,nkj->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
     assert main(args[:-1] + [str(tmp_path / "p.csv")]) == 0
     assert "rx_deg" not in pd.read_csv(tmp_path / "p.csv")  # points only without the option
+
+
+@pytest.mark.parametrize("name", ["kr16", "lift7"])
+def test_angular_jacobian_dq_matches_finite_differences(name):
+    model = _model(name, 13)
+    q = _poses(model.robot, 5, 14)
+    _, dOm = angular_jacobian_dq(model, q)
+    h = 1e-6
+    for j in range(model.robot.n_joints):
+        dq = np.zeros_like(q)
+        dq[:, j] = h
+        fd = (angular_jacobian(model, q + dq) - angular_jacobian(model, q - dq)) / (2 * h)
+        assert_allclose(dOm[:, j], fd, atol=1e-7, rtol=1e-6)
+    assert np.abs(dOm).max() > 0.1
+
+
+# --- the design problem with pose measurements ---------------------------------------------------
+def test_pose_problem_rows_and_their_dq_against_finite_differences():
+    """F1 of pose measurements: per pose 3 position rows (the point problem's, with zero probe
+    columns) then 3 orientation rows over sigma_rot; dF1/dq against finite differences."""
+    pose = make_problem("ur10", measure="pose", sigma_mm=0.02, sigma_deg=0.01)
+    point = make_problem("ur10", sigma_mm=0.02)
+    q = _poses(pose.robot, 6, 15)
+    F, dF = pose.F1(q, with_dq=True)
+    n, k = len(q), pose.n_params
+    assert F.shape == (6 * n, k) and dF.shape == (n, 6, 6, k)
+    assert k == point.n_params + 5  # theta5, alpha5 (no extra gauge) and the probe's three
+    rows = F.reshape(n, 6, k)
+    cols = [pose.param_names.index(c) for c in point.param_names]
+    assert_allclose(rows[:, :3, cols], point.F1(q).reshape(n, 3, -1), rtol=1e-12, atol=1e-9)
+    h = 1e-6
+    for j in range(6):
+        dq = np.zeros_like(q)
+        dq[:, j] = h
+        fd = (pose.F1(q + dq) - pose.F1(q - dq)).reshape(n, 6, k) / (2 * h)
+        assert_allclose(dF[:, j], fd, rtol=1e-6, atol=1e-3)
+    assert pose.min_poses() == int(np.ceil(k / 6))
+    with pytest.raises(InputError, match="measure pose"):
+        make_problem("kr16", measure="pose", extend=["joint_elasticity:2"])
+    with pytest.raises(InputError, match="measure must be one of"):
+        make_problem("kr16", measure="orientation")
+
+
+def test_a_kpi_design_with_pose_measurements_runs():
+    """The exact KPI design (SNOPT, the heuristic start) of 12 poses for the ur10 with a 6-DoF probe:
+    feasible, and the orientation rows shrink the KPI variance of the same poses."""
+    pose = make_problem("ur10", measure="pose", sigma_mm=0.02, sigma_deg=0.01)
+    report = optimize_design(pose, criterion="kpi", n=12, start="heuristic", collision=False)
+    assert report.success
+    kpi_pose = pose.criteria(report.q)["kpi_avg_var_mm2"]
+    kpi_point = make_problem("ur10", sigma_mm=0.02).criteria(report.q)["kpi_avg_var_mm2"]
+    assert 0 < kpi_pose < kpi_point

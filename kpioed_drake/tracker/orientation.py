@@ -34,10 +34,13 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.measurement import TrackerModel, _drot_transposed, small_rotation
 
+MEASURES = ("point", "pose")
+"""What a pose of a design measures: the reflector point, or a 6-DoF probe's position and orientation."""
 SMALL_ANGLE = 1e-4
 """Below this angle [rad] the inverse right Jacobian's coefficient takes its series value (1/12)."""
 
@@ -200,3 +203,55 @@ def world_orientation_errors(
     halves) against the model's prediction (``model.R_FP``; its own tracker frame is not used)."""
     R_WP = model.frames(q).at_link(None)[0] @ _R_FP(model)
     return rotation_log(np.asarray(R_WT) @ np.asarray(R_TP, dtype=float) @ np.swapaxes(R_WP, 1, 2))
+
+
+def angular_jacobian_dq(
+    model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`angular_jacobian` and its derivative w.r.t. the joint values, for designs (rows at zero
+    residual, where ``Jr^-1 = I``).
+
+    A column turned by joint j (a rotation element it moves, or the probe's columns) changes by
+    ``w_j x col`` (W axes; a prismatic joint: 0); the others (rotation elements upstream of joint j,
+    the tracker's) do not change.
+
+    Returns:
+        Omega (n, 3, n_full) [rad per unit]; dOmega (n, n_joints, 3, n_full) [per rad or mm].
+    """
+    lay = model.layout
+    frames = model.frames(q) if frames is None else frames
+    Om = angular_jacobian(model, q, frames=frames)
+    nj = lay.n_joints
+    R_TW = model.R_WT.T
+    w = np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes) @ R_TW.T  # (n, nj, 3) in T
+    on = frames.point_path(None)
+    if on is not None:
+        w = w * on[:, :, None]
+    turned = np.einsum("njab,nbc->njac", _skew(w), Om)  # (n, nj, 3, n_full): w_j x every column
+    moved = np.zeros((nj, lay.size), dtype=bool)
+    moved[:, lay.joints] = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, -1)
+    moved[:, lay.probe_rotation] = True
+    return Om, np.where(moved[None, :, None, :], turned, 0.0)
+
+
+def check_measure(measure: str, sigma_deg: float, *, n_targets: int, extended: bool) -> bool:
+    """True for a design's pose measurements (:data:`MEASURES`), False for points.
+
+    Raises:
+        InputError: an unknown measure, a ``sigma_deg`` outside (0, 180) deg, or pose measurements with
+            several targets or effects (their orientation rows are not modelled).
+    """
+    if measure not in MEASURES:
+        raise InputError(
+            f"measure must be one of {', '.join(MEASURES)}, got {measure!r}", fields=("measure",)
+        )
+    ok = isinstance(sigma_deg, int | float) and not isinstance(sigma_deg, bool) and 0 < sigma_deg < 180
+    if not ok:
+        raise InputError(f"sigma_deg: expected degrees in (0, 180), got {sigma_deg!r}", fields=("sigma_deg",))
+    if measure == "pose" and (extended or n_targets > 1):
+        raise InputError(
+            "measure pose: one 6-DoF probe (one target) and no effects (extend): their orientation rows "
+            "are not modelled",
+            fields=("measure",),
+        )
+    return measure == "pose"
