@@ -15,6 +15,7 @@ from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import validate
 from kpioed_drake.cli import main
 from kpioed_drake.design.optimize import optimize_design
+from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import make_problem
@@ -291,3 +292,12 @@ def test_a_kpi_design_with_pose_measurements_runs():
     kpi_pose = pose.criteria(report.q)["kpi_avg_var_mm2"]
     kpi_point = make_problem("ur10", sigma_mm=0.02).criteria(report.q)["kpi_avg_var_mm2"]
     assert 0 < kpi_pose < kpi_point
+
+
+def test_design_cli_with_pose_measurements(tmp_path, capsys):
+    args = ["design", "--robot", "ur10", "--criterion", "kpi", "--n", "12", "--measure", "pose"]
+    args += ["--sigma-mm", "0.02", "--start", "heuristic", "--no-collision", "--no-certify"]
+    assert main([*args, "--out", str(tmp_path / "d.csv")]) == 0
+    assert "tr(Cs)/3" in capsys.readouterr().out and (tmp_path / "d.csv").is_file()
+    with pytest.raises(InputError, match="measure: expected point or pose"):
+        DesignOptions(measure="orientation")
