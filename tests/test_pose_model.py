@@ -18,6 +18,7 @@ from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.estimator import estimate
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.jointmap import q_columns, q_from_file
@@ -301,3 +302,15 @@ def test_design_cli_with_pose_measurements(tmp_path, capsys):
     assert "tr(Cs)/3" in capsys.readouterr().out and (tmp_path / "d.csv").is_file()
     with pytest.raises(InputError, match="measure: expected point or pose"):
         DesignOptions(measure="orientation")
+
+
+def test_estimate_checks_the_orientation_inputs():
+    robot, data, _ = _pose_data("kr16", 20, 3)
+    model = nominal_model(robot, load_cell(robot=robot))
+    with pytest.raises(InputError, match=r"R_TP \(n, 3, 3\) and sigma_rot \(n, 3\)"):
+        estimate(model, data.q, data.eta, R_TP=data.R_TP)
+    with pytest.raises(InputError, match="sigma_rot must be positive"):
+        estimate(model, data.q, data.eta, R_TP=data.R_TP, sigma_rot=np.zeros((20, 3)))
+    res = estimate(model, data.q, data.eta, R_TP=data.R_TP, sigma_rot=np.full((20, 3), 1.7e-4))
+    assert res.J.shape == (6 * 20, res.n_params) and res.dof == 6 * 20 - res.n_params
+    assert res.rot_residuals.shape == (20, 3)

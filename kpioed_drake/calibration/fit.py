@@ -227,16 +227,16 @@ def calibrate(
             or with ``options.strict`` near-singular).
     """
     options = options or CalibrationOptions()
-    if data.R_TP is not None and options.effects:
-        raise InputError(
-            f"{data.path}: the data hold a 6-DoF probe's orientations, and non-geometric effects "
-            "(extend) do not model orientation rows yet; calibrate without effects, or on the positions "
-            "only",
-            fields=("effects",),
-        )
     q_work, work_note = working_pose(robot, q_work, poses=data.q)
     nominal = _start_model(robot, data, cell)
     effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
+    if data.R_TP is not None and effects:
+        raise InputError(
+            f"{data.path}: the data hold a 6-DoF probe's orientations, and non-geometric effects "
+            "(extend, or an extended model file's) do not model orientation rows yet; calibrate the "
+            "geometric model, or the positions only",
+            fields=("effects",),
+        )
     rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
     n_effect = sum(e.n_params for e in effects)
     warnings = (

@@ -340,6 +340,11 @@ class CalibrationReport:
             },
         }
 
+    def _sigma_rot_text(self) -> str:
+        """``, orientations sigma 0.01 deg`` (the median over rows and axes) of a pose fit, else ""."""
+        s = self.result.sigma_rot
+        return "" if s is None else f", orientations sigma {np.rad2deg(np.median(s)):.3g} deg (median)"
+
     def _orientation_dict(self) -> dict:
         """``orientation_fit`` (the figures' orientation block) with a probe's orientations, else nothing."""
         fig = self.orientation_figures()
@@ -400,7 +405,7 @@ class CalibrationReport:
         model = f" + {', '.join(e.name for e in self.effects)}" if self.effects else ""
         lines = [
             f"{d.robot.name}{model}: calibrated from {d.data.path}: {counted(d.data)}, "
-            f"{used}, {d.result.n_params} parameters, sigma {d.result.sigma:g} mm",
+            f"{used}, {d.result.n_params} parameters, sigma {d.result.sigma:g} mm{self._sigma_rot_text()}",
             f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",
             *self.figures().lines(),
             *(f.lines() if (f := self.orientation_figures()) is not None else []),
