@@ -19,6 +19,7 @@ from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.diagnosis.workflow import diagnose
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import estimate
+from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.jointmap import q_columns, q_from_file
@@ -314,3 +315,21 @@ def test_estimate_checks_the_orientation_inputs():
     res = estimate(model, data.q, data.eta, R_TP=data.R_TP, sigma_rot=np.full((20, 3), 1.7e-4))
     assert res.J.shape == (6 * 20, res.n_params) and res.dof == 6 * 20 - res.n_params
     assert res.rot_residuals.shape == (20, 3)
+
+
+@pytest.mark.parametrize(
+    "name, n_points, n_pose", [("ur10", 25, 30), ("kr16", 27, 30), ("lift7", None, None)]
+)
+def test_rank_test_with_orientations(name, n_points, n_pose):
+    """check_identifiability with measure pose: the probe layout's free parameters (the points' plus
+    the extra gauge and the probe's three) all determined; with all parameters, the six-joint tables'
+    SPEC gauge is still exactly what trades against the rest (6 of 36)."""
+    robot = load_robot(name)
+    cell = load_cell(robot=robot)
+    points, pose = check_identifiability(robot, cell), check_identifiability(robot, cell, measure="pose")
+    assert points.identifiable and pose.identifiable
+    assert pose.n_candidates == points.n_candidates + 3 + len(robot.extra_gauge)
+    if n_points is not None:
+        assert (points.n_candidates, pose.n_candidates) == (n_points, n_pose)
+        every = check_identifiability(robot, cell, measure="pose", all_params=True)
+        assert every.n_candidates - every.rank == 6
