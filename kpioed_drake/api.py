@@ -248,6 +248,7 @@ def calibrate(
     force: bool = False,
     data_format: MaybePath = None,
     strict: bool = False,
+    sigma_deg: float = 0.01,
 ) -> CalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``):
     :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
@@ -255,42 +256,36 @@ def calibrate(
     :class:`~kpioed_drake.calibration.options.CalibrationOptions`.
 
     Args:
-        robot: model name or YAML path.
-        data_path: the measurement CSV.
-        sigma_mm: noise standard deviation per coordinate [mm].
+        robot: model name or YAML path; data_path: the measurement CSV.
+        sigma_mm: noise standard deviation per coordinate [mm]; sigma_deg: a 6-DoF probe's
+            orientation noise per tracker axis [deg] where the rows give none.
         q_work_deg: ``"q1,...,q6"`` [deg] overriding the model's working pose.
         extend: effect texts (e.g. ``["joint_elasticity:2"]``, joints 1..n_joints): calibrate the
             geometry and these effects together (the extended model; ``out`` writes it with its
             ``effects:``); without it, the effects of an extended model file are re-estimated.
         outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
         out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
-        json_path: JSON report to write.
-        plots_dir: folder for the residual plots (PNG).
+        json_path: JSON report to write; plots_dir: folder for the residual plots (PNG).
         html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
-        cell_path: cell file (default ``models/cell.yaml``).
-        force: go on with implausible data, with a warning.
+        cell_path: cell file (default ``models/cell.yaml``); force: go on with implausible data (warned).
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter instead of holding the
             undetermined ones at nominal with a warning.
     """
-    options = CalibrationOptions(
-        sigma_mm=sigma_mm,
-        effects=tuple(extend or ()),
-        outlier_alpha=outlier_alpha,
-        force=force,
-        strict=strict,
+    effects = tuple(extend or ())
+    same = dict(
+        sigma_mm=sigma_mm, sigma_deg=sigma_deg, outlier_alpha=outlier_alpha, force=force, strict=strict
     )
+    options = CalibrationOptions(effects=effects, **same)  # type: ignore[arg-type]
+    outputs = dict(out=out, json_path=json_path, plots_dir=plots_dir, html=html)
     return calibrate_file(
         robot,
         data_path,
         options,
         q_work_deg=q_work_deg,
-        out=out,
-        json_path=json_path,
-        plots_dir=plots_dir,
-        html=html,
         cell_path=cell_path,
         data_format=data_format,
+        **outputs,
     )
 
 
@@ -307,6 +302,7 @@ def simulate(
     truth_path: str | None = None,
     cell_path: MaybePath = None,
     n_targets: int | None = None,
+    orientation_sigma_deg: float | None = None,
 ) -> tuple[pd.DataFrame, dict]:
     """Simulated laser-tracker data of a design file (``kpioed simulate``):
     :func:`kpioed_drake.simulation.simulate_file` with ``sigma_mm``, ``seed``, ``effects``,
@@ -318,11 +314,11 @@ def simulate(
         sigma_mm: noise per coordinate [mm]; seed: seed of the true robot, tracker frame and noise.
         effects: non-geometric effects (e.g. ``["joint_elasticity:2"]``).
         geometric_errors: draw random geometric errors (False: the true robot is the nominal one).
-        payload_kg: payload at the reflector [kg] (>= 0).
-        truth_path: also write the true parameters as JSON.
+        payload_kg: payload at the reflector [kg] (>= 0); truth_path: the true parameters' JSON.
         cell_path: cell file (default ``models/cell.yaml``).
         n_targets: targets measured at every pose (the first of the model's ``targets_mm``;
             default all): one row per pose and target, with a ``target`` column when several.
+        orientation_sigma_deg: a 6-DoF probe's orientations too, noise per tracker axis [deg].
 
     Returns:
         (table, truth): the measurement table (pandas) and the truth dict.
@@ -333,6 +329,7 @@ def simulate(
         effects=cast(tuple[str, ...], tuple(effects)),  # texts or Effect objects (SimulationOptions.effects)
         geometric_errors=geometric_errors,
         n_targets=n_targets,
+        orientation_sigma_deg=orientation_sigma_deg,
     )
     return simulate_file(
         robot, design, out, options, payload_kg=payload_kg, truth_path=truth_path, cell_path=cell_path

@@ -14,7 +14,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from kpioed_drake import api
-from kpioed_drake.calibration.validate import predicted_world
+from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.modelfile import calibrated_robot_yaml, calibrated_urdf_files
+from kpioed_drake.calibration.options import CalibrationOptions
+from kpioed_drake.calibration.validate import predicted_world, validate
 from kpioed_drake.cli import main
 from kpioed_drake.effects import model_effects
 from kpioed_drake.estimation.problem import make_problem
@@ -22,7 +25,11 @@ from kpioed_drake.files.designs import write_design
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.plant import MM, build_scene
+from kpioed_drake.robot.urdf.write import sidecar_of
+from kpioed_drake.simulation.options import SimulationOptions
+from kpioed_drake.simulation.truth import simulate
 from kpioed_drake.study.synthetic import random_poses
+from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import nominal_model
 
 HUMANOID = "models/robots/humanoid18.urdf"
@@ -197,3 +204,33 @@ def test_a_design_problem_of_an_extended_urdf_file_has_its_calibrated_frames(tmp
     q = random_poses(written, 4, np.random.default_rng(8))
     frames = forward_kinematics(problem.robot, q, problem.model.geometry)
     assert_allclose(frames.o, forward_kinematics(written, q).o, atol=1e-9)
+
+
+@pytest.mark.parametrize("robot_name", ["ur10", "lift7"])
+def test_pose_model_round_trip(tmp_path, robot_name):
+    """6-DoF probe data: the written model keeps the probe's orientation (``probe_rpy_deg``), so that
+    validate with the tracker kept of the fit's own rows reproduces the fit's position and orientation
+    residuals (in W) to 1e-9 (ur10: a YAML table; lift7: a URDF chain with a prismatic joint)."""
+    robot = load_robot(robot_name)
+    q = random_poses(robot, 60, np.random.default_rng(4))
+    table, truth = simulate(robot, q, SimulationOptions(sigma_mm=0.02, seed=5, orientation_sigma_deg=0.01))
+    data = Measurements.from_arrays(q, table[["x_mm", "y_mm", "z_mm"]].to_numpy(), R_TP=truth["R_TP"])
+    report = calibrate(robot, data, CalibrationOptions(sigma_mm=0.02, sigma_deg=0.01, outlier_alpha=0))
+    if robot.urdf is None:
+        path = tmp_path / "cal.yaml"
+        path.write_text(calibrated_robot_yaml(report))
+    else:
+        path = tmp_path / "cal.urdf"
+        urdf, side = calibrated_urdf_files(report)
+        path.write_text(urdf)
+        sidecar_of(path).write_text(side)
+    written = load_robot(str(path))
+    assert written.R_FP is not None
+    val = validate(written, data, tracker_frame="kept")
+    R_WT = report.model.R_WT
+    assert_allclose(val.residuals_W, report.result.residuals @ R_WT.T, rtol=0, atol=RTOL * robot.reach)
+    assert_allclose(val.rot_residuals_W, report.result.rot_residuals @ R_WT.T, rtol=0, atol=RTOL)
+    assert np.abs(val.rot_residuals_W).max() > 1e-5  # the noise, not zero
+    fit, held_out = report.orientation_figures(), val.orientation_figures()
+    assert fit is not None and held_out is not None
+    assert_allclose(held_out.mean_error_deg, fit.mean_error_deg, rtol=1e-8)

@@ -67,6 +67,7 @@ from kpioed_drake.tracker.measurement import (
     measurement_jacobian,
     nominal_model,
 )
+from kpioed_drake.tracker.orientation import orientation_jacobian, with_probe
 
 __all__ = ["MIN_POSES_FOR_OUTLIER_TEST", "calibrate", "hold_at_solution", "hold_undetermined"]
 
@@ -77,12 +78,15 @@ few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving
 
 
 def hold_undetermined(
-    nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str]
+    nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str], sigma_deg: float = 0.01
 ) -> TrackerModel:
     """``nominal`` with the parameters the poses do not determine held at nominal (not estimated).
 
     Tested on the Jacobian of the registered nominal model over every pose (with fewer coordinates
-    than parameters the estimator refuses anyway). Raises InputError with ``strict`` or when more
+    than parameters the estimator refuses anyway); with a probe's orientations on the whitened
+    stack of its position and orientation rows (:func:`_test_rows`, ``sigma_deg`` the orientation
+    noise of rows without their own, relative to ``1 mm``: the column-scaled test sees only the
+    ratio). Raises InputError with ``strict`` or when more
     than ``MAX_HELD_SHARE`` of the free parameters are undetermined.
 
     A tracker-pose parameter found only through its correlation with another (not rank deficient)
@@ -94,9 +98,8 @@ def hold_undetermined(
     lay = nominal.layout
     if 3 * data.n < lay.n_free:
         return nominal
-    registered = registered_model(nominal, data.q, data.eta, data.target)
-    _, H = measurement_jacobian(registered, data.q, target=data.target)
-    found = undetermined_parameters(H[:, :, lay.free].reshape(3 * data.n, -1), lay.free_names)
+    registered = registered_model(nominal, data.q, data.eta, data.target, data.R_TP)
+    found = undetermined_parameters(_test_rows(registered, data, sigma_deg), lay.free_names)
     loose = [c for c in found.correlated if c.held in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
@@ -107,6 +110,26 @@ def hold_undetermined(
             "robot's own errors bias)"
         )
     return _hold(nominal, found, f"these {counted_rows(data.q)} do not determine", data, strict, warnings)
+
+
+def _test_rows(model: TrackerModel, data: Measurements, sigma_deg: float) -> np.ndarray:
+    """(3 n [+ 3 n], n_free) the rows the identifiability test sees: the positions' Jacobian, and
+    with orientations their Jacobian whitened by their noise relative to the positions' (1 mm)."""
+    lay = model.layout
+    _, H = measurement_jacobian(model, data.q, target=data.target)
+    A = H[:, :, lay.free].reshape(3 * data.n, -1)
+    if data.R_TP is None:
+        return A
+    _, Hr = orientation_jacobian(model, data.q, data.R_TP)
+    w = 1.0 / orientation_sigma(data, sigma_deg)
+    return np.concatenate([A, (Hr[:, :, lay.free] * w[:, :, None]).reshape(3 * data.n, -1)])
+
+
+def orientation_sigma(data: Measurements, sigma_deg: float) -> np.ndarray:
+    """(n, 3) the orientations' noise [rad]: the rows' own (``sigma_rot_rad``), else ``sigma_deg``."""
+    if data.sigma_rot_rad is not None:
+        return data.sigma_rot_rad
+    return np.full((data.n, 3), np.deg2rad(sigma_deg))
 
 
 def _hold(
@@ -141,7 +164,7 @@ def _hold(
     else:
         warnings.append(f"{what}: held at the estimate (the tracker pose's value from the first fit)")
     held = tuple(n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist()))
-    layout = parameter_layout(model.robot, fixed=held + found.names, n_targets=lay.n_targets)
+    layout = parameter_layout(model.robot, fixed=held + found.names, n_targets=lay.n_targets, probe=lay.probe)
     return dataclasses.replace(model, layout=layout)
 
 
@@ -207,13 +230,20 @@ def calibrate(
     q_work, work_note = working_pose(robot, q_work, poses=data.q)
     nominal = _start_model(robot, data, cell)
     effects, cond, nominal = resolve_extension(list(options.effects), nominal, data)
+    if data.R_TP is not None and effects:
+        raise InputError(
+            f"{data.path}: the data hold a 6-DoF probe's orientations, and non-geometric effects "
+            "(extend, or an extended model file's) do not model orientation rows yet; calibrate the "
+            "geometric model, or the positions only",
+            fields=("effects",),
+        )
     rob = nominal.robot  # with the gravity bases sized on these poses, where an effect needs them
     n_effect = sum(e.n_params for e in effects)
     warnings = (
         check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=options.force) + work_note
     )
     before = nominal.layout.free_names
-    nominal = hold_undetermined(nominal, data, options.strict, warnings)
+    nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
     fit = _fitter(data, options, effects, cond)
     res, screen, normalized, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
@@ -249,7 +279,8 @@ def calibrate(
 
 def _start_model(robot: Robot, data: Measurements, cell: Cell | None) -> TrackerModel:
     """The nominal model of ``robot`` in ``cell`` (default ``models/cell.yaml``) to start from: the
-    tracker frame at the identity for positions given in W, the targets the data do not measure held."""
+    tracker frame at the identity for positions given in W, the targets the data do not measure held,
+    and with a probe's orientations the probe's three rotations (registered in the fit)."""
     cell = load_cell(robot=robot) if cell is None else cell
     nominal = nominal_model(robot, cell)
     if data.frame == "base":  # positions given in W: the tracker frame starts at the identity
@@ -257,6 +288,8 @@ def _start_model(robot: Robot, data: Measurements, cell: Cell | None) -> Tracker
         p0[nominal.layout.tracker_position] = 0.0
         p0[nominal.layout.tracker_rotation] = 0.0
         nominal = dataclasses.replace(nominal, p=p0, R_WT_ref=np.eye(3))
+    if data.R_TP is not None:
+        nominal = with_probe(nominal)
     return hold_unused_targets(nominal, data.target)
 
 
@@ -277,6 +310,8 @@ def _fitter(data: Measurements, options: CalibrationOptions, effects: list, cond
                 conditions=cond,
                 singular_ok=singular_ok,
                 effects=start,
+                R_TP=data.R_TP,
+                sigma_rot=None if data.R_TP is None else orientation_sigma(data, options.sigma_deg),
             )
         except InputError as exc:
             names = f" and {', '.join(e.name for e in effects)} together" if effects else ""
@@ -323,8 +358,9 @@ def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float,
     if p is not None and p < 1e-3:
         warnings.append(
             f"chi2/dof = {report.chi2_per_dof:.3g} (p = {p:.2g}): the residuals are larger than a noise of "
-            f"{sigma_mm:g} mm explains; the noise is larger than given or the geometric model misses an "
-            "effect (see `kpioed diagnose`); the a-posteriori covariance scales by chi2/dof"
+            f"{sigma_mm:g} mm{_and_orientation(report)} explains; the noise is larger than given or the "
+            "geometric model misses an effect (see `kpioed diagnose`); the a-posteriori covariance scales "
+            "by chi2/dof"
         )
         rest = non_geometric_warning(screen)
         if rest:
@@ -335,6 +371,11 @@ def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float,
             f"{sigma_mm:g} mm predicts; {param('sigma_mm')} is probably too large (the reported "
             "uncertainties are then pessimistic)"
         )
+
+
+def _and_orientation(report: CalibrationReport) -> str:
+    """`` (and the orientations' noise)`` of a fit with a probe's orientation rows, else ``""``."""
+    return "" if report.result.R_TP is None else " (and the orientations' given noise)"
 
 
 def _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped: list[str]):

@@ -1,7 +1,8 @@
 """The calibrated robot as a model file (same schema as ``models/robots/*.yaml``).
 
 :func:`calibrated_robot_yaml` writes the estimated joint rows, the estimated reflector offset
-(``reflector_position_mm``; with several targets all of them, ``targets_mm``, target 1 first)
+(``reflector_position_mm``; with several targets all of them, ``targets_mm``, target 1 first),
+a 6-DoF probe's estimated orientation on the flange (``probe_rpy_deg``; data with orientations)
 and the estimated tracker pose (``tracker_position_mm``,
 ``tracker_rpy_deg``) into the robot's :class:`~kpioed_drake.robot.models.RobotSpec` (read back from its
 source file when available), so that the result is a complete model usable as ``--robot path.yaml``
@@ -113,6 +114,10 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
     spec.effects = _effects(report)
     spec.estimated_errors = _estimated_errors(report)
     spec.payload_point_mm = _payload_point(report)
+    R_FP = report.model.R_FP
+    spec.probe_rpy_deg = (
+        [] if R_FP is None else np.rad2deg(RollPitchYaw(RotationMatrix(R_FP)).vector()).tolist()
+    )
     cal_note = _note(report) + (
         " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm "
         "(targets_mm: every target) and "
@@ -169,5 +174,6 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
         effects=_effects(report),
         estimated_errors=_estimated_errors(report),
         payload_point=_payload_point(report),
+        R_FP=model.R_FP,
     )
     return urdf, side

@@ -14,7 +14,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from scipy.stats import chi2 as chi2_dist
 
-from kpioed_drake.estimation.accuracy import Figures, accuracy
+from kpioed_drake.estimation.accuracy import Figures, OrientationFigures, accuracy, orientation_accuracy
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.files.tables import ROW_CONVENTION
 from kpioed_drake.robot.jointmap import q_to_file
@@ -87,7 +87,8 @@ class CalibrationReport:
 
     def _held(self) -> list[str]:
         estimated = set(self.model.layout.free_names)
-        return [n for n in parameter_layout(self.robot).free_names if n not in estimated]
+        probe = self.model.layout.probe
+        return [n for n in parameter_layout(self.robot, probe=probe).free_names if n not in estimated]
 
     @property
     def used(self) -> np.ndarray:
@@ -109,6 +110,31 @@ class CalibrationReport:
         target = None if self.data.target is None else self.data.target[used]
         r_W = self.result.residuals[used] @ self.model.R_WT.T
         return accuracy(r_W, self.data.q[used], kind="fit", tracker="fitted", target=target)
+
+    def orientation_figures(self) -> OrientationFigures | None:
+        """The orientation figures of the fit (a 6-DoF probe's data; None without orientations):
+        the used rows' rotation errors in W, the tracker frame estimated in the fit."""
+        e = self.result.rot_residuals
+        if e is None:
+            return None
+        return orientation_accuracy(e[self.used] @ self.model.R_WT.T, kind="fit", tracker="fitted")
+
+    def probe(self) -> dict | None:
+        """The JSON's ``probe`` block: the estimated orientation of the probe frame P on the flange
+        (deg) and its small rotations' standard deviations; None without orientations."""
+        R, sigma_rot = self.model.R_FP, self.result.sigma_rot
+        if not self.model.layout.probe or R is None or sigma_rot is None:
+            return None
+        lay = self.model.layout
+        return {
+            "R_FP": R.tolist(),
+            "rpy_deg": np.rad2deg(RollPitchYaw(RotationMatrix(R)).vector()).tolist(),
+            "rotation_std_deg": np.rad2deg(self.result.std[lay.free_probe_rotation]).tolist(),
+            "sigma_rot_deg_median": float(np.rad2deg(np.median(sigma_rot))),
+            "note": "orientation of the 6-DoF probe's frame P on the flange (its origin: the reflector "
+            "offset); rotation_std_deg: small rotations about the flange axes; sigma_rot_deg_median: the "
+            "orientation noise the fit weighted with (the rows' own, else sigma_deg)",
+        }
 
     @property
     def chi2(self) -> float:
@@ -145,7 +171,7 @@ class CalibrationReport:
     def parameter_table(self) -> list[dict]:
         """All parameters (33 for six joints): name, value, nominal, std (mm/deg), unit, estimated."""
         lay = self.model.layout
-        rotation = range(lay.size)[lay.tracker_rotation]
+        rotation = set(range(lay.size)[lay.tracker_rotation]) | set(range(lay.size)[lay.probe_rotation])
         free = list(lay.free)
         std = self.result.std
         std_post = np.sqrt(np.diag(self.result.Cp_scaled))  # NaN without degrees of freedom
@@ -156,7 +182,7 @@ class CalibrationReport:
             est = i in free
             value = float(conv(self.model.p[i]))
             nominal: float | None = float(conv(self.nominal.p[i]))
-            if i in rotation:  # small rotations about the estimated tracker axes: zero after rebasing
+            if i in rotation:  # small rotations about the estimated tracker (probe) axes: zero after rebasing
                 nominal = None
             row = {
                 "name": name,
@@ -248,6 +274,7 @@ class CalibrationReport:
             "parameter_std_note": "a-priori standard deviations from the given sigma",
             "correlations": self.correlations(),
             "tracker": self.tracker(),
+            **({"probe": self.probe()} if self.model.layout.probe else {}),
             **self._targets_dict(),
             "poses": self._poses_list(),
             "held_at_nominal": list(self.held_at_nominal),
@@ -298,7 +325,7 @@ class CalibrationReport:
             "rms_residual_mm": self.rms_residual_mm,
             "rms_residual_note": "root mean square over the coordinates of the used poses",
             "max_residual_mm": self.max_residual_mm,
-            "figures": {"fit": self.figures().to_dict()},
+            "figures": {"fit": self.figures().to_dict(), **self._orientation_dict()},
             "chi2": self.chi2,
             "dof": self.dof,
             "chi2_per_dof": self.chi2_per_dof,
@@ -312,6 +339,16 @@ class CalibrationReport:
                 "threshold": self.outlier_threshold,
             },
         }
+
+    def _sigma_rot_text(self) -> str:
+        """``, orientations sigma 0.01 deg`` (the median over rows and axes) of a pose fit, else ""."""
+        s = self.result.sigma_rot
+        return "" if s is None else f", orientations sigma {np.rad2deg(np.median(s)):.3g} deg (median)"
+
+    def _orientation_dict(self) -> dict:
+        """``orientation_fit`` (the figures' orientation block) with a probe's orientations, else nothing."""
+        fig = self.orientation_figures()
+        return {} if fig is None else {"orientation_fit": fig.to_dict()}
 
     def _kpi_dict(self) -> dict:
         """The JSON report's KPI entries: the TCP at q_work and its covariance."""
@@ -368,9 +405,10 @@ class CalibrationReport:
         model = f" + {', '.join(e.name for e in self.effects)}" if self.effects else ""
         lines = [
             f"{d.robot.name}{model}: calibrated from {d.data.path}: {counted(d.data)}, "
-            f"{used}, {d.result.n_params} parameters, sigma {d.result.sigma:g} mm",
+            f"{used}, {d.result.n_params} parameters, sigma {d.result.sigma:g} mm{self._sigma_rot_text()}",
             f"  converged: {d.result.converged} ({d.result.iterations} iterations; {d.result.message})",
             *self.figures().lines(),
+            *(f.lines() if (f := self.orientation_figures()) is not None else []),
         ]
         if d.dof > 0:
             lines.append(f"  chi2/dof = {d.chi2_per_dof:.3f} (dof {d.dof}), p-value {d.p_value:.3g}")
@@ -402,7 +440,8 @@ class CalibrationReport:
         lines.append(
             f"  KPI shift from the given model ({d.kpi_reference()['model']}): {np.linalg.norm(dev):.4f} mm"
         )
-        table = [p for p in d.parameter_table() if p["estimated"] and not p["name"].startswith("tracker")]
+        table = [p for p in d.parameter_table() if p["estimated"] and p["deviation"] is not None]
+        table = [p for p in table if not p["name"].startswith("tracker")]
         table.sort(key=lambda p: -abs(p["deviation"]) / max(p["std"], 1e-300))
         post = d.rejects and d.aposteriori_factor is not None
         lines.append(

@@ -52,7 +52,7 @@ from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, param
-from kpioed_drake.estimation.accuracy import Figures, accuracy
+from kpioed_drake.estimation.accuracy import Figures, OrientationFigures, accuracy, orientation_accuracy
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.files.tables import ROW_CONVENTION
@@ -60,6 +60,7 @@ from kpioed_drake.outputs import Outputs, pyplot
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.tracker.data import Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
+from kpioed_drake.tracker.orientation import world_orientation_errors
 
 _NEEDS = {"thermal_expansion": "temperature_C", "tracker_scale": "temperature_C", "tracker_drift": "time_s"}
 """The data column an effect's prediction needs."""
@@ -91,6 +92,9 @@ class ValidationReport:
         effects: the names of the model's non-geometric effects it predicted with (empty: geometric).
         warnings: the plausibility checks' remarks (``force`` turns a refusal into one), a moved tracker.
         notes: why the method was chosen when it was not given.
+        rot_residuals_W: (n, 3) a 6-DoF probe's orientation errors ``log(R_meas R_pred^T)`` in W axes
+            with the same tracker frames [rad], or None (no orientations, or a model without a
+            probe orientation: a note says so).
     """
 
     robot: str
@@ -103,6 +107,7 @@ class ValidationReport:
     effects: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    rot_residuals_W: np.ndarray | None = None
 
     @property
     def registered(self) -> bool:
@@ -129,6 +134,12 @@ class ValidationReport:
         return accuracy(
             self.residuals_W, self.data.q, kind="held-out", tracker=self.method, target=self.data.target
         )
+
+    def orientation_figures(self) -> OrientationFigures | None:
+        """The orientation figures (held-out, the position figures' tracker frame), or None."""
+        if self.rot_residuals_W is None:
+            return None
+        return orientation_accuracy(self.rot_residuals_W, kind="held-out", tracker=self.method)
 
     def per_target(self) -> list[dict]:
         """Errors of each target's rows (target numbers 1..T as in the file) [mm]."""
@@ -190,6 +201,7 @@ class ValidationReport:
             "max_error_mm": fig.max_error_mm,
             "errors_mm": self.errors_mm.tolist(),
             "figures": fig.to_dict(),
+            "orientation_figures": None if (o := self.orientation_figures()) is None else o.to_dict(),
             "targets": self.per_target(),
             "rows": [int(r) for r in self.data.rows],
             "row_convention": ROW_CONVENTION,
@@ -211,6 +223,7 @@ class ValidationReport:
                 + (f" (with {', '.join(self.effects)})" if self.effects else "")
                 + f": validated on {self.data.path}: {counted(self.data)}",
                 *self.figures().lines(),
+                *(o.lines() if (o := self.orientation_figures()) is not None else []),
                 *(f"  note: {n}" for n in self.notes),
                 *(f"  warning: {w}" for w in self.warnings),
             ]
@@ -326,7 +339,9 @@ def validate(
         residuals, frames = data.eta @ R_WT.T + p_WT - p_W, ((R_WT, p_WT),)
         if method == "kept":
             warnings += _moved(residuals, p_W, data)
+    rot, more = _orientation_errors(model, data, frames, halves, effects)
     return ValidationReport(
+        rot_residuals_W=rot,
         robot=robot.name,
         model_source=robot.source,
         effects=tuple(e.name for e in effects),
@@ -336,8 +351,24 @@ def validate(
         method=method,
         frames=frames,
         halves=halves,
-        notes=tuple(notes),
+        notes=tuple(notes + more),
     )
+
+
+def _orientation_errors(model: TrackerModel, data: Measurements, frames, halves, effects) -> tuple:
+    """A probe's orientation errors in W with the position figures' tracker frames (cross: each
+    half's), and the note when the data's orientations are not scored (the model has no probe
+    orientation, or effects whose orientations are not modelled)."""
+    if data.R_TP is None:
+        return None, []
+    if model.R_FP is None or effects:
+        why = "has effects, whose orientation is not modelled" if effects else "has no probe orientation"
+        return None, [
+            f"the data's 6-DoF orientations are not scored: the model {why} (probe_rpy_deg: a "
+            "calibration from data with orientations writes it)"
+        ]
+    R_WT = frames[0][0] if halves is None else np.stack([f[0] for f in frames])[halves]
+    return world_orientation_errors(model, data.q, data.R_TP, R_WT), []
 
 
 def _method(tracker_frame, keep_tracker) -> str | None:

@@ -18,6 +18,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_robot(p)
     cli.add_data(p)
     cli.add_sigma(p, default=0.02)
+    p.add_argument(
+        "--sigma-deg",
+        type=float,
+        default=0.01,
+        help="a 6-DoF probe's orientation noise about each tracker axis [deg], for data with orientations "
+        "whose rows give none (0.01: about a T-Mac's stated accuracy)",
+    )
     cli.add_q_work(p)
     p.add_argument(
         "--out",
@@ -44,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    same = cli.passed(args, "sigma_mm", "extend", "outlier_alpha", "out", "strict")
+    same = cli.passed(args, "sigma_mm", "sigma_deg", "extend", "outlier_alpha", "out", "strict")
     report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **cli.data_outputs(args))
     written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
     return cli.print_result(args, report.to_dict, report.summary, written)

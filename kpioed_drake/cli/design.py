@@ -141,6 +141,19 @@ def _add_kpi_options(p: argparse.ArgumentParser) -> None:
         help="weights of the working poses in the mean KPI (normalised to sum 1; default equal)",
     )
     p.add_argument(
+        "--measure",
+        choices=("point", "pose"),
+        default="point",
+        help="what a pose measures: the reflector point, or a 6-DoF probe's position and orientation "
+        "(default point)",
+    )
+    p.add_argument(
+        "--sigma-deg",
+        type=float,
+        default=0.01,
+        help="with --measure pose: the orientation noise about each tracker axis [deg] (0.01)",
+    )
+    p.add_argument(
         "--kpi-aggregate",
         choices=KPI_AGGREGATES,
         default="mean",
@@ -174,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
             json_path=args.json,
             **cli.passed(args, "discriminate", "condition_span", "n", "solver", "seed", "starts", "sigma_mm"),
             **cli.passed(args, "q_work_file", "kpi_aggregate", "given", "extend", "out", "plot", "html"),
-            **cli.passed(args, "allow_infeasible", "start", "certify"),
+            **cli.passed(args, "allow_infeasible", "start", "certify", "measure", "sigma_deg"),
         )
     except DesignError as exc:
         if exc.result is not None:

@@ -38,6 +38,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="targets (SMRs) measured at every pose: the first N of the model file's targets_mm "
         "(default: all); one row per pose and target, with a target column",
     )
+    cli.add_optional_number(
+        p,
+        "--orientation-sigma-deg",
+        type=float,
+        metavar="S",
+        help="also simulate a 6-DoF probe's orientations (columns qw, qx, qy, qz: the unit quaternion, "
+        "scalar first, of the probe frame in the tracker frame) with noise S [deg] about each tracker "
+        "axis (0: noise free); the truth's probe orientation on the flange is the model file's "
+        "probe_rpy_deg, else random",
+    )
     p.add_argument("--out", required=True, metavar="DATA.csv", help="measurement CSV to write")
     p.add_argument(
         "--truth", default=None, metavar="FILE.json", help="also write the true parameters as JSON"
@@ -57,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         payload_kg=args.payload_kg,
         truth_path=args.truth,
         n_targets=args.targets,
+        orientation_sigma_deg=args.orientation_sigma_deg,
     )
     eff = ", ".join(e.text() if hasattr(e, "text") else str(e) for e in truth["effects"]) or "none"
     print(

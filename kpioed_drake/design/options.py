@@ -54,8 +54,19 @@ class DesignOptions:
     """With ``discriminate``: the span of block 2 from block 1 (``"3K"``, ``"600s"``; None: the
     span for power 0.8)."""
 
+    measure: str = "point"
+    """What a pose measures: ``point`` (the reflector) or ``pose`` (a 6-DoF probe's position and
+    orientation: 6 rows per pose; one target, no ``extend``)."""
+    sigma_deg: float = 0.01
+    """With ``measure`` ``pose``: the orientation noise about each tracker axis [deg]."""
+
     def __post_init__(self):
         self._check_discriminate()
+        require(
+            self.measure in ("point", "pose"),
+            f"measure: expected point or pose, got {self.measure!r}",
+            fields=("measure",),
+        )
         require(
             self.criterion in DESIGN_METHODS,
             f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {self.criterion!r}",

@@ -132,6 +132,8 @@ def run_design(
         extend=opts.extend,
         kpi_weights=file_weights if kpi_weights is None else kpi_weights,
         kpi_aggregate=opts.kpi_aggregate,
+        measure=opts.measure,
+        sigma_deg=opts.sigma_deg,
     )
     q_given = None if given is None else designs.read_design(given, robot)
     try:

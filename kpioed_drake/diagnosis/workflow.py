@@ -204,6 +204,11 @@ def diagnose(
     alpha, k_folds = opts.alpha, opts.k_folds
     data = as_measurements(data, robot)
     data.check()
+    if data.R_TP is not None:
+        raise InputError(
+            f"{data.path}: the data hold a 6-DoF probe's orientations, which the diagnosis's effects do not "
+            "model yet; diagnose the positions only (a file without the orientation columns)"
+        )
     repeats = ns.repeat_scatter(data.q, data.eta, data.target)
     stated = ns.stated(opts.sigma_mm, repeats, DEFAULT_SIGMA_MM)
     prob, cands, notes, resized = _prepared(robot, data, opts, cell, stated[0])

@@ -15,6 +15,11 @@ One function computes them (:func:`accuracy`) and one record writes them
 
 Residuals are measured minus predicted, in W (the robot base: x towards the car, z up), so the
 per-coordinate figures of every command are in the same frame.
+
+With a 6-DoF probe's orientations, :func:`orientation_accuracy` gives the same figures of the
+orientation errors (:class:`OrientationFigures`): the rotation vector ``log(R_meas R_model^T)`` of
+each row in W axes, RMS about x, y, z and over all three [deg], and the angle ``|e|`` [deg]: mean,
+95th percentile, max; labelled as the position figures beside them.
 """
 
 from __future__ import annotations
@@ -167,4 +172,83 @@ def accuracy(
     n_poses = int(len(np.unique(q, axis=0)))
     return Figures(
         kind=kind, tracker=tracker, n_poses=n_poses, n_rows=r.shape[0], targets=targets, model=model, **f
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class OrientationFigures:
+    """Accuracy figures of a 6-DoF probe's orientation errors (:func:`orientation_accuracy`) [deg].
+
+    Attributes:
+        kind, tracker: as :class:`Figures` (the position figures' labels).
+        n_rows: the rows scored.
+        rms_deg: RMS over the three components; rms_xyz_deg: (x, y, z) RMS of the error's rotation
+            vector about the W axes.
+        mean_error_deg, p95_error_deg, max_error_deg: of the angle of each row's error.
+        model: what was scored (empty: the one model of the report).
+    """
+
+    kind: str
+    tracker: str
+    n_rows: int
+    rms_deg: float
+    rms_xyz_deg: tuple[float, float, float]
+    mean_error_deg: float
+    p95_error_deg: float
+    max_error_deg: float
+    model: str = ""
+
+    def lines(self, indent: str = "  ") -> list[str]:
+        """One line: ``orientation (kind, tracker): RMS about x, y, z, all: ... deg; angle error ...``."""
+        rms = ", ".join(f"{v:.4f}" for v in (*self.rms_xyz_deg, self.rms_deg))
+        what = (
+            f"{self.model}, " if self.model else ""
+        ) + f"{self.kind} on {self.n_rows} rows, {TRACKER[self.tracker]}"
+        return [
+            f"{indent}  orientation ({what}): RMS about x, y, z, all: {rms} deg; angle error mean "
+            f"{self.mean_error_deg:.4f}, 95 % {self.p95_error_deg:.4f}, max {self.max_error_deg:.4f} deg"
+        ]
+
+    def to_dict(self) -> dict:
+        """The JSON block (deg)."""
+        return {
+            "model": self.model or None,
+            "kind": self.kind,
+            "tracker": self.tracker,
+            "tracker_text": TRACKER[self.tracker],
+            "n_rows": self.n_rows,
+            "rms_deg": self.rms_deg,
+            "rms_xyz_deg": list(self.rms_xyz_deg),
+            "mean_error_deg": self.mean_error_deg,
+            "p95_error_deg": self.p95_error_deg,
+            "max_error_deg": self.max_error_deg,
+            "note": "rotation vector of R_measured R_predicted^T per row in W axes; angle = its norm",
+        }
+
+
+def orientation_accuracy(
+    errors_W: np.ndarray, *, kind: str, tracker: str, model: str = ""
+) -> OrientationFigures:
+    """The figures of orientation errors ``errors_W`` (n, 3): rotation vectors of measured times
+    predicted^T in W axes [rad]; ``kind`` and ``tracker`` as :func:`accuracy`.
+
+    Raises:
+        ValueError: no rows, a shape other than (n, 3), an unknown kind or tracker.
+    """
+    e = np.rad2deg(np.asarray(errors_W, dtype=float))
+    if e.ndim != 2 or e.shape[1] != 3 or e.shape[0] == 0:
+        raise ValueError(f"orientation_accuracy: expected (n, 3) errors of n >= 1 rows, got {e.shape}")
+    if kind not in KINDS or tracker not in TRACKER:
+        raise ValueError(f"orientation_accuracy: unknown kind {kind!r} or tracker {tracker!r}")
+    angle = np.linalg.norm(e, axis=1)
+    return OrientationFigures(
+        kind=kind,
+        tracker=tracker,
+        n_rows=e.shape[0],
+        rms_deg=float(np.sqrt(np.mean(e**2))),
+        rms_xyz_deg=tuple(float(v) for v in np.sqrt(np.mean(e**2, axis=0))),  # type: ignore[arg-type]
+        mean_error_deg=float(np.mean(angle)),
+        p95_error_deg=float(np.percentile(angle, 95)),
+        max_error_deg=float(np.max(angle)),
+        model=model,
     )

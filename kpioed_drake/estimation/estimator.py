@@ -2,9 +2,10 @@
 
 The one estimator of the package, used by calibration and by the diagnosis:
 
-- :func:`register_tracker`: the tracker pose from nominal reflector positions in W and the measured
-  ones in the tracker frame T (Kabsch/Umeyama without scaling; a proper rotation even when the
-  best orthogonal fit would be a reflection).
+- :func:`register_tracker` (:mod:`kpioed_drake.estimation.registration`, re-exported): the tracker
+  pose from nominal reflector positions in W and the measured ones in the tracker frame T
+  (Kabsch/Umeyama without scaling; a proper rotation even when the best orthogonal fit would be a
+  reflection), and a 6-DoF probe's orientation on the flange.
 - :func:`estimate`: weighted nonlinear least squares on the free geometric parameters
   (``model.layout.free``, 27 for six joints) of :class:`~kpioed_drake.tracker.measurement.TrackerModel`,
   optionally together with the parameters of non-geometric effects (their Jacobian columns from
@@ -33,10 +34,12 @@ import scipy.linalg
 from kpioed_drake import effects as fx
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.registration import register_tracker, registered_model  # noqa: F401 (re-exported)
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import ParameterLayout
 from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
+from kpioed_drake.tracker.measurement import TrackerModel
+from kpioed_drake.tracker.orientation import orientation_jacobian, orientation_residuals, with_probe
 
 LM_LAMBDA0 = 1e-6
 """Initial Levenberg-Marquardt damping (relative to the unit diagonal of the column-scaled
@@ -45,61 +48,6 @@ GN_RIDGE = 1e-12
 """Relative ridge of the convergence test: the iteration stops when the Gauss-Newton step predicts a
 cost decrease below ``tol`` times the cost (a step that small would not change the result, and
 evaluating it near the optimum only meets rounding)."""
-
-
-# ----------------------------------------------------------------------------------------------
-# Registration
-# ----------------------------------------------------------------------------------------------
-def register_tracker(p_W: np.ndarray, p_T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid transform (no scaling) that best maps tracker-frame points onto world points.
-
-    Minimises ``sum_i |p_W[i] - (R_WT p_T[i] + p_WT)|^2`` over proper rotations ``R_WT``
-    (det = +1) and translations ``p_WT`` (Kabsch/Umeyama; if the unconstrained orthogonal optimum
-    is a reflection, the axis of the smallest singular value is flipped).
-
-    Args:
-        p_W: (n, 3) points in W [mm] (e.g. nominal reflector positions).
-        p_T: (n, 3) the same points measured in the tracker frame T [mm].
-
-    Returns:
-        R_WT (3, 3) and p_WT (3,) [mm], so that ``p_W ~= p_T @ R_WT.T + p_WT``.
-
-    Raises:
-        InputError: fewer than 3 points, mismatched shapes, or (nearly) collinear points.
-    """
-    p_W = np.asarray(p_W, dtype=float)
-    p_T = np.asarray(p_T, dtype=float)
-    if p_W.ndim != 2 or p_W.shape[1] != 3 or p_W.shape != p_T.shape:
-        raise InputError(f"registration: expected two (n, 3) arrays, got {p_W.shape} and {p_T.shape}")
-    if p_W.shape[0] < 3:
-        raise InputError(f"registration: need at least 3 points, got {p_W.shape[0]}")
-    c_W, c_T = p_W.mean(axis=0), p_T.mean(axis=0)
-    A, B = p_T - c_T, p_W - c_W
-    M = A.T @ B  # (3, 3) cross-covariance: sum a_i b_i^T
-    U, S, Vt = np.linalg.svd(M)
-    spread = np.linalg.svd(A, compute_uv=False)
-    if spread[1] <= 1e-9 * max(spread[0], 1e-300):
-        raise InputError("registration: the points are (nearly) collinear; the tracker pose is undetermined")
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    D = np.diag([1.0, 1.0, d if d != 0 else 1.0])
-    R_WT = Vt.T @ D @ U.T
-    p_WT = c_W - R_WT @ c_T
-    return R_WT, p_WT
-
-
-def registered_model(
-    model: TrackerModel, q: np.ndarray, eta: np.ndarray, target: np.ndarray | None = None
-) -> TrackerModel:
-    """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
-
-    Small rotations zero, ``R_WT_ref`` the registered rotation; ``target``: (n,) each row's 0-based target.
-    """
-    p_W = reflector_world(model, q, target)
-    R_WT, p_WT = register_tracker(p_W, eta)
-    p = model.p.copy()
-    p[model.layout.tracker_position] = p_WT
-    p[model.layout.tracker_rotation] = 0.0
-    return dataclasses.replace(model, p=p, R_WT_ref=R_WT)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -211,6 +159,11 @@ class EstimationResult:
         eta: (n, 3) [mm], the measurements the fit was made to.
         effects: the estimated effects with their values (empty for the geometric model).
         conditions: the per-pose inputs of the effects.
+        R_TP: (n, 3, 3) a 6-DoF probe's measured orientations the fit was made to, or None (points).
+        sigma_rot: (n, 3) their noise about the tracker axes [rad], or None.
+        rot_residuals: (n, 3) ``log(R_meas R_model^T)`` of every row, used or not [rad, tracker
+            axes], or None. With orientations ``J`` has 3 m orientation rows after the 3 m
+            position rows (pose-major both), ``cost`` and ``dof`` count them.
     """
 
     model: TrackerModel
@@ -229,6 +182,9 @@ class EstimationResult:
     eta: np.ndarray
     effects: tuple = ()
     conditions: Conditions = dataclasses.field(default_factory=Conditions)
+    R_TP: np.ndarray | None = None
+    sigma_rot: np.ndarray | None = None
+    rot_residuals: np.ndarray | None = None
 
     @property
     def free(self) -> np.ndarray:
@@ -274,23 +230,37 @@ class EstimationResult:
 
 @dataclasses.dataclass(frozen=True)
 class _Problem:
-    """The used poses, their weights and conditions: residuals and Jacobians of a parameter point."""
+    """The used poses, their weights and conditions: residuals and Jacobians of a parameter point
+    (with a probe's orientations ``R_TP`` (m, 3, 3) their rows after the positions', weighted by
+    ``w_rot`` (m, 3) [1/rad])."""
 
     q: np.ndarray
     eta: np.ndarray
     sw: np.ndarray
     sigma: float
     conditions: Conditions
+    R_TP: np.ndarray | None = None
+    w_rot: np.ndarray | None = None
 
     def weighted(self, model: TrackerModel, effects, *, jac: bool = True):
         w = self.sw[:, None] / self.sigma
         if not jac:
-            return ((self.eta - response(model, effects, self.q, self.conditions, jac=False)) * w).reshape(-1)
+            r = ((self.eta - response(model, effects, self.q, self.conditions, jac=False)) * w).reshape(-1)
+            if self.R_TP is None:
+                return r
+            return np.concatenate(
+                [r, (orientation_residuals(model, self.q, self.R_TP) * self.w_rot).reshape(-1)]
+            )
         h, H, E = response(model, effects, self.q, self.conditions)
         r = ((self.eta - h) * w).reshape(-1)
         free = model.layout.free
         J = np.concatenate([H[:, :, free], E], axis=2) * w[:, :, None]
-        return r, J.reshape(r.size, -1)
+        if self.R_TP is None:
+            return r, J.reshape(r.size, -1)
+        e, Hr = orientation_jacobian(model, self.q, self.R_TP)
+        Jr = Hr[:, :, free] * self.w_rot[:, :, None]
+        r = np.concatenate([r, (e * self.w_rot).reshape(-1)])
+        return r, np.concatenate([J.reshape(-1, J.shape[2]), Jr.reshape(-1, Jr.shape[2])])
 
 
 def apply_step(
@@ -317,7 +287,7 @@ def _gauss_newton_decrease(A: np.ndarray, g: np.ndarray) -> float:
         return float("inf")
 
 
-def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
+def _check_inputs(q, eta, sigma, mask, weights, n_params, nj, rows_per_pose=3):
     q = np.atleast_2d(np.asarray(q, dtype=float))
     eta = np.atleast_2d(np.asarray(eta, dtype=float))
     n = q.shape[0]
@@ -330,10 +300,10 @@ def _check_inputs(q, eta, sigma, mask, weights, n_params, nj):
     if mask.shape != (n,) or w.shape != (n,) or np.any(w[mask] <= 0) or not np.all(np.isfinite(w)):
         raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
     m = int(np.count_nonzero(mask))
-    if 3 * m < n_params:
+    if rows_per_pose * m < n_params:
         raise InputError(
-            f"estimate: {m} poses give {3 * m} coordinates, fewer than the {n_params} parameters "
-            f"(need at least {int(np.ceil(n_params / 3))} poses)"
+            f"estimate: {m} poses give {rows_per_pose * m} coordinates, fewer than the {n_params} "
+            f"parameters (need at least {int(np.ceil(n_params / rows_per_pose))} poses)"
         )
     return q, eta, mask, w
 
@@ -414,6 +384,8 @@ def estimate(
     effects: Sequence[Effect] = (),
     conditions: Conditions | None = None,
     singular_ok: bool = False,
+    R_TP: np.ndarray | None = None,
+    sigma_rot: np.ndarray | None = None,
 ) -> EstimationResult:
     """Estimate the free parameters of ``model`` (and the effects' values) from measured reflector positions.
 
@@ -435,6 +407,10 @@ def estimate(
         conditions: the per-pose inputs the effects need (over all n poses).
         singular_ok: accept a rank-deficient Jacobian at the solution (``Cp`` is then the
             pseudo-inverse) instead of raising; the diagnosis fits candidates that way.
+        R_TP: (n, 3, 3) a 6-DoF probe's measured orientations in the tracker frame: their rows join
+            the fit (:mod:`kpioed_drake.tracker.orientation`; the model gets the probe's three
+            rotations if its layout lacks them, registered with the tracker when ``register``).
+        sigma_rot: (n, 3) the orientations' noise about the tracker axes [rad] (needed with ``R_TP``).
 
     Returns:
         :class:`EstimationResult`.
@@ -445,31 +421,59 @@ def estimate(
     """
     effects = [e.with_values(e.value_array()) for e in effects]
     conditions = Conditions() if conditions is None else conditions
+    if R_TP is not None:
+        R_TP, sigma_rot, model = _pose_inputs(model, q, R_TP, sigma_rot, effects)
     free = model.layout.free
     n_params = free.size + sum(e.n_params for e in effects)
-    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params, model.robot.n_joints)
+    per_pose = 3 if R_TP is None else 6
+    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params, model.robot.n_joints, per_pose)
     m = int(np.count_nonzero(mask))
     prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
+    if R_TP is not None:
+        prob = dataclasses.replace(prob, R_TP=R_TP[mask], w_rot=prob.sw[:, None] / sigma_rot[mask])
     if register:
-        model = registered_model(model, prob.q, prob.eta, prob.conditions.target)
+        model = registered_model(model, prob.q, prob.eta, prob.conditions.target, prob.R_TP)
 
     model, effects, J, cost, converged, message, it = _levenberg_marquardt(
         prob, model, effects, free, max_iter=max_iter, tol=tol
     )
 
     iteration = dict(iterations=it, converged=converged, cost=cost, message=message)
-    fitted_to = dict(q=q, eta=eta, mask=mask, weights=w, conditions=conditions)
+    fitted_to = dict(
+        q=q, eta=eta, mask=mask, weights=w, conditions=conditions, R_TP=R_TP, sigma_rot=sigma_rot
+    )
     return EstimationResult(
         model=model,
         residuals=eta - response(model, effects, q, conditions, jac=False),
+        rot_residuals=None if R_TP is None else orientation_residuals(model, q, R_TP),
         sigma=float(sigma),
-        dof=3 * m - n_params,
+        dof=per_pose * m - n_params,
         Cp=_solution_covariance(J, m, n_params, singular_ok),
         J=J,
         effects=tuple(effects),
         **iteration,
         **fitted_to,
     )
+
+
+def _pose_inputs(
+    model: TrackerModel, q, R_TP, sigma_rot, effects
+) -> tuple[np.ndarray, np.ndarray, TrackerModel]:
+    """The orientations and their noise checked ((n, 3, 3), (n, 3) > 0 [rad]) and the model with the
+    probe's rotations; InputError for bad shapes or effects (their orientation rows are not modelled)."""
+    n = np.atleast_2d(q).shape[0]
+    R_TP = np.asarray(R_TP, dtype=float)
+    sigma_rot = None if sigma_rot is None else np.asarray(sigma_rot, dtype=float)
+    if R_TP.shape != (n, 3, 3) or sigma_rot is None or sigma_rot.shape != (n, 3):
+        got = None if sigma_rot is None else sigma_rot.shape
+        raise InputError(
+            f"estimate: expected R_TP (n, 3, 3) and sigma_rot (n, 3) with n = {n}, got {R_TP.shape} and {got}"
+        )
+    if not (np.all(np.isfinite(sigma_rot)) and np.all(sigma_rot > 0)):
+        raise InputError("estimate: sigma_rot must be positive numbers of radians")
+    if effects:
+        raise InputError("estimate: non-geometric effects with orientation rows are not modelled")
+    return R_TP, sigma_rot, with_probe(model)
 
 
 def _solution_covariance(J: np.ndarray, m: int, n_params: int, singular_ok: bool) -> np.ndarray:

@@ -25,8 +25,10 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.linalg
 
+from kpioed_drake.robot.chain import ORIENTATION_ROW_MM
 from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
+from kpioed_drake.tracker.orientation import angular_jacobian, check_measure, with_probe
 
 NEAR_RANK_RTOL = 1e-3
 """Relative threshold on the diagonal of R (QR with column pivoting of the column-normalised
@@ -77,21 +79,29 @@ def check_identifiability(
     seed: int = 0,
     rtol: float = 1e-8,
     all_params: bool = False,
+    measure: str = "point",
 ) -> IdentifiabilityReport:
     """Rank test of F1 at ``n_poses`` random poses drawn uniformly within the joint limits.
 
     Args:
         all_params: test every parameter of the vector (33 for six joints) instead of the
             estimated ones (27; shows the 6 gauge parameters that trade against others).
+        measure: ``point``, or ``pose``: a 6-DoF probe's orientation rows too (times
+            :data:`~kpioed_drake.robot.chain.ORIENTATION_ROW_MM`), the probe's rotations and the
+            gauge with orientations (:func:`~kpioed_drake.tracker.orientation.with_probe`).
     """
     model = nominal_model(robot, cell)
+    pose = check_measure(measure, 0.01, n_targets=model.layout.n_targets, extended=False)
+    model = with_probe(model) if pose else model
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.lower, robot.upper, size=(n_poses, robot.n_joints))
     T = model.layout.n_targets  # several targets: every pose measures each of them
     target = None if T == 1 else np.tile(np.arange(T), n_poses)
     _, H = measurement_jacobian(model, q if T == 1 else np.repeat(q, T, axis=0), target=target)
     cols = np.arange(H.shape[2]) if all_params else model.layout.free
-    F = unit_columns(H[:, :, cols].reshape(3 * T * n_poses, -1))
+    if pose:
+        H = np.concatenate([H, ORIENTATION_ROW_MM * angular_jacobian(model, q)], axis=1)
+    F = unit_columns(H[:, :, cols].reshape(H.shape[0] * H.shape[1], -1))
     _, R, piv = scipy.linalg.qr(F, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > rtol * d[0]))

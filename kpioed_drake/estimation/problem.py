@@ -15,6 +15,10 @@ with K = 1 it is the single (3, k) Jacobian and every number is that of one work
 Several targets (the robot file's ``targets_mm``): a pose measures all T of them, so its rows in
 F1 are the stacked rows of its targets (3T rows: target 1's x, y, z, then target 2's, ...).
 
+Pose measurements (``measure="pose"``, a 6-DoF probe): every pose has 6 rows, its 3 position rows
+and the 3 rows of its orientation (:func:`kpioed_drake.tracker.orientation.angular_jacobian_dq`, at
+zero residual, over ``sigma_rot`` [rad]); the probe's three rotations are estimated too.
+
 Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
 add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
 columns to Js, so that a design for the extended model estimates them too and its KPI variance
@@ -47,6 +51,7 @@ from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
+from kpioed_drake.tracker.orientation import angular_jacobian_dq, check_measure, with_probe
 
 KPI_AGGREGATES = ("mean", "max")
 """How the variances of several working poses make the KPI: weighted mean or the worst."""
@@ -80,6 +85,7 @@ class Problem:
         kpi_point: ``reflector`` (the reflector point plus ``tool_offset``) or ``flange`` (the
             flange origin, frame k of the paper: its position does not depend on the reflector
             offset, whose Js columns are then zero).
+        measure: ``point`` or ``pose``; sigma_rot: a probe's orientation noise per axis [rad].
     """
 
     robot: Robot
@@ -93,6 +99,8 @@ class Problem:
     kpi_aggregate: str = "mean"
     param_scaling: str = "reach"
     kpi_point: str = "reflector"
+    measure: str = "point"
+    sigma_rot: float = float(np.deg2rad(0.01))
 
     @property
     def q_works(self) -> np.ndarray:
@@ -156,8 +164,8 @@ class Problem:
         return self.model.layout.n_targets
 
     def min_poses(self) -> int:
-        """Fewest poses whose 3 coordinates (per target) can determine the parameters."""
-        return int(np.ceil(self.n_params / (3 * self.n_targets)))
+        """Fewest poses whose 3 coordinates per target (6 of a pose) can determine the parameters."""
+        return int(np.ceil(self.n_params / (6 if self.measure == "pose" else 3 * self.n_targets)))
 
     def F1(
         self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
@@ -169,6 +177,8 @@ class Problem:
         """
         if self.n_targets > 1:
             return self._F1_targets(np.atleast_2d(q), with_dq, frames)
+        if self.measure == "pose":
+            return self._F1_pose(np.atleast_2d(q), with_dq, frames)
         out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
@@ -182,6 +192,17 @@ class Problem:
         if not with_dq:
             return H.reshape(3 * n, -1)
         return H.reshape(3 * n, -1), dH
+
+    def _F1_pose(self, q: np.ndarray, with_dq: bool, frames=None):
+        """:meth:`F1` of pose measurements: per pose its 3 position rows, then its 3 orientation rows."""
+        frames = self.model.frames(q) if frames is None else frames
+        out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
+        Om, dOm = angular_jacobian_dq(self.model, q, frames=frames)
+        H = np.concatenate([out[1] / self.sigma, Om / self.sigma_rot], axis=1)[:, :, self.free]
+        if not with_dq:
+            return H.reshape(6 * len(q), -1)
+        dH = np.concatenate([out[2] / self.sigma, dOm / self.sigma_rot], axis=2)[..., self.free]
+        return H.reshape(6 * len(q), -1), dH
 
     def _F1_targets(self, q: np.ndarray, with_dq: bool, frames=None):
         """:meth:`F1` of T > 1 targets: every pose measured at each target (with the extensions'
@@ -279,6 +300,8 @@ def make_problem(
     max_incidence_deg: float | None = None,
     param_scaling: str = "reach",
     kpi_point: str = "reflector",
+    measure: str = "point",
+    sigma_deg: float = 0.01,
 ) -> Problem:
     """Build the :class:`Problem` of a robot (name, file path or :class:`Robot`).
 
@@ -301,6 +324,8 @@ def make_problem(
             (default: the cell's); the optimiser, the heuristic and the checker use it.
         param_scaling: scaling of the standard criterion, one of :data:`PARAM_SCALINGS`.
         kpi_point: one of :data:`KPI_POINTS`; ``flange`` takes no ``tool_offset_mm``.
+        measure: ``point`` or ``pose`` (one target, no extensions); sigma_deg: the
+            orientation noise per axis [deg] of pose measurements.
 
     Raises:
         InputError: q_work outside the joint limits or of a bad shape, bad weights or aggregate,
@@ -319,11 +344,14 @@ def make_problem(
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
     exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
+    pose = check_measure(measure, sigma_deg, n_targets=model.layout.n_targets, extended=bool(exts))
+    model = with_probe(model) if pose else model
     if fixed is not None:
         try:
-            model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
+            layout = parameter_layout(robot, fixed=tuple(fixed), probe=pose)
         except ValueError as exc:
             raise InputError(f"{robot.name}: {exc}") from None
+        model = dataclasses.replace(model, layout=layout)
     return _separable(
         Problem(
             extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
@@ -337,6 +365,8 @@ def make_problem(
             kpi_aggregate=kpi_aggregate,
             param_scaling=param_scaling,
             kpi_point=kpi_point,
+            measure=measure,
+            sigma_rot=float(np.deg2rad(sigma_deg)),
         )
     )
 

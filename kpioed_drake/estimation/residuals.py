@@ -4,7 +4,9 @@ The statistics the outlier test of a calibration (:mod:`kpioed_drake.calibration
 with chi^2(3): for a pose used in the fit its residual scaled by the residual covariance
 ``sigma^2 (I - H_ii)`` (the leverage ``H_ii`` of the 3x3 hat-matrix block makes a fitted point's
 residual smaller than the noise), for an excluded pose its prediction error scaled by
-``sigma^2 I + J_i Cp J_i^T``. Units: residuals in millimetres, statistics dimensionless.
+``sigma^2 I + J_i Cp J_i^T``. A fit with a 6-DoF probe's orientation rows: the statistic is its
+position rows' (their leverage in the whole fit). Units: residuals in millimetres, statistics
+dimensionless.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ def normalized_residuals(result: EstimationResult) -> np.ndarray:
     sw2 = result.weights / result.sigma**2
     out = np.empty(result.residuals.shape[0])
     used = np.flatnonzero(result.mask)
-    out[used] = _quadratic_forms(np.eye(3) - leverage_blocks(result.J), result.residuals[used]) * sw2[used]
+    blocks = leverage_blocks(result.J)[: used.size]  # the position rows (orientation rows after them)
+    out[used] = _quadratic_forms(np.eye(3) - blocks, result.residuals[used]) * sw2[used]
     other = np.flatnonzero(~result.mask)
     if other.size:
         _, H, E = response(result.model, result.effects, result.q[other], result.conditions.subset(other))

@@ -51,6 +51,9 @@ about 2e-4, which no data can tell from the gauge (the shipped robots have no re
 ZERO_COLUMN = 1e-9
 """Columns shorter than this times the longest are zero (e.g. a joint that cannot move the reflector);
 normalising their round-off to unit length would count it as rank."""
+GENERIC_REFLECTOR = np.array([80.0, -60.0, 150.0])
+"""Reflector offset [mm] for the automatic gauge when the model gives none (off every axis; the
+URDF reader's)."""
 _GENERIC_TRACKER = np.array([2730.88, 4554.68, 1397.67])
 """A tracker position for the rank test (any point in general position gives the same rank)."""
 
@@ -255,6 +258,7 @@ def auto_gauge(
     rtol: float = GAUGE_RTOL,
     joint_map: JointMap | None = None,
     links: np.ndarray | None = None,
+    orientation: bool = False,
 ) -> tuple[str, ...]:
     """Names of the joint parameters held at nominal: those that do not add to the rank.
 
@@ -267,16 +271,22 @@ def auto_gauge(
     e.g. of ``<mimic>`` joints) the poses are those the controller can command: its axes drawn in
     the limits of the first joint each drives, mapped to joint values, clipped to the limits.
     ``links`` (T,): the frame each target is fixed in (a tree's targets on several links; None: the
-    last joint's link).
+    last joint's link). ``orientation``: a 6-DoF probe's orientations are measured too (at target
+    0's link): rows of the probe frame's rotation (times :data:`ORIENTATION_ROW_MM`) and the
+    probe's three rotation columns join, so that what only the orientations see is kept.
     """
     nj = chain.n_joints
     q = _gauge_poses(lower, upper, n_poses, np.random.default_rng(seed), joint_map, nj)
     targets = np.atleast_2d(np.asarray(p_FQ, dtype=float))
     A = _gauge_jacobian(chain, q, targets, links)
+    n_always = 6 + 3 * targets.shape[0]
+    if orientation:
+        A = _with_orientation_rows(chain, q, A, links, n_always)
+        n_always += 3
     norms = np.linalg.norm(A, axis=0)
     live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
     A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
-    basis, held = _kept_columns(A, rtol, param_names(nj), 6 + 3 * targets.shape[0])
+    basis, held = _kept_columns(A, rtol, param_names(nj), n_always)
     _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)
     dq = np.abs(np.diag(Rq))
     rank = int(np.sum(dq > rtol * dq[0]))
@@ -328,6 +338,35 @@ def _gauge_jacobian(chain: Chain, q: np.ndarray, targets: np.ndarray, links: np.
         target_cols[:, :, 3 * t : 3 * t + 3] = fr.R[:, f]
         blocks.append(np.concatenate([-eye, tracker_rot, target_cols, joint_cols], axis=2))
     return np.concatenate(blocks, axis=0).reshape(3 * T * n_poses, -1)
+
+
+ORIENTATION_ROW_MM = 1000.0
+"""Length [mm] the rotation rows of :func:`auto_gauge` with orientations are scaled by (a reach), so
+that a rotation weighs as the displacement it causes at a metre."""
+
+
+def _with_orientation_rows(
+    chain: Chain, q: np.ndarray, A: np.ndarray, links: np.ndarray | None, n_always: int
+) -> np.ndarray:
+    """``A`` (points' rows, columns tracker, targets, joints) with the probe frame's rotation rows
+    (in W, times :data:`ORIENTATION_ROW_MM`) and the probe's three rotation columns after the targets'
+    (the tracker's small rotation ``d`` about its origin turns the measured frame by ``-d``, as it
+    moves a point by ``(p - p_WT) x d``)."""
+    n_poses, nj = q.shape
+    fr = chain_frames(chain, q, np.zeros((nj, PER_JOINT)))
+    f = nj if links is None else int(np.asarray(links, dtype=int).reshape(-1)[0])
+    u = np.where(fr.elem_rot[None, :, :, None], fr.elem_u, 0.0) * chain.paths[f][None, :, None, None]
+    joint = u.reshape(n_poses, nj * PER_JOINT, 3).transpose(0, 2, 1)
+    tracker = np.concatenate(
+        [np.zeros((n_poses, 3, 3)), np.broadcast_to(-np.eye(3), (n_poses, 3, 3))], axis=2
+    )
+    rows = np.concatenate([tracker, np.zeros((n_poses, 3, n_always - 6)), joint], axis=2)
+    rows = ORIENTATION_ROW_MM * rows.reshape(3 * n_poses, -1)
+    probe = np.concatenate(
+        [np.zeros((A.shape[0], 3)), ORIENTATION_ROW_MM * fr.R[:, f].reshape(3 * n_poses, 3)]
+    )
+    full = np.concatenate([A, rows], axis=0)
+    return np.concatenate([full[:, :n_always], probe, full[:, n_always:]], axis=1)
 
 
 def _kept_columns(A: np.ndarray, rtol: float, names: list[str], n_fixed: int) -> tuple[list, list[str]]:

@@ -116,6 +116,7 @@ class Robot:
             model its calibration started from [rad, mm], or None (:mod:`kpioed_drake.robot.reference`).
         payload_point: (3,) where a payload acts in the flange frame [mm] for the effects' gravity
             torques (``payload_point_mm``), or None: at the reflector.
+        R_FP: (3, 3) a 6-DoF probe's orientation on the flange (``probe_rpy_deg``), or None.
     """
 
     name: str
@@ -149,12 +150,45 @@ class Robot:
     drives: tuple[str, ...] = ()
     estimated_errors: np.ndarray | None = None
     payload_point: np.ndarray | None = None
+    R_FP: np.ndarray | None = None
 
     @functools.cached_property
     def reference(self) -> Reference | None:
         """The geometry an extended model's effects are evaluated on, the model its calibration
         started from (:func:`kpioed_drake.robot.reference.reference_of`); None: this robot's own."""
         return reference_of(self)
+
+    @functools.cached_property
+    def pose_gauge(self) -> tuple[str, ...] | None:
+        """The gauge of a chain robot whose data hold a 6-DoF probe's orientations too
+        (:func:`kpioed_drake.robot.chain.auto_gauge` with ``orientation``), chosen as its
+        :attr:`gauge` is; None for a table robot (SPEC's gauge holds for points and poses alike).
+
+        Raises:
+            InputError: the chain is degenerate (the rank test's tracker or target columns dependent).
+        """
+        if self.chain is None:
+            return None
+        p = chainmod.GENERIC_REFLECTOR if self.targets is None and self.p_FQ is None else self.target_points
+        try:
+            return chainmod.auto_gauge(
+                self.chain,
+                self.lower,
+                self.upper,
+                p,
+                joint_map=self.joint_map,
+                links=self.target_links,
+                orientation=True,
+            )
+        except ValueError as exc:
+            raise InputError(
+                f"{self.source or self.name}: automatic gauge with orientations: {exc}"
+            ) from None
+
+    @property
+    def target_points(self) -> np.ndarray:
+        """(T, 3) the targets' offsets [mm] (:attr:`targets`, else the reflector :attr:`p_FQ`)."""
+        return np.atleast_2d(self.targets if self.targets is not None else self.p_FQ)
 
     @property
     def n_targets(self) -> int:

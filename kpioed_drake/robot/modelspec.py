@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RollPitchYaw
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.options import yaml_mismatch
@@ -186,6 +187,10 @@ class RobotSpec:
     payload_point_mm: list[float] = dataclasses.field(default_factory=list)
     """Optional: where a payload's weight acts in the flange frame, for the effects' gravity torques
     (default: the reflector offset); a calibration with effects writes the point its fit used."""
+    probe_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    """Optional: the orientation (roll, pitch, yaw) of a 6-DoF probe's frame P on the flange,
+    ``R_FP``; a calibration from data with orientations writes its estimate (the probe's origin is
+    the reflector offset)."""
     estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
     """Written by a calibration: the estimated errors of the joint rows against the model the
     calibration started from, a row per joint (a table's four values in its own order [deg, mm]; a
@@ -308,6 +313,8 @@ class SidecarSpec:
     """The non-geometric effects of an extended model, as in the YAML files."""
     payload_point_mm: list[float] = dataclasses.field(default_factory=list)
     """As in the YAML files: where a payload acts in the flange frame [mm] (default: the reflector)."""
+    probe_rpy_deg: list[float] = dataclasses.field(default_factory=list)
+    """As in the YAML files: a 6-DoF probe's orientation on the flange (roll, pitch, yaw) [deg]."""
     estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
     """As in the YAML files (:class:`RobotSpec`): a calibration's errors of the URDF's joints."""
     notes: str = ""
@@ -338,8 +345,8 @@ def vec3(values: object, where: str) -> np.ndarray:
 
 def shared_fields(spec: RobotSpec | SidecarSpec, where: str, joint_names: tuple[str, ...]) -> dict:
     """The :class:`~kpioed_drake.robot.models.Robot` fields a robot file and a URDF's sidecar give
-    alike (beam links, car shift, extra gauge, compliant base, rated payload, drives, effects and
-    payload point), checked in this order; ``where`` names the file in messages.
+    alike (beam links, car shift, extra gauge, compliant base, rated payload, drives, effects,
+    payload point and probe orientation), checked in this order; ``where`` names the file in messages.
 
     Raises:
         InputError: ``where``, the field and what was expected.
@@ -355,6 +362,11 @@ def shared_fields(spec: RobotSpec | SidecarSpec, where: str, joint_names: tuple[
         effects_where=where,
         payload_point=vec3(spec.payload_point_mm, f"{where}: payload_point_mm")
         if spec.payload_point_mm
+        else None,
+        R_FP=RollPitchYaw(np.deg2rad(vec3(spec.probe_rpy_deg, f"{where}: probe_rpy_deg")))
+        .ToRotationMatrix()
+        .matrix()
+        if spec.probe_rpy_deg
         else None,
     )
 

@@ -11,13 +11,23 @@ vector is, in this order:
 - the tracker position ``p_WT`` in W (3) [mm];
 - the tracker's three small rotations ``r`` about its axes (3) [rad],
   ``R_WT = R_WT_ref @ Rx(rx) @ Ry(ry) @ Rz(rz)``;
-- the target (reflector) offsets ``p_FQ`` in the flange frame F, 3 per target [mm].
+- the target (reflector) offsets ``p_FQ`` in the flange frame F, 3 per target [mm];
+- only when the data have a 6-DoF probe's orientations (``ParameterLayout.probe``): the probe's
+  three small rotations ``r_FP`` on the flange (3) [rad], ``R_FP = Rx(rx) Ry(ry) Rz(rz) @ R_FP_ref``
+  (:mod:`kpioed_drake.tracker.orientation`); its position is target 0's offset.
 
 For the six-joint robots with one reflector that is 24 + 3 + 3 + 3 = 33 parameters. The gauge
 parameters (SPEC: theta1, d1 against the tracker pose; theta6, d6, a6, alpha6 against the reflector
 offset) trade exactly against others and are held at their nominal values; the others are *free*
 (estimated): 27. Effect parameters (:mod:`kpioed_drake.effects`) come after the free geometric ones
 in an estimation's unknown vector: ``n_effects`` of them.
+
+With a probe's orientations the gauge is the same for the six-joint tables (the last joint's four
+parameters trade against the probe's full pose on the flange just as against a point), but a model
+file's ``extra_gauge`` (parameters a point on joint 6's axis leaves undetermined) is not applied:
+the orientation rows determine them, and the rank test of the data holds what they do not; a chain
+robot's automatic gauge is chosen on positions and orientations
+(:attr:`kpioed_drake.robot.models.Robot.pose_gauge`).
 
 SPEC's scaling of the criteria to millimetres at the tool: lengths 1, angles times the reach.
 """
@@ -39,7 +49,9 @@ TRACKER_POSITION_NAMES = ("tracker_x", "tracker_y", "tracker_z")
 TRACKER_ROTATION_NAMES = ("tracker_rx", "tracker_ry", "tracker_rz")
 TRACKER_NAMES = TRACKER_POSITION_NAMES + TRACKER_ROTATION_NAMES
 REFLECTOR_NAMES = ("reflector_x", "reflector_y", "reflector_z")
-ANGLE_PREFIXES = ("theta", "alpha", "beta", "tracker_r")
+PROBE_NAMES = ("probe_rx", "probe_ry", "probe_rz")
+"""The probe's small rotations on the flange (a 6-DoF probe's orientations measured)."""
+ANGLE_PREFIXES = ("theta", "alpha", "beta", "tracker_r", "probe_r")
 
 
 def n_parameters(n_joints: int = N_JOINTS, *, per_joint: int = PER_JOINT, n_targets: int = 1) -> int:
@@ -70,6 +82,7 @@ class ParameterLayout:
         n_targets: reflectors (each 3 offset coordinates in the flange frame).
         n_effects: effect parameters estimated after the free geometric ones (0 for the
             geometric model).
+        probe: the vector ends with the probe's three small rotations (data with orientations).
     """
 
     names: tuple[str, ...]
@@ -79,6 +92,7 @@ class ParameterLayout:
     per_joint: int = PER_JOINT
     n_targets: int = 1
     n_effects: int = 0
+    probe: bool = False
 
     # --- segments of the full vector --------------------------------------------------------
     @property
@@ -118,6 +132,17 @@ class ParameterLayout:
         """All target offsets (3 per target) [mm]."""
         j = self.tracker_rotation.stop
         return slice(j, j + 3 * self.n_targets)
+
+    @property
+    def probe_rotation(self) -> slice:
+        """The probe's three small rotations on the flange [rad] (empty without :attr:`probe`)."""
+        j = self.targets.stop
+        return slice(j, j + (3 if self.probe else 0))
+
+    @property
+    def free_probe_rotation(self) -> np.ndarray:
+        """Positions of the probe's small rotations in the free vector (empty without a probe)."""
+        return self.in_free(self.probe_rotation)
 
     def target(self, t: int = 0) -> slice:
         """Offset ``p_FQ`` of target ``t`` (0-based) [mm]."""
@@ -195,10 +220,13 @@ class ParameterLayout:
         return np.where(self.is_angle[self.free], reach, 1.0)
 
 
-def default_fixed(robot: Robot) -> tuple[str, ...]:
+def default_fixed(robot: Robot, *, probe: bool = False) -> tuple[str, ...]:
     """The robot's gauge: SPEC's :data:`FIXED_NAMES` for the six-joint tables, the automatic gauge
-    (:func:`kpioed_drake.robot.chain.auto_gauge`) of a chain robot (``robot.gauge``)."""
-    return FIXED_NAMES if robot.gauge is None else tuple(robot.gauge)
+    (:func:`kpioed_drake.robot.chain.auto_gauge`) of a chain robot (``robot.gauge``; with a
+    probe's orientations ``robot.pose_gauge``, chosen on positions and orientations)."""
+    if robot.gauge is None:
+        return FIXED_NAMES
+    return tuple(robot.pose_gauge) if probe else tuple(robot.gauge)
 
 
 def parameter_layout(
@@ -207,6 +235,7 @@ def parameter_layout(
     fixed: tuple[str, ...] | None = None,
     n_targets: int | None = None,
     n_effects: int = 0,
+    probe: bool = False,
 ) -> ParameterLayout:
     """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
 
@@ -217,14 +246,22 @@ def parameter_layout(
         n_targets: targets (reflectors) per pose (default: the robot's, ``robot.n_targets``; the
             same gauge holds for any number: the joint-6 parameters trade against all target
             offsets together); n_effects: effect parameters appended.
+        probe: append the probe's three small rotations (data with a 6-DoF probe's orientations);
+            the model file's ``extra_gauge`` is then not applied (the orientations determine what a
+            point on joint 6's axis leaves undetermined) and a chain robot's default gauge is its
+            :attr:`~kpioed_drake.robot.models.Robot.pose_gauge`.
 
     Raises:
         ValueError: a fixed name that is not a parameter of the model.
     """
-    fixed = (default_fixed(robot) if fixed is None else tuple(fixed)) + tuple(robot.extra_gauge)
+    fixed = (default_fixed(robot, probe=probe) if fixed is None else tuple(fixed)) + (
+        () if probe else tuple(robot.extra_gauge)
+    )
     n_targets = robot.n_targets if n_targets is None else int(n_targets)
     n_joints = robot.n_joints
-    names = tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets)
+    names = (
+        tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets) + (PROBE_NAMES if probe else ())
+    )
     tail = [n.startswith(ANGLE_PREFIXES) for n in names[len(robot.param_names()) :]]
     is_angle = np.array(list(robot.param_is_angle()) + tail, dtype=bool)
     unknown = set(fixed) - set(names)
@@ -239,6 +276,7 @@ def parameter_layout(
         per_joint=robot.per_joint,
         n_targets=n_targets,
         n_effects=n_effects,
+        probe=bool(probe),
     )
 
 
@@ -247,7 +285,7 @@ _JOINT_PARAMETER = re.compile(r"(?:theta|d|a|alpha|beta|off|px|py|pz|rx|ry|rz)(\
 
 def parameter_joint(name: str) -> int | None:
     """The 1-based joint of a joint parameter's name (``theta2``, ``px5``), else None (tracker,
-    reflector and target parameters)."""
+    reflector, target and probe parameters)."""
     m = _JOINT_PARAMETER.fullmatch(name)
     return int(m.group(1)) if m else None
 

@@ -21,6 +21,15 @@ file (``targets_mm``; default all of them), one row per target, pose-major, with
 column (1..T) when there is more than one; the true robot has random errors on every target
 offset. The environment columns are per pose (a pose's rows share them).
 
+A 6-DoF probe (``orientation_sigma_deg``): the rows get the probe frame's orientation in the
+tracker frame too (the native quaternion columns ``qw, qx, qy, qz``, scalar first, 10 decimals), the
+true model ``R_TP = R_WT^T R_WF R_FP``
+(:mod:`kpioed_drake.tracker.orientation`) times a small rotation with N(0, s^2) about each tracker
+axis. The true robot then has errors on the probe layout's free parameters (a model file's
+``extra_gauge`` is not held: orientations determine it) and its probe orientation on the flange is
+the model file's ``probe_rpy_deg``, else uniformly random (drawn after the noise of the points).
+Non-geometric effects with orientations are refused (their orientation is not modelled).
+
 Units: files mm/deg; inside mm/rad.
 """
 
@@ -35,12 +44,14 @@ from scipy.spatial.transform import Rotation
 from kpioed_drake.effects import model_effects, parse_effect, resolve, true_measurements
 from kpioed_drake.errors import InputError
 from kpioed_drake.files.designs import OFFSET_COLUMNS
+from kpioed_drake.files.orientation_columns import QUATERNION_COLUMNS, native_columns
 from kpioed_drake.files.tables import TARGET_COLUMN
 from kpioed_drake.robot.jointmap import q_columns, q_from_file, q_to_file
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.simulation.options import SimulationOptions
 from kpioed_drake.tracker.data import per_pose
 from kpioed_drake.tracker.measurement import TrackerModel, measure, nominal_model
+from kpioed_drake.tracker.orientation import probe_orientation, with_probe
 
 LENGTH_ERROR_MM = 0.5
 ANGLE_ERROR_DEG = 0.05
@@ -48,6 +59,10 @@ TRACKER_POSITION_SPREAD_MM = 100.0
 SECONDS_PER_POSE = 30.0
 Q_DECIMALS = 8  # joint angles written with 1e-8 deg resolution; the simulation uses those values
 XYZ_DECIMALS = 6
+ORIENTATION_COLUMNS = QUATERNION_COLUMNS
+"""A 6-DoF probe's orientation in the tracker frame: the native file's unit quaternion, scalar first
+(``qw, qx, qy, qz``; docs/data-formats.md), unambiguous where Euler angles need a named convention."""
+ORIENTATION_DECIMALS = 10
 
 
 def random_rotation(rng: np.random.Generator, *, scalar_first: bool = True) -> np.ndarray:
@@ -146,7 +161,16 @@ def simulate(
     n = q.shape[0]
 
     rng = np.random.default_rng(seed)
-    model = true_model(nominal_model(rob, cell), rng, geometric_errors=options.geometric_errors)
+    pose = options.orientation_sigma_deg is not None
+    if pose and effects:
+        raise InputError(
+            "simulate: orientation_sigma_deg with non-geometric effects: the effects' orientation is not "
+            "modelled; simulate the orientations of the geometric model",
+            fields=("orientation_sigma_deg", "effects"),
+        )
+    start = nominal_model(rob, cell)
+    start = with_probe(start, np.eye(3)) if pose else start
+    model = true_model(start, rng, geometric_errors=options.geometric_errors)
     offsets = condition_offsets or {}
     t, temp, payload = _conditions(
         n, rng, time_s=time_s, temperature_C=temperature_C, payload_kg=payload_kg, offsets=offsets
@@ -159,6 +183,13 @@ def simulate(
     eta = eta + rng.normal(0.0, sigma_mm, eta.shape) if sigma_mm > 0 else eta
 
     table = _table(rob, q_deg, eta, t=t, temp=temp, payload=payload, target=target)
+    R_TP = None
+    if pose:
+        ref = random_rotation(rng) if rob.R_FP is None else rob.R_FP
+        model = dataclasses.replace(model, R_FP_ref=ref)
+        R_TP = _orientations(model, q, float(options.orientation_sigma_deg or 0.0), rng)
+        for k, (c, v) in enumerate(native_columns(R_TP, None).items()):
+            table.insert(table.columns.get_loc("z_mm") + 1 + k, c, v)
     truth = {
         "robot": rob.name,
         "model": model,
@@ -171,8 +202,22 @@ def simulate(
         "geometric_errors": bool(options.geometric_errors),
         "n_targets": int(n_t),
         "condition_offsets": sorted(offsets),
+        "R_TP": R_TP,
+        "R_FP": None if R_TP is None else model.R_FP,
+        "orientation_sigma_deg": options.orientation_sigma_deg,
     }
     return table, truth
+
+
+def _orientations(
+    model: TrackerModel, q: np.ndarray, sigma_deg: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(rows, 3, 3) the probe's measured orientations: the true ones turned by N(0, sigma^2) about each
+    tracker axis (none for 0)."""
+    R = probe_orientation(model, q)
+    if sigma_deg == 0:
+        return R
+    return Rotation.from_rotvec(rng.normal(0.0, np.deg2rad(sigma_deg), (len(q), 3))).as_matrix() @ R
 
 
 def _checked_poses(rob: Robot, q, n_targets: int | None) -> tuple[np.ndarray, np.ndarray, int]:

@@ -16,7 +16,13 @@ from kpioed_drake.files.designs import read_condition_offsets, read_design
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.simulation.options import SimulationOptions
-from kpioed_drake.simulation.truth import Q_DECIMALS, XYZ_DECIMALS, simulate
+from kpioed_drake.simulation.truth import (
+    ORIENTATION_COLUMNS,
+    ORIENTATION_DECIMALS,
+    Q_DECIMALS,
+    XYZ_DECIMALS,
+    simulate,
+)
 
 
 def table_csv_text(table: pd.DataFrame) -> str:
@@ -26,6 +32,8 @@ def table_csv_text(table: pd.DataFrame) -> str:
         out[c] = out[c].map(lambda v: f"{v:.{Q_DECIMALS}f}")
     for c in ("x_mm", "y_mm", "z_mm"):
         out[c] = out[c].map(lambda v: f"{v:.{XYZ_DECIMALS}f}")
+    for c in [c for c in ORIENTATION_COLUMNS if c in out]:
+        out[c] = out[c].map(lambda v: f"{v:.{ORIENTATION_DECIMALS}f}")
     for c in ("temperature_C", "time_s", "payload_kg"):
         if c in out:
             out[c] = out[c].map(lambda v: f"{v:.6g}")
@@ -48,6 +56,14 @@ def truth_json(truth: dict) -> dict:
         "seed": truth["seed"],
         "geometric_errors": truth["geometric_errors"],
         "n_targets": truth["n_targets"],
+        **(
+            {}
+            if truth.get("R_FP") is None
+            else {
+                "probe_R_FP": np.asarray(truth["R_FP"]).tolist(),
+                "orientation_sigma_deg": truth["orientation_sigma_deg"],
+            }
+        ),
         "targets_mm": truth["model"].target_offsets[: truth["n_targets"]].tolist(),
     }
 

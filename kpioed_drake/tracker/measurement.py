@@ -51,12 +51,16 @@ class TrackerModel:
         p: (n_full,) parameter values [rad, mm] (33 for a six-joint robot).
         R_WT_ref: (3, 3) reference tracker orientation the small rotations refer to.
         layout: where each parameter sits in ``p`` and which are estimated.
+        R_FP_ref: (3, 3) reference orientation of a 6-DoF probe's frame P on the flange the probe's
+            small rotations refer to (``layout.probe``), or the model file's probe orientation, or
+            None (no orientation known: points only).
     """
 
     robot: Robot
     p: np.ndarray
     R_WT_ref: np.ndarray
     layout: ParameterLayout
+    R_FP_ref: np.ndarray | None = None
 
     @property
     def geometry(self) -> np.ndarray:
@@ -81,6 +85,14 @@ class TrackerModel:
     def R_WT(self) -> np.ndarray:
         """(3, 3) tracker orientation: the reference times the small rotations."""
         return self.R_WT_ref @ small_rotation(self.p[self.layout.tracker_rotation])
+
+    @property
+    def R_FP(self) -> np.ndarray | None:
+        """(3, 3) the probe frame's orientation on the flange: ``small_rotation(r_FP) @ R_FP_ref``
+        (the reference alone without the probe's parameters; None without a reference)."""
+        if self.R_FP_ref is None or not self.layout.probe:
+            return self.R_FP_ref
+        return small_rotation(self.p[self.layout.probe_rotation]) @ self.R_FP_ref
 
     @property
     def p_FQ(self) -> np.ndarray:
@@ -110,10 +122,14 @@ class TrackerModel:
         return dataclasses.replace(self, p=np.asarray(p, dtype=float))
 
     def rebased(self) -> TrackerModel:
-        """Same model with the tracker's small rotations folded into ``R_WT_ref``."""
+        """Same model with the tracker's (and a probe's) small rotations folded into ``R_WT_ref``
+        (``R_FP_ref``)."""
         p = self.p.copy()
         p[self.layout.tracker_rotation] = 0.0
-        return dataclasses.replace(self, p=p, R_WT_ref=self.R_WT)
+        if not self.layout.probe:
+            return dataclasses.replace(self, p=p, R_WT_ref=self.R_WT)
+        p[self.layout.probe_rotation] = 0.0
+        return dataclasses.replace(self, p=p, R_WT_ref=self.R_WT, R_FP_ref=self.R_FP)
 
     def frames(self, q: np.ndarray) -> Frames:
         return forward_kinematics(self.robot, q, self.geometry)
@@ -137,7 +153,10 @@ def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
 
     An extended model file with ``estimated_errors`` is the model its fit estimated: the robot of
     its reference geometry (on which the effects are evaluated) with the file's rows as parameters
-    (:mod:`kpioed_drake.robot.reference`)."""
+    (:mod:`kpioed_drake.robot.reference`). A model file's probe orientation (``probe_rpy_deg``) is the
+    model's ``R_FP_ref`` (the layout holds no probe parameters:
+    :func:`kpioed_drake.tracker.orientation.with_probe` adds them)."""
+    R_FP = robot.R_FP
     ref = robot.reference
     geometry = robot.geometry if ref is None else ref.geometry
     robot = robot if ref is None else ref.robot
@@ -148,7 +167,7 @@ def nominal_model(robot: Robot, cell: Cell) -> TrackerModel:
     p[layout.target(0)] = cell.p_FQ
     for t in range(1, layout.n_targets):
         p[layout.target(t)] = robot.targets[t]
-    return TrackerModel(robot=robot, p=p, R_WT_ref=cell.R_WT, layout=layout)
+    return TrackerModel(robot=robot, p=p, R_WT_ref=cell.R_WT, layout=layout, R_FP_ref=R_FP)
 
 
 def hold_unused_targets(model: TrackerModel, target: np.ndarray | None) -> TrackerModel:
@@ -164,7 +183,7 @@ def hold_unused_targets(model: TrackerModel, target: np.ndarray | None) -> Track
         return model
     names = tuple(lay.names[i] for t in unused for i in range(lay.size)[lay.target(t)])
     held = tuple(n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist()))
-    layout = parameter_layout(model.robot, fixed=held + names, n_targets=lay.n_targets)
+    layout = parameter_layout(model.robot, fixed=held + names, n_targets=lay.n_targets, probe=lay.probe)
     return dataclasses.replace(model, layout=layout)
 
 

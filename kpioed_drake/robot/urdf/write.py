@@ -77,8 +77,10 @@ def calibrated_sidecar(
     effects: Sequence[EffectSpec] = (),
     estimated_errors: Sequence[Sequence[float]] = (),
     payload_point: Sequence[float] = (),
+    R_FP: np.ndarray | None = None,
 ) -> str:
-    """Sidecar text: the original's fields, the estimated reflector offset and tracker pose, the
+    """Sidecar text: the original's fields, the estimated reflector offset, tracker pose and (with
+    ``R_FP``) a 6-DoF probe's orientation on the flange, the
     estimated effects (``effects``: :class:`~kpioed_drake.robot.modelspec.EffectSpec` entries) and
     the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
     src = sidecar_path(Path(robot.urdf.path))
@@ -103,6 +105,9 @@ def calibrated_sidecar(
         effects=list(effects),
         estimated_errors=list(estimated_errors),
         payload_point_mm=list(payload_point),
+        probe_rpy_deg=[]
+        if R_FP is None
+        else np.rad2deg(RollPitchYaw(RotationMatrix(R_FP)).vector()).tolist(),
     )
     header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"
     return header + yaml_dump_typed(side)
