@@ -15,11 +15,12 @@ SIGINT: Ctrl-C reaches the parent, which ends the command (``errors``); the work
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import signal
-from collections.abc import Callable
-from typing import TypeVar
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -28,7 +29,7 @@ WORKERS_ENV = "KPIOED_WORKERS"
 MAX_WORKERS = 4
 """Most workers by default (the pieces of a step are few; more processes only add forks)."""
 
-_TASKS: list[Callable[[int], object]] = []  # the running call's task, inherited by its forked workers
+_TASKS: list[Callable[[Any], object]] = []  # the running call's task, inherited by its forked workers
 
 
 def workers() -> int:
@@ -67,5 +68,25 @@ def independent(task: Callable[[int], T], n: int, *, parallel: bool = True) -> l
     try:
         with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as pool:
             return pool.map(_run, range(n), chunksize=1)  # type: ignore[return-value]
+    finally:
+        _TASKS.pop()
+
+
+@contextlib.contextmanager
+def pool(task: Callable[[Any], T], *, parallel: bool = True) -> Iterator[Callable[[Sequence[Any]], list[T]]]:
+    """Within the block, a function ``map(args) -> [task(a) for a in args]`` whose calls run in worker
+    processes forked once, at entry (at most :func:`workers`; none without ``parallel``).
+
+    For a loop of many small rounds (batches of random poses checked for feasibility): the workers
+    inherit ``task``'s data at the fork, and each round sends only its arguments (pickled).
+    """
+    k = workers() if parallel else 1
+    if k <= 1:
+        yield lambda args: [task(a) for a in args]
+        return
+    _TASKS.append(task)
+    try:
+        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
+            yield lambda args: workers_pool.map(_run, args, chunksize=1)  # type: ignore[arg-type]
     finally:
         _TASKS.pop()

@@ -40,3 +40,21 @@ def test_search_batches_same_with_two_workers(monkeypatch):
         out[k] = search.maximize_dual(problem, q0, Y, collision=False)
     for a, b in zip(out["1"], out["2"], strict=True):
         assert_array_equal(a, b)
+
+
+def test_heuristic_pool_same_with_two_workers(monkeypatch):
+    """A pool of random feasible poses: bitwise the same with workers checking batches side by side."""
+    problem = make_problem("kr16")
+    out = {}
+    for k in ("1", "2"):
+        monkeypatch.setenv(parallel.WORKERS_ENV, k)
+        out[k] = heuristic_design(problem, n=1200, seed=3, batch=256)
+    assert_array_equal(out["1"], out["2"])
+
+
+def test_pool_maps_in_order(monkeypatch):
+    monkeypatch.setenv(parallel.WORKERS_ENV, "2")
+    base = np.arange(6.0)
+    with parallel.pool(lambda x: float(base[x] + 1.0)) as run:
+        assert run([5, 0, 3]) == [6.0, 1.0, 4.0]
+        assert run([1]) == [2.0]

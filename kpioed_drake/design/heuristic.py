@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from kpioed_drake import parallel
 from kpioed_drake.design.settings import HEURISTIC_MARGIN_MM
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
@@ -21,6 +22,10 @@ from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.kinematics import forward_kinematics
 from kpioed_drake.tracker.measurement import incidence_cosines
+
+PARALLEL_POSES = 1000
+"""Designs of this many poses or more (the certificate's pools of random poses) check their batches of
+draws in worker processes, a batch per worker at a time."""
 
 
 def heuristic_design(
@@ -36,7 +41,9 @@ def heuristic_design(
     """The paper's heuristic: uniform random poses from the joint box, kept only if feasible.
 
     Poses are drawn with ``numpy.random.default_rng(seed)`` in batches (the result does not depend
-    on ``batch``: the first ``n`` feasible draws are kept, in draw order). A pose is kept if its
+    on ``batch`` nor on the worker processes that check batches side by side for a design of
+    :data:`PARALLEL_POSES` or more, :mod:`kpioed_drake.parallel`: the first ``n`` feasible draws are
+    kept, in draw order). A pose is kept if its
     incidence angle is within the cell's limit and, with ``collision``, every clearance of
     :class:`~kpioed_drake.robot.geometry.ClearanceModel` (robot, obstacles, self pairs, laser beam) is at
     least ``margin_mm``.
@@ -62,19 +69,34 @@ def heuristic_design(
     rng = np.random.default_rng(seed)
     cos_max = math.cos(cell.max_incidence)
     cm = ClearanceModel(robot, cell) if collision else None
-    kept, n_kept, draws = [], 0, 0
-    while n_kept < n and draws < max_draws:
-        b = min(batch, max_draws - draws)
-        q = commandable_projection(robot, rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints)))
-        draws += b
+
+    def feasible(q: np.ndarray) -> np.ndarray:
+        """(b,) bool: the poses ``q`` (b, n_joints) within the incidence limit, the box and the margin."""
         frames = forward_kinematics(robot, q)
         ok = np.all(incidence_cosines(problem.model, q, frames=frames) >= cos_max, axis=1)
         ok &= np.all((q >= robot.lower) & (q <= robot.upper), axis=1)  # a coupling may leave the box
         if cm is not None and ok.any():
-            vals = cm.values(q[ok])
-            ok[ok] = np.all(vals >= margin_mm, axis=1)
-        kept.append(q[ok])
-        n_kept += int(ok.sum())
+            ok[ok] = np.all(cm.values(q[ok]) >= margin_mm, axis=1)
+        return ok
+
+    kept, n_kept, draws = [], 0, 0
+    with parallel.pool(feasible, parallel=n >= PARALLEL_POSES) as check:
+        per_round = parallel.workers() if n >= PARALLEL_POSES else 1
+        while n_kept < n and draws < max_draws:  # a round: a batch per worker, in draw order
+            qs = []
+            for _ in range(per_round):
+                b = min(batch, max_draws - draws)
+                if b <= 0:
+                    break
+                qs.append(
+                    commandable_projection(
+                        robot, rng.uniform(robot.lower, robot.upper, size=(b, robot.n_joints))
+                    )
+                )
+                draws += b
+            for q, ok in zip(qs, check(qs), strict=True):
+                kept.append(q[ok])
+                n_kept += int(ok.sum())
     q = np.concatenate(kept, axis=0)[:n] if kept else np.zeros((0, robot.n_joints))
     if q.shape[0] < n:
         what = "incidence and collision-free" if collision else "incidence"
