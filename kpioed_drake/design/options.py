@@ -8,6 +8,7 @@ import dataclasses
 from kpioed_drake.arguments import check_count, check_positive, check_seed, require
 from kpioed_drake.design.settings import DESIGN_METHODS, SOLVERS
 from kpioed_drake.errors import check_sigma
+from kpioed_drake.tracker.kpi import MEASURES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,8 +55,23 @@ class DesignOptions:
     """With ``discriminate``: the span of block 2 from block 1 (``"3K"``, ``"600s"``; None: the
     span for power 0.8)."""
 
+    measure: str = "point"
+    """What a pose measures: ``point`` (the reflector's position, 3 rows) or ``pose`` (a 6-DoF
+    probe's position and orientation, 6 rows; the probe's rotation on the flange is estimated)."""
+    sigma_deg: float | None = None
+    """``pose``: the orientation's noise per tracker axis [deg] (None:
+    :data:`~kpioed_drake.tracker.kpi.SIGMA_ROT_DEG`, 0.005 deg)."""
+    kpi_orientation_mm: float = 0.0
+    """L [mm]: the TCP's orientation joins the KPI as the displacement ``L * angle`` it makes at L mm
+    from the TCP, tr(Cs)/3 = v_pos + L^2 v_rot (0: the position alone, the paper's KPI)."""
+
     def __post_init__(self):
         self._check_discriminate()
+        require(
+            self.measure in MEASURES,
+            f"measure: expected one of {', '.join(MEASURES)}, got {self.measure!r}",
+            fields=("measure",),
+        )
         require(
             self.criterion in DESIGN_METHODS,
             f"criterion: expected one of {', '.join(DESIGN_METHODS)}, got {self.criterion!r}",
@@ -86,6 +102,11 @@ class DesignOptions:
                 "discriminate takes no target_var_mm2 or certify",
                 fields=("discriminate", "target_var_mm2", "certify"),
             )
+        require(
+            self.discriminate is None or (self.measure == "point" and not self.kpi_orientation_mm),
+            "discriminate tells explanations apart with point measurements and no orientation KPI",
+            fields=("discriminate", "measure", "kpi_orientation_mm"),
+        )
         require(
             self.discriminate is not None or self.condition_span is None,
             "condition_span goes with discriminate",

@@ -190,3 +190,50 @@ def orientation_jacobian(
     frames = model.frames(q) if frames is None else frames
     e = orientation_residuals(model, q, R_TP, frames=frames)
     return e, inverse_right_jacobian(e) @ angular_jacobian(model, q, frames=frames)
+
+
+def angular_jacobian_dq(model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None) -> np.ndarray:
+    """(n, n_joints, 3, n_full) ``d Omega / d q_j`` of :func:`angular_jacobian` [rad/rad^2, ...].
+
+    A revolute joint j turns every axis it moves by ``w_j x``: a joint element's column ``R_TW u``
+    (element moved by j) becomes ``R_TW (w_j x u)``, the probe's ``R_TW R_WF w_F`` (joint j on the
+    probe link's path) ``R_TW (w_j x R_WF w_F)``; prismatic joints, elements upstream of j and the
+    tracker's columns: 0.
+    """
+    lay = model.layout
+    frames = model.frames(q) if frames is None else frames
+    n = frames.R.shape[0]
+    nj, P = frames.elem_rot.shape
+    R_TW = model.R_WT.T
+    on = frames.point_path(None)
+    u = np.where(frames.elem_rot[None, :, :, None], frames.elem_u, 0.0)  # (n, nj, P, 3)
+    if on is not None:
+        u = u * on[:, :, None, None]
+    w = np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes)  # (n, nj, 3)
+    if on is not None:
+        w = w * on[:, :, None]
+    Wx = _skew(w)  # (n, nj, 3, 3)
+    moved = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, nj * P)  # joint j moves element c
+    turned = Wx @ u.reshape(n, 1, nj * P, 3).swapaxes(-1, -2)  # (n, nj, 3, nj P): w_j x u_c
+    dOm = np.zeros((n, nj, 3, lay.size))
+    dOm[..., lay.joints] = R_TW @ np.where(moved[None, :, None, :], turned, 0.0)
+    if lay.probe:
+        s = model.p[lay.probe_rotation]
+        S = small_rotation(s)
+        w_F = np.stack([vee(dS.T @ S.T) for dS in _drot_transposed(s)], axis=-1)  # (3, 3)
+        dOm[..., lay.probe_rotation] = R_TW @ Wx @ (frames.at_link(None)[0] @ w_F)[:, None]
+    return dOm
+
+
+def tcp_angular_jacobian(model: TrackerModel, q_work: np.ndarray) -> np.ndarray:
+    """(3, n_full) the TCP frame's small rotation in W per parameter at ``q_work`` (n_joints,)
+    [rad/rad, rad/mm]: the angular Jacobian of the tool's orientation, the orientation KPI's
+    ``Js_rot``. The tool is fixed to the flange and, with a probe (``layout.probe``), to the probe
+    as the position KPI's TCP is to the reflector: its columns are the joints' rotation elements on
+    the path (``u``, W), the probe's rotations (``R_WF w_F``) and 0 for the tracker and all
+    translations (:func:`angular_jacobian` turned back to W, the tracker's columns zero).
+    """
+    Om = angular_jacobian(model, np.asarray(q_work, dtype=float)[None, :])[0]
+    Js = model.R_WT @ Om
+    Js[:, model.layout.tracker_rotation] = 0.0
+    return Js

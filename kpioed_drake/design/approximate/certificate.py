@@ -219,7 +219,7 @@ def certified_design(
     if warm is not None:
         approx = _search(problem, collision=collision, seed=seed, warm=warm)
     else:  # the search of the problem with unit noise, scaled (it does not depend on the noise)
-        unit = dataclasses.replace(problem, sigma=1.0)
+        unit = unit_noise(problem)
         disk_key = certcache.problem_key(unit, collision=collision, seed=seed, settings=search_settings())
         approx = certcache.load(disk_key)
         if approx is None:
@@ -231,6 +231,13 @@ def certified_design(
         cache.clear()
     cache[key] = (problem, approx)
     return approx
+
+
+def unit_noise(problem: Problem) -> Problem:
+    """``problem`` with unit noise: ``sigma`` 1 and a probe's orientation noise ``sigma_rot`` over
+    ``sigma`` (every row of F1 times ``sigma``, so that :func:`with_noise` scales back)."""
+    rot = None if problem.sigma_rot is None else problem.sigma_rot / problem.sigma
+    return dataclasses.replace(problem, sigma=1.0, sigma_rot=rot)
 
 
 def _c_order(approx: ApproximateDesign) -> ApproximateDesign:
