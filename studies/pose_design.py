@@ -46,7 +46,9 @@ def main() -> None:
                 "kpi_orientation_mm": L,
                 "n": args.n,
                 "kpi_mm2": res.kpi_avg_var_mm2,
-                **{k: res.tcp[k] for k in ("position_var_mm2", "orientation_var_deg2", "orientation_rms_deg")},
+                **{
+                    k: res.tcp[k] for k in ("position_var_mm2", "orientation_var_deg2", "orientation_rms_deg")
+                },
                 "bound_mm2": res.certificate["bound_mm2"],
                 "efficiency": res.certificate["efficiency"],
                 "feasible": res.feasible,

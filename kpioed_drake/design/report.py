@@ -198,10 +198,8 @@ def tcp_record(problem: Problem, q: np.ndarray) -> dict:
     reflector cannot see is held by the gauge (theta6, alpha6): the orientation's variance is the
     rest's."""
     try:
-        pos, rot = problem.tcp_variances(q)
-        pos, rot = (
-            (pos.max(), rot.max()) if problem.worst_case else (pos @ problem.weights, rot @ problem.weights)
-        )
+        each = problem.tcp_variances(q)
+        pos, rot = (float(v.max() if problem.worst_case else v @ problem.weights) for v in each)
     except InputError:
         pos, rot = float("nan"), float("nan")
     return {

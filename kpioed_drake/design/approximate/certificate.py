@@ -5,6 +5,12 @@ of :mod:`kpioed_drake.design.approximate.design`). For any matrix ``Y`` (k, 3) a
 
     tr(Cs)/3 of any n poses in X  >=  tr(K^T Y)^2 / (n max_{x in X} ||F_x Y||_F^2).
 
+The proof uses nothing of ``K`` and ``F_x`` but their shapes, so the bound holds for any KPI factor
+``K`` (k, c) and any rows per pose: ``K = Js^T / sqrt(3)`` with ``Js`` the TCP's position rows (3
+per working pose, weighted by ``sqrt(w_k)``), with ``kpi_orientation_mm`` L > 0 followed by
+``L Js_rot`` (6 per working pose: tr(Cs)/3 = v_pos + L^2 v_rot); ``F_x`` has 3 rows per pose, 3 T with
+T targets, 6 with a 6-DoF probe's pose (:class:`~kpioed_drake.estimation.problem.Problem`).
+
 Proof: for poses ``x_1..x_n`` with information ``M = sum_i F_i^T F_i`` put ``Z_i = F_i M^-1 K``;
 then ``sum_i F_i^T Z_i = K`` and ``sum_i ||Z_i||_F^2 = tr(K^T M^-1 K)``, so by Cauchy-Schwarz
 ``tr(K^T Y) = sum_i tr(Z_i^T F_i Y) <= sqrt(g_max) sum_i ||Z_i|| <= sqrt(g_max n tr(K^T M^-1 K))``.
