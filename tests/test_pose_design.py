@@ -11,6 +11,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from kpioed_drake import api
+from kpioed_drake.cli import build_parser
 from kpioed_drake.design import format_summary, heuristic_design
 from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.certificate import certify, pool_certificate
@@ -201,3 +202,33 @@ def test_design_command_with_pose_measurements(capsys, tmp_path, quick_certifica
         api.design(
             "kr16", measure="pose", discriminate="joint_scale:2|gear_cyclic:2:1", out=tmp_path / "e.csv"
         )
+
+
+def test_cli_passes_the_measurement_options(monkeypatch):
+    """``kpioed design --measure pose --sigma-deg S --kpi-orientation-mm L`` reaches api.design with
+    those settings (and without them, the point defaults are not passed as orientation settings)."""
+    seen = []
+    monkeypatch.setattr(api, "design", lambda robot, **kw: seen.append(kw) or _Stop())
+    base = ["design", "--robot", "kr16", "--criterion", "kpi", "--out", "d.csv"]
+    extra = ["--measure", "pose", "--sigma-deg", "0.01", "--kpi-orientation-mm", "50"]
+    for argv in (base + extra, base):
+        args = build_parser().parse_args(argv)
+        with pytest.raises(_Stopped):
+            args.func(args)
+    assert (
+        seen[0]["measure"] == "pose" and seen[0]["sigma_deg"] == 0.01 and seen[0]["kpi_orientation_mm"] == 50
+    )
+    assert (
+        seen[1]["measure"] == "point" and seen[1]["sigma_deg"] is None and "kpi_orientation_mm" not in seen[1]
+    )
+
+
+class _Stopped(Exception):
+    pass
+
+
+class _Stop:
+    """A stand-in result that stops the command once the API was called."""
+
+    def __getattr__(self, name):
+        raise _Stopped(name)
