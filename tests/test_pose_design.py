@@ -17,6 +17,7 @@ from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.certificate import certify, pool_certificate
 from kpioed_drake.design.approximate.design import approximate_design
 from kpioed_drake.design.exact.objective import DesignObjective
+from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import estimate
 from kpioed_drake.estimation.problem import make_problem
@@ -129,6 +130,14 @@ def test_point_problem_is_unchanged_and_pose_inputs_are_checked():
     ):
         with pytest.raises(InputError, match=field):
             make_problem("kr16", **kw)
+    for kw, field in (
+        (dict(measure="probe"), "measure"),
+        (dict(measure="pose", sigma_deg=-0.01), "sigma_deg"),
+        (dict(sigma_deg=0.01), "sigma_deg"),
+        (dict(kpi_orientation_mm=float("nan")), "kpi_orientation_mm"),
+    ):
+        with pytest.raises(InputError, match=field):
+            DesignOptions(**kw)
 
 
 def test_pose_design_certificate_bounds_its_value(monkeypatch):

@@ -87,6 +87,13 @@ class DesignOptions:
         check_seed(self.seed)
         check_sigma(self.sigma_mm, allow_none=True)
         check_positive("target_var_mm2", self.target_var_mm2, allow_none=True)
+        check_positive("sigma_deg", self.sigma_deg, allow_none=True)
+        check_positive("kpi_orientation_mm", self.kpi_orientation_mm, zero_ok=True)
+        require(
+            self.measure == "pose" or self.sigma_deg is None,
+            "sigma_deg is the orientation noise of pose measurements",
+            fields=("sigma_deg", "measure"),
+        )
         object.__setattr__(self, "extend", tuple(self.extend or ()))
 
     def _check_discriminate(self) -> None:
