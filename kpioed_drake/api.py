@@ -150,7 +150,7 @@ def design(
             ``heuristic``), ``n``, ``sigma_mm`` [mm], ``collision``, ``solver``, ``seed``,
             ``starts``, ``start``, ``allow_infeasible``, ``certify``, ``extend``,
             ``kpi_aggregate``, ``target_var_mm2`` [mm^2], ``discriminate`` (``"A|B"``),
-            ``condition_span``.
+            ``condition_span``, ``measure`` (``pose``: a 6-DoF probe), ``sigma_deg``, ``kpi_orientation_mm``.
         q_work_deg, q_work_file, kpi_weights: the working poses [deg] and their weights.
         given: design CSV of poses already measured (their information held fixed).
         out, json_path, plot, html: the design CSV, the JSON record, a picture, a 3-D page.

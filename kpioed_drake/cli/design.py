@@ -24,7 +24,7 @@ from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
 from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
 from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
 from kpioed_drake.estimation.criteria import TABLE
-from kpioed_drake.estimation.problem import KPI_AGGREGATES
+from kpioed_drake.tracker.kpi import KPI_AGGREGATES, MEASURES, SIGMA_ROT_DEG
 
 API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path": "json"}
 """API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
@@ -40,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_robot(p)
     _add_solve_options(p)
     cli.add_sigma(p)
+    _add_measure_options(p)
     _add_kpi_options(p)
     p.add_argument(
         "--given",
@@ -101,6 +102,32 @@ def _add_solve_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--starts", type=int, default=1, help="number of starts, the best is kept (default 1)")
 
 
+def _add_measure_options(p: argparse.ArgumentParser) -> None:
+    """``--measure point|pose``, ``--sigma-deg`` and ``--kpi-orientation-mm``."""
+    p.add_argument(
+        "--measure",
+        choices=MEASURES,
+        default="point",
+        help="what a pose measures: point = the reflector's position (3 rows); pose = a 6-DoF probe's "
+        "position and orientation (6 rows, the probe's rotation on the flange estimated) (default point)",
+    )
+    cli.add_optional_number(
+        p,
+        "--sigma-deg",
+        type=float,
+        metavar="S",
+        help=f"with --measure pose: the orientation noise per tracker axis [deg] (default {SIGMA_ROT_DEG:g})",
+    )
+    cli.add_optional_number(
+        p,
+        "--kpi-orientation-mm",
+        type=float,
+        metavar="L",
+        help="add the TCP's orientation to the KPI as the displacement L x angle at L mm from the TCP: "
+        "tr(Cs)/3 = position variance + L^2 x orientation variance [rad^2] (default 0: the position alone)",
+    )
+
+
 def _add_discriminate_options(p: argparse.ArgumentParser) -> None:
     """``--discriminate A|B`` and its ``--condition-span``."""
     p.add_argument(
@@ -141,19 +168,6 @@ def _add_kpi_options(p: argparse.ArgumentParser) -> None:
         help="weights of the working poses in the mean KPI (normalised to sum 1; default equal)",
     )
     p.add_argument(
-        "--measure",
-        choices=("point", "pose"),
-        default="point",
-        help="what a pose measures: the reflector point, or a 6-DoF probe's position and orientation "
-        "(default point)",
-    )
-    p.add_argument(
-        "--sigma-deg",
-        type=float,
-        default=0.01,
-        help="with --measure pose: the orientation noise about each tracker axis [deg] (0.01)",
-    )
-    p.add_argument(
         "--kpi-aggregate",
         choices=KPI_AGGREGATES,
         default="mean",
@@ -188,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
             **cli.passed(args, "discriminate", "condition_span", "n", "solver", "seed", "starts", "sigma_mm"),
             **cli.passed(args, "q_work_file", "kpi_aggregate", "given", "extend", "out", "plot", "html"),
             **cli.passed(args, "allow_infeasible", "start", "certify", "measure", "sigma_deg"),
+            **({} if args.kpi_orientation_mm is None else {"kpi_orientation_mm": args.kpi_orientation_mm}),
         )
     except DesignError as exc:
         if exc.result is not None:

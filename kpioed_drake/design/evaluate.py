@@ -69,7 +69,7 @@ def evaluate_file(
     if len(q) < prob.min_poses():
         raise InputError(
             f"{design}: {len(q)} poses cannot determine {prob.n_params} parameters "
-            f"(3 coordinates per pose: at least {prob.min_poses()} poses are needed)"
+            f"({prob.rows_per_pose} coordinates per pose: at least {prob.min_poses()} poses are needed)"
         )
     Cp, Cs = prob.covariances(q)
     reports = FeasibilityChecker(prob.robot, prob.cell).check(q)

@@ -80,7 +80,8 @@ def _validate(
         given = f" with the {n_given} given poses" if n_given else ""
         raise InputError(
             f"n {n}: a design needs at least {min_new_poses(problem, n_given)} poses{given} to "
-            f"determine the {problem.n_params} parameters of {problem.robot.name} (3 coordinates per pose)",
+            f"determine the {problem.n_params} parameters of {problem.robot.name} "
+            f"({problem.rows_per_pose} coordinates per pose)",
             fields=("n",),
         )
     if not _positive_int(starts):

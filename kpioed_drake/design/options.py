@@ -8,6 +8,7 @@ import dataclasses
 from kpioed_drake.arguments import check_count, check_positive, check_seed, require
 from kpioed_drake.design.settings import DESIGN_METHODS, SOLVERS
 from kpioed_drake.errors import check_sigma
+from kpioed_drake.tracker.kpi import MEASURES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,16 +56,20 @@ class DesignOptions:
     span for power 0.8)."""
 
     measure: str = "point"
-    """What a pose measures: ``point`` (the reflector) or ``pose`` (a 6-DoF probe's position and
-    orientation: 6 rows per pose; one target, no ``extend``)."""
-    sigma_deg: float = 0.01
-    """With ``measure`` ``pose``: the orientation noise about each tracker axis [deg]."""
+    """What a pose measures: ``point`` (the reflector's position, 3 rows) or ``pose`` (a 6-DoF
+    probe's position and orientation, 6 rows; the probe's rotation on the flange is estimated)."""
+    sigma_deg: float | None = None
+    """``pose``: the orientation's noise per tracker axis [deg] (None:
+    :data:`~kpioed_drake.tracker.kpi.SIGMA_ROT_DEG`, 0.005 deg)."""
+    kpi_orientation_mm: float = 0.0
+    """L [mm]: the TCP's orientation joins the KPI as the displacement ``L * angle`` it makes at L mm
+    from the TCP, tr(Cs)/3 = v_pos + L^2 v_rot (0: the position alone, the paper's KPI)."""
 
     def __post_init__(self):
         self._check_discriminate()
         require(
-            self.measure in ("point", "pose"),
-            f"measure: expected point or pose, got {self.measure!r}",
+            self.measure in MEASURES,
+            f"measure: expected one of {', '.join(MEASURES)}, got {self.measure!r}",
             fields=("measure",),
         )
         require(
@@ -82,6 +87,13 @@ class DesignOptions:
         check_seed(self.seed)
         check_sigma(self.sigma_mm, allow_none=True)
         check_positive("target_var_mm2", self.target_var_mm2, allow_none=True)
+        check_positive("sigma_deg", self.sigma_deg, allow_none=True)
+        check_positive("kpi_orientation_mm", self.kpi_orientation_mm, zero_ok=True)
+        require(
+            self.measure == "pose" or self.sigma_deg is None,
+            "sigma_deg is the orientation noise of pose measurements",
+            fields=("sigma_deg", "measure"),
+        )
         object.__setattr__(self, "extend", tuple(self.extend or ()))
 
     def _check_discriminate(self) -> None:
@@ -97,6 +109,11 @@ class DesignOptions:
                 "discriminate takes no target_var_mm2 or certify",
                 fields=("discriminate", "target_var_mm2", "certify"),
             )
+        require(
+            self.discriminate is None or (self.measure == "point" and not self.kpi_orientation_mm),
+            "discriminate tells explanations apart with point measurements and no orientation KPI",
+            fields=("discriminate", "measure", "kpi_orientation_mm"),
+        )
         require(
             self.discriminate is not None or self.condition_span is None,
             "condition_span goes with discriminate",

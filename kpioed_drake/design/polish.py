@@ -128,8 +128,8 @@ def remove_poses(problem: Problem, q: np.ndarray, m: int, *, given: np.ndarray |
         Fg = problem.F1(given)
         M0 = Fg.T @ Fg
     Js_each = problem.Js_each()
-    K = len(Js_each)
-    Js = Js_each.reshape(3 * K, n_par)
+    K, r = Js_each.shape[:2]  # r: 3 KPI rows per working pose, 6 with the orientation
+    Js = Js_each.reshape(r * K, n_par)
     keep = np.arange(len(q))
     while len(keep) > m:
         Fk = F[keep]
@@ -138,8 +138,8 @@ def remove_poses(problem: Problem, q: np.ndarray, m: int, *, given: np.ndarray |
         ok = sign > 0
         kpi = np.full(len(keep), np.inf)
         if ok.any():
-            X = np.linalg.solve(M_i[ok], np.broadcast_to(Js.T, (int(ok.sum()), n_par, 3 * K)))
-            v = np.einsum("rk,ikr->ir", Js, X).reshape(-1, K, 3).sum(axis=2) / 3.0  # (n_ok, K)
+            X = np.linalg.solve(M_i[ok], np.broadcast_to(Js.T, (int(ok.sum()), n_par, r * K)))
+            v = np.einsum("rk,ikr->ir", Js, X).reshape(-1, K, r).sum(axis=2) / 3.0  # (n_ok, K)
             kpi[ok] = v.max(axis=1) if problem.worst_case else v @ problem.weights
         keep = np.delete(keep, int(np.argmin(kpi)))
     return q[keep]

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from kpioed_drake.design.approximate.certificate import certificate_fields, certificate_line
-from kpioed_drake.errors import SolverError
+from kpioed_drake.errors import InputError, SolverError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.outputs import jsonable
 from kpioed_drake.robot.jointmap import q_to_file
@@ -97,6 +97,9 @@ class DesignReport:
     """The optimality certificate (:func:`~kpioed_drake.design.approximate.certificate.certify`): a lower
     bound ``bound_mm2`` on tr(Cs)/3 of any design of n poses, the ``efficiency`` bound / value and how
     the bound was found. None: not asked for."""
+    tcp: dict | None = None
+    """The TCP's position and orientation precision at the working poses
+    (:func:`tcp_record`; set by ``kpioed design``). None: not computed."""
     target: dict | None = None
     """The search for the fewest poses reaching a target variance
     (:func:`~kpioed_drake.design.target.design_for_target`): ``target_var_mm2``, ``n_poses``,
@@ -109,7 +112,7 @@ class DesignReport:
         return int(self.q.shape[0])
 
     def summary(self) -> dict:
-        """JSON-ready record (angles in degrees); ``given``, ``target``, ``values.kpi_vars_mm2`` and
+        """JSON-ready record (angles in degrees); ``given``, ``target``, ``tcp``, ``values.kpi_vars_mm2``
         only when set; the certificate's fields
         (:func:`~kpioed_drake.design.approximate.certificate.certificate_fields`) always (null when not
         computed)."""
@@ -148,7 +151,7 @@ class DesignReport:
         }
         if self.kpi_vars_mm2 is not None:
             out["values"]["kpi_vars_mm2"] = self.kpi_vars_mm2
-        for key in ("given", "target"):
+        for key in ("given", "target", "tcp"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
         out.update(certificate_fields(self.certificate))
@@ -185,6 +188,43 @@ def json_record(res: DesignReport, problem: Problem, *, error: str | None = None
     return jsonable(rec)
 
 
+def tcp_record(problem: Problem, q: np.ndarray) -> dict:
+    """The TCP's precision of the design ``q`` (n, 6) [rad] (with any given poses): ``measure``,
+    ``sigma_deg`` (pose measurements' orientation noise [deg], else None), ``kpi_orientation_mm``
+    (L), ``position_var_mm2`` tr(C_pos)/3 [mm^2], ``orientation_var_deg2`` tr(C_rot)/3 [deg^2] and
+    ``orientation_rms_deg`` its root [deg] (several working poses: the weighted mean, or the largest
+    with ``kpi_aggregate == "max"``; NaN where the poses do not determine the parameters; the
+    orientation NaN with extensions). With point measurements the flange's rotation that one
+    reflector cannot see is held by the gauge (theta6, alpha6): the orientation's variance is the
+    rest's."""
+    try:
+        each = problem.tcp_variances(q)
+        pos, rot = (float(v.max() if problem.worst_case else v @ problem.weights) for v in each)
+    except InputError:
+        pos, rot = float("nan"), float("nan")
+    return {
+        "measure": problem.measure,
+        "sigma_deg": None if problem.sigma_rot is None else float(np.rad2deg(problem.sigma_rot)),
+        "kpi_orientation_mm": problem.kpi_orientation_mm,
+        "position_var_mm2": float(pos),
+        "orientation_var_deg2": float(rot),
+        "orientation_rms_deg": float(np.sqrt(rot)),
+    }
+
+
+def tcp_line(tcp: dict) -> str:
+    """One line of a printed summary: the TCP's position and orientation variances."""
+    how = "points" if tcp["measure"] == "point" else f"poses, orientation noise {tcp['sigma_deg']:.3g} deg"
+    line = (
+        f"  TCP: position tr(C)/3 = {tcp['position_var_mm2']:.4g} mm^2, orientation tr(C)/3 = "
+        f"{tcp['orientation_var_deg2']:.4g} deg^2 ({tcp['orientation_rms_deg']:.3g} deg RMS per axis); "
+        f"measured {how}"
+    )
+    if tcp["kpi_orientation_mm"]:
+        line += f"; KPI tr(Cs)/3 = position + ({tcp['kpi_orientation_mm']:g} mm x angle [rad])^2"
+    return line
+
+
 def format_summary(res: DesignReport) -> str:
     """A few human-readable lines about a design."""
     ca = "with" if res.collision else "without"
@@ -195,6 +235,8 @@ def format_summary(res: DesignReport) -> str:
     if res.kpi_vars_mm2 is not None:
         each = ", ".join(f"{v:.4g}" for v in res.kpi_vars_mm2)
         lines[1] += f"   (KPI of {len(res.kpi_vars_mm2)} working poses: {each} mm^2)"
+    if res.tcp is not None:
+        lines.append(tcp_line(res.tcp))
     if res.given is not None:
         g = res.given
         lines.insert(1, f"  {res.n} new poses added to {g['n_given']} given poses (values: combined design)")

@@ -24,7 +24,7 @@ from kpioed_drake.design.discriminate.plan import plan_design
 from kpioed_drake.design.optimize import optimize_design
 from kpioed_drake.design.options import DesignOptions
 from kpioed_drake.design.plots import plot_design_poses
-from kpioed_drake.design.report import DesignError, DesignReport, json_record
+from kpioed_drake.design.report import DesignError, DesignReport, json_record, tcp_record
 from kpioed_drake.design.settings import method_label
 from kpioed_drake.design.starts import resolve_start
 from kpioed_drake.design.target import design_for_target
@@ -134,6 +134,7 @@ def run_design(
         kpi_aggregate=opts.kpi_aggregate,
         measure=opts.measure,
         sigma_deg=opts.sigma_deg,
+        kpi_orientation_mm=opts.kpi_orientation_mm,
     )
     q_given = None if given is None else designs.read_design(given, robot)
     try:
@@ -146,6 +147,8 @@ def run_design(
         res.certificate = certificate.certify(
             problem, res.q, collision=opts.collision, seed=opts.seed, given=q_given
         )
+    if opts.discriminate is None:  # (a plan's problem is that of its explanations)
+        res.tcp = tcp_record(problem, res.q if q_given is None else np.concatenate([q_given, res.q]))
     _write(res, problem, out=out, json_path=json_path, plot=plot, html=html)
     return res
 
@@ -246,7 +249,7 @@ def _write(res: DesignReport, problem, *, out, json_path, plot, html) -> None:
 def first_kpi_covariance(problem: Problem, q: np.ndarray) -> np.ndarray:
     """(3, 3) covariance Cs [mm^2] of the TCP at the first working pose for the design ``q``."""
     Cp, _ = problem.covariances(q)
-    Js = problem.Js_each()[0]
+    Js = problem.Js_each()[0][:3]  # the position rows (the orientation's follow with kpi_orientation_mm)
     return Js @ Cp @ Js.T
 
 

@@ -27,8 +27,9 @@ import scipy.linalg
 
 from kpioed_drake.robot.chain import ORIENTATION_ROW_MM
 from kpioed_drake.robot.models import Cell, Robot
+from kpioed_drake.tracker.kpi import check_measure
 from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
-from kpioed_drake.tracker.orientation import angular_jacobian, check_measure, with_probe
+from kpioed_drake.tracker.orientation import angular_jacobian, with_probe
 
 NEAR_RANK_RTOL = 1e-3
 """Relative threshold on the diagonal of R (QR with column pivoting of the column-normalised
@@ -91,7 +92,8 @@ def check_identifiability(
             gauge with orientations (:func:`~kpioed_drake.tracker.orientation.with_probe`).
     """
     model = nominal_model(robot, cell)
-    pose = check_measure(measure, 0.01, n_targets=model.layout.n_targets, extended=False)
+    check_measure(measure, None, 0.0, n_targets=model.layout.n_targets, n_effects=0)
+    pose = measure == "pose"
     model = with_probe(model) if pose else model
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.lower, robot.upper, size=(n_poses, robot.n_joints))

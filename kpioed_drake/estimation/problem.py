@@ -15,9 +15,15 @@ with K = 1 it is the single (3, k) Jacobian and every number is that of one work
 Several targets (the robot file's ``targets_mm``): a pose measures all T of them, so its rows in
 F1 are the stacked rows of its targets (3T rows: target 1's x, y, z, then target 2's, ...).
 
-Pose measurements (``measure="pose"``, a 6-DoF probe): every pose has 6 rows, its 3 position rows
-and the 3 rows of its orientation (:func:`kpioed_drake.tracker.orientation.angular_jacobian_dq`, at
-zero residual, over ``sigma_rot`` [rad]); the probe's three rotations are estimated too.
+Pose measurements (``measure == "pose"``, a 6-DoF probe, :mod:`kpioed_drake.tracker.orientation`): a
+pose has 6 rows, its 3 position rows / ``sigma`` then its 3 orientation rows ``Omega / sigma_rot``
+(the orientation residual's Jacobian at the nominal model, where the residual is 0), and the probe's
+three rotations on the flange are estimated too. The TCP's orientation joins the KPI with
+``kpi_orientation_mm = L`` > 0: each working pose's rows are ``[Js; L Js_rot]`` (6, k), ``Js_rot``
+the TCP frame's angular Jacobian [rad per unit], so that tr(Cs)/3 = ``v_pos + L^2 v_rot``: the
+orientation counts as the displacement ``L * angle`` it makes at L mm from the TCP (every KPI
+criterion, the approximate design and the certificate work on that stack unchanged).
+:meth:`Problem.tcp_variances` gives the two parts apart, the orientation in deg^2.
 
 Model extensions (non-geometric effects of :mod:`kpioed_drake.effects`, e.g. joint elasticity)
 add parameters: their measurement columns are appended to F1 (and to dF1/dq) and their TCP
@@ -48,16 +54,17 @@ from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, check_sigma
 from kpioed_drake.estimation import covariance
 from kpioed_drake.robot.kinematics import Frames
-from kpioed_drake.robot.models import Cell, Robot, load_cell, load_robot
+from kpioed_drake.robot.models import Cell, Robot, load_robot
 from kpioed_drake.robot.parameters import parameter_layout
+from kpioed_drake.tracker import kpi as inputs
 from kpioed_drake.tracker.measurement import TrackerModel, kpi_jacobian, measurement_jacobian, nominal_model
-from kpioed_drake.tracker.orientation import angular_jacobian_dq, check_measure, with_probe
+from kpioed_drake.tracker.orientation import (
+    angular_jacobian,
+    angular_jacobian_dq,
+    tcp_angular_jacobian,
+    with_probe,
+)
 
-KPI_AGGREGATES = ("mean", "max")
-"""How the variances of several working poses make the KPI: weighted mean or the worst."""
-KPI_POINTS = ("reflector", "flange")
-"""Where the KPI point sits: the reflector (plus ``tool_offset``; SPEC) or the flange origin (the
-paper's TCP frame k, which does not move with the reflector offset)."""
 PARAM_SCALINGS = ("reach", "none")
 """Scalings of the standard criterion phi_A(Cp): SPEC's (angles times the reach) or none (the
 paper's eq. 25 with the identity, angles in radians)."""
@@ -85,7 +92,10 @@ class Problem:
         kpi_point: ``reflector`` (the reflector point plus ``tool_offset``) or ``flange`` (the
             flange origin, frame k of the paper: its position does not depend on the reflector
             offset, whose Js columns are then zero).
-        measure: ``point`` or ``pose``; sigma_rot: a probe's orientation noise per axis [rad].
+        measure: ``point`` (3 rows per pose) or ``pose`` (6: with the probe's orientation).
+        sigma_rot: the orientation's noise per tracker axis [rad] (``pose`` only).
+        kpi_orientation_mm: L [mm] >= 0: the TCP's orientation counts in the KPI as ``L * angle``
+            (0: position only).
     """
 
     robot: Robot
@@ -100,7 +110,8 @@ class Problem:
     param_scaling: str = "reach"
     kpi_point: str = "reflector"
     measure: str = "point"
-    sigma_rot: float = float(np.deg2rad(0.01))
+    sigma_rot: float | None = None
+    kpi_orientation_mm: float = 0.0
 
     @property
     def q_works(self) -> np.ndarray:
@@ -163,9 +174,14 @@ class Problem:
         """Targets every pose measures (T; 1: the reflector)."""
         return self.model.layout.n_targets
 
+    @property
+    def rows_per_pose(self) -> int:
+        """Rows of F1 per pose: 3 per target, or 6 (position and orientation) with ``pose``."""
+        return 6 if self.measure == "pose" else 3 * self.n_targets
+
     def min_poses(self) -> int:
-        """Fewest poses whose 3 coordinates per target (6 of a pose) can determine the parameters."""
-        return int(np.ceil(self.n_params / (6 if self.measure == "pose" else 3 * self.n_targets)))
+        """Fewest poses whose rows (:attr:`rows_per_pose`) can determine the parameters."""
+        return int(np.ceil(self.n_params / self.rows_per_pose))
 
     def F1(
         self, q: np.ndarray, *, with_dq: bool = False, frames: Frames | None = None
@@ -173,12 +189,13 @@ class Problem:
         """Weighted identification Jacobian (3n, 27); with ``with_dq`` also (n, 6, 3, 27).
 
         ``frames``: ``self.model.frames(q)`` if the caller has it already. With T targets every
-        pose has 3T rows (its targets' rows stacked): (3Tn, k) and (n, 6, 3T, k).
+        pose has 3T rows (its targets' rows stacked): (3Tn, k) and (n, 6, 3T, k); with ``pose``
+        6 rows (x, y, z / sigma, then the 3 orientation rows / sigma_rot): (6n, k), (n, 6, 6, k).
         """
-        if self.n_targets > 1:
-            return self._F1_targets(np.atleast_2d(q), with_dq, frames)
         if self.measure == "pose":
             return self._F1_pose(np.atleast_2d(q), with_dq, frames)
+        if self.n_targets > 1:
+            return self._F1_targets(np.atleast_2d(q), with_dq, frames)
         out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
         H = out[1][:, :, self.free] / self.sigma
         dH = out[2][..., self.free] / self.sigma if with_dq else None
@@ -192,17 +209,6 @@ class Problem:
         if not with_dq:
             return H.reshape(3 * n, -1)
         return H.reshape(3 * n, -1), dH
-
-    def _F1_pose(self, q: np.ndarray, with_dq: bool, frames=None):
-        """:meth:`F1` of pose measurements: per pose its 3 position rows, then its 3 orientation rows."""
-        frames = self.model.frames(q) if frames is None else frames
-        out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
-        Om, dOm = angular_jacobian_dq(self.model, q, frames=frames)
-        H = np.concatenate([out[1] / self.sigma, Om / self.sigma_rot], axis=1)[:, :, self.free]
-        if not with_dq:
-            return H.reshape(6 * len(q), -1)
-        dH = np.concatenate([out[2] / self.sigma, dOm / self.sigma_rot], axis=2)[..., self.free]
-        return H.reshape(6 * len(q), -1), dH
 
     def _F1_targets(self, q: np.ndarray, with_dq: bool, frames=None):
         """:meth:`F1` of T > 1 targets: every pose measured at each target (with the extensions'
@@ -226,7 +232,36 @@ class Problem:
         dH = dH.reshape(n, T, nj, 3, -1).transpose(0, 2, 1, 3, 4).reshape(n, nj, 3 * T, -1)
         return F, dH
 
+    def _F1_pose(self, q: np.ndarray, with_dq: bool, frames=None):
+        """:meth:`F1` of pose measurements: each pose's 3 position rows, then its 3 orientation rows."""
+        frames = self.model.frames(q) if frames is None else frames
+        out = measurement_jacobian(self.model, q, with_dq=with_dq, frames=frames)
+        rot = angular_jacobian(self.model, q, frames=frames)[:, :, self.free] / self.sigma_rot
+        F = np.concatenate([out[1][:, :, self.free] / self.sigma, rot], axis=1)  # (n, 6, k)
+        if not with_dq:
+            return F.reshape(6 * q.shape[0], -1)
+        d_rot = angular_jacobian_dq(self.model, q, frames=frames)[..., self.free] / self.sigma_rot
+        return F.reshape(6 * q.shape[0], -1), np.concatenate(
+            [out[2][..., self.free] / self.sigma, d_rot], axis=2
+        )
+
+    def Js_orientation_each(self) -> np.ndarray:
+        """(K, 3, k) the TCP frame's angular Jacobian at each working pose [rad per parameter unit]
+        (:func:`~kpioed_drake.tracker.orientation.tcp_angular_jacobian`; ValueError with
+        extensions, whose turning of the tool is not modelled)."""
+        if self.extensions:
+            raise ValueError("the TCP's orientation with model extensions is not modelled")
+        return np.stack([tcp_angular_jacobian(self.model, qw)[:, self.free] for qw in self.q_works])
+
     def Js_each(self) -> np.ndarray:
+        """(K, r, k) KPI Jacobian at each working pose: ``dTCP/dp`` (r = 3) [mm per parameter
+        unit], with ``kpi_orientation_mm`` L > 0 followed by ``L Js_rot`` (r = 6)."""
+        Js = self._Js_position_each()
+        if self.kpi_orientation_mm > 0:
+            return np.concatenate([Js, self.kpi_orientation_mm * self.Js_orientation_each()], axis=1)
+        return Js
+
+    def _Js_position_each(self) -> np.ndarray:
         """(K, 3, k) KPI Jacobian ``dTCP/dp`` at each working pose [mm per parameter unit]."""
         flange = self.kpi_point == "flange"
         offset = -self.model.p_FQ if flange else self.tool_offset
@@ -243,8 +278,9 @@ class Problem:
         return np.stack(out)
 
     def Js(self) -> np.ndarray:
-        """KPI Jacobian: (3, k) at ``q_work``; several working poses: the stack (3K, k) of
-        ``sqrt(w_k) Js_k``, whose ``tr(Js Cp Js^T)/3`` is the weighted mean of the K variances."""
+        """KPI Jacobian: (r, k) at ``q_work`` (r = 3, or 6 with the orientation); several working
+        poses: the stack (rK, k) of ``sqrt(w_k) Js_k``, whose ``tr(Js Cp Js^T)/3`` is the weighted
+        mean of the K variances."""
         Js = self.Js_each()
         return Js[0] if self.n_kpis == 1 else self._stack(Js)
 
@@ -271,6 +307,21 @@ class Problem:
         """
         Cp, _ = self.covariances(q)
         return np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self.Js_each()])
+
+    def tcp_variances(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K,) the TCP position's variance tr(C_pos,k)/3 [mm^2] and (K,) its orientation's
+        tr(C_rot,k)/3 [deg^2] (per axis; NaN with extensions) at each working pose of a design
+        ``q`` (n, 6) [rad].
+
+        Raises:
+            InputError: if the design does not determine all parameters.
+        """
+        Cp, _ = self.covariances(q)
+        pos = np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self._Js_position_each()])
+        if self.extensions:
+            return pos, np.full(pos.shape, np.nan)
+        rot = np.array([float(np.sum(J * (J @ Cp))) / 3.0 for J in self.Js_orientation_each()])
+        return pos, rot * np.rad2deg(1.0) ** 2
 
     def criteria(self, q: np.ndarray) -> dict[str, float]:
         """``kpi_avg_var_mm2`` and ``param_crit`` (scaled tr(Cp) [mm^2]) of a design.
@@ -301,7 +352,8 @@ def make_problem(
     param_scaling: str = "reach",
     kpi_point: str = "reflector",
     measure: str = "point",
-    sigma_deg: float = 0.01,
+    sigma_deg: float | None = None,
+    kpi_orientation_mm: float = 0.0,
 ) -> Problem:
     """Build the :class:`Problem` of a robot (name, file path or :class:`Robot`).
 
@@ -323,20 +375,28 @@ def make_problem(
         max_incidence_deg: largest admitted incidence angle from the reflector's axis [deg]
             (default: the cell's); the optimiser, the heuristic and the checker use it.
         param_scaling: scaling of the standard criterion, one of :data:`PARAM_SCALINGS`.
-        kpi_point: one of :data:`KPI_POINTS`; ``flange`` takes no ``tool_offset_mm``.
-        measure: ``point`` or ``pose`` (one target, no extensions); sigma_deg: the
-            orientation noise per axis [deg] of pose measurements.
+        kpi_point: ``reflector`` or ``flange`` (:mod:`kpioed_drake.tracker.kpi`); ``flange``
+            takes no ``tool_offset_mm``.
+        measure: ``point`` or ``pose`` (a 6-DoF probe: the orientation rows and the probe's three
+            rotations (the model file's ``probe_rpy_deg`` or the identity as
+            reference); one target, no extensions).
+        sigma_deg: ``pose``: the orientation's noise per tracker axis [deg] (default
+            :data:`~kpioed_drake.tracker.kpi.SIGMA_ROT_DEG`).
+        kpi_orientation_mm: L [mm] >= 0: the KPI is tr(Cs)/3 of the TCP's position and, weighted
+            by L, its orientation (``v_pos + L^2 v_rot``; 0: position only).
 
     Raises:
         InputError: q_work outside the joint limits or of a bad shape, bad weights or aggregate,
             bad sigma or extensions, unknown fixed names, an incidence limit outside (0, 90) deg,
-            an unknown scaling or KPI point, a tool offset with the flange as KPI point.
+            an unknown scaling or KPI point, a tool offset with the flange as KPI point, a bad
+            measurement choice (:func:`~kpioed_drake.tracker.kpi.check_measure`).
     """
     robot = load_robot(robot) if isinstance(robot, str) else robot
-    cell = _checked_cell(robot, cell_path, max_incidence_deg)
-    _check_kpi_choices(param_scaling, kpi_point, tool_offset_mm)
-    q_work = _checked_q_work(robot, q_work)
-    weights = _kpi_weights(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
+    cell = inputs.checked_cell(robot, cell_path, max_incidence_deg)
+    _check_scaling(param_scaling)
+    inputs.check_kpi_point(kpi_point, tool_offset_mm)
+    q_work = inputs.checked_q_work(robot, q_work)
+    weights = inputs.kpi_weights_checked(kpi_weights, len(np.atleast_2d(q_work)), kpi_aggregate)
     sigma = cell.sigma if sigma_mm is None else check_sigma(sigma_mm)
     # a design is made at the robot's own (an extended model file's calibrated) geometry, the one the
     # feasibility checker's plant has; the reference of robot/reference.py reproduces a fit only
@@ -344,14 +404,16 @@ def make_problem(
     model = nominal_model(robot, cell)
     exts = _parse_extensions(extend, model)
     exts += tuple(e for e in _file_extensions(robot) if all(o.key != e.key for o in exts))
-    pose = check_measure(measure, sigma_deg, n_targets=model.layout.n_targets, extended=bool(exts))
-    model = with_probe(model) if pose else model
     if fixed is not None:
         try:
-            layout = parameter_layout(robot, fixed=tuple(fixed), probe=pose)
+            model = dataclasses.replace(model, layout=parameter_layout(robot, fixed=tuple(fixed)))
         except ValueError as exc:
             raise InputError(f"{robot.name}: {exc}") from None
-        model = dataclasses.replace(model, layout=layout)
+    sigma_rot = inputs.check_measure(
+        measure, sigma_deg, kpi_orientation_mm, n_targets=model.layout.n_targets, n_effects=len(exts)
+    )
+    if measure == "pose":
+        model = with_probe(model)
     return _separable(
         Problem(
             extensions=tuple(resolve(e, model) for e in exts),  # joint_elasticity_basis: sized per robot
@@ -366,54 +428,16 @@ def make_problem(
             param_scaling=param_scaling,
             kpi_point=kpi_point,
             measure=measure,
-            sigma_rot=float(np.deg2rad(sigma_deg)),
+            sigma_rot=sigma_rot,
+            kpi_orientation_mm=float(kpi_orientation_mm),
         )
     )
 
 
-def _checked_cell(robot: Robot, cell_path: Path | str | None, max_incidence_deg: float | None) -> Cell:
-    """The robot's cell, with ``max_incidence_deg`` (checked in (0, 90) deg) if given."""
-    cell = load_cell(cell_path, robot=robot)
-    if max_incidence_deg is not None:
-        if not 0 < max_incidence_deg < 90:
-            raise InputError(f"max_incidence_deg must be in (0, 90) deg, got {max_incidence_deg!r}")
-        cell = dataclasses.replace(cell, max_incidence=float(np.deg2rad(max_incidence_deg)))
-    return cell
-
-
-def _check_kpi_choices(
-    param_scaling: str, kpi_point: str, tool_offset_mm: Sequence[float] | np.ndarray
-) -> None:
-    """InputError for an unknown scaling or KPI point, or a tool offset with the flange as KPI point."""
+def _check_scaling(param_scaling: str) -> None:
+    """InputError for an unknown scaling of the standard criterion."""
     if param_scaling not in PARAM_SCALINGS:
         raise InputError(f"param_scaling must be one of {', '.join(PARAM_SCALINGS)}, got {param_scaling!r}")
-    if kpi_point not in KPI_POINTS:
-        raise InputError(f"kpi_point must be one of {', '.join(KPI_POINTS)}, got {kpi_point!r}")
-    if kpi_point == "flange" and np.any(np.asarray(tool_offset_mm, dtype=float) != 0):
-        raise InputError("kpi_point 'flange' is the flange origin itself: it takes no tool offset")
-
-
-def _checked_q_work(robot: Robot, q_work: np.ndarray | None) -> np.ndarray:
-    """The working pose(s) [rad], (n_joints,) or (K, n_joints), within the joint limits (default: the
-    model file's)."""
-    if q_work is None:
-        if robot.q_work is None:
-            where = "q_work in its sidecar" if robot.urdf is not None else "working pose"
-            raise InputError(
-                f"{robot.name}: the model file has no {where}; pass q_work_deg", fields=("q_work_deg",)
-            )
-        q_work = robot.q_work
-    q_work = np.asarray(q_work, dtype=float)
-    if q_work.ndim == 2 and q_work.shape[0] == 1:
-        q_work = q_work[0]
-    nj = robot.n_joints
-    if q_work.shape[-1:] != (nj,) or q_work.ndim > 2 or not np.all(np.isfinite(q_work)):
-        raise InputError(
-            f"{robot.name}: q_work must be ({nj},) or (K, {nj}) finite angles [rad], got {q_work.shape}"
-        )
-    if np.any(q_work < robot.lower - 1e-9) or np.any(q_work > robot.upper + 1e-9):
-        raise InputError(f"{robot.name}: q_work is outside the joint limits")
-    return q_work
 
 
 SEPARABLE_POSES = 300
@@ -445,29 +469,6 @@ def _separable(problem: Problem) -> Problem:
         "joint box (an effect the geometry or another effect already reproduces)",
         fields=("extend",),
     )
-
-
-def _kpi_weights(kpi_weights, k: int, aggregate: str) -> np.ndarray | None:
-    """Checked, normalised (K,) weights of K working poses (None for one pose with no weights)."""
-    if aggregate not in KPI_AGGREGATES:
-        raise InputError(
-            f"kpi_aggregate must be one of {', '.join(KPI_AGGREGATES)}, got {aggregate!r}",
-            fields=("kpi_aggregate",),
-        )
-    if kpi_weights is None:
-        return None if k == 1 else np.full(k, 1.0 / k)
-    w = np.asarray(kpi_weights, dtype=float).reshape(-1)
-    if w.shape != (k,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
-        raise InputError(
-            f"kpi_weights: expected {k} positive numbers (one per working pose), got {w.tolist()}",
-            fields=("kpi_weights",),
-        )
-    if aggregate == "max" and not np.allclose(w, w[0]):
-        raise InputError(
-            "kpi_weights: the worst case (kpi_aggregate max) takes no weights",
-            fields=("kpi_weights", "kpi_aggregate"),
-        )
-    return w / w.sum()
 
 
 def _file_extensions(robot: Robot) -> tuple:

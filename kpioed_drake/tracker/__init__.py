@@ -5,5 +5,9 @@
   probe's first registration;
 - :mod:`.data`: the one :class:`~kpioed_drake.tracker.data.Measurements` type and the read of a
   measurement file into it (the file formats: :mod:`kpioed_drake.files.tables`);
+- :mod:`.orientation`: a 6-DoF probe's orientation ``R_TP``, its residual, Jacobian and joint
+  derivatives, the TCP frame's angular Jacobian (the orientation KPI);
+- :mod:`.kpi`: the KPI's inputs checked (working poses, weights, KPI point, point or pose
+  measurements, the orientation's noise and weight L in the KPI);
 - :mod:`.feasibility`: the independent checker (Drake signed distances, limits, incidence; eq. 24b).
 """

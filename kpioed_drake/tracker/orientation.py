@@ -34,7 +34,6 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import Frames
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.measurement import TrackerModel, _drot_transposed, small_rotation
@@ -205,53 +204,48 @@ def world_orientation_errors(
     return rotation_log(np.asarray(R_WT) @ np.asarray(R_TP, dtype=float) @ np.swapaxes(R_WP, 1, 2))
 
 
-def angular_jacobian_dq(
-    model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`angular_jacobian` and its derivative w.r.t. the joint values, for designs (rows at zero
-    residual, where ``Jr^-1 = I``).
+def angular_jacobian_dq(model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None) -> np.ndarray:
+    """(n, n_joints, 3, n_full) ``d Omega / d q_j`` of :func:`angular_jacobian` [rad/rad^2, ...].
 
-    A column turned by joint j (a rotation element it moves, or the probe's columns) changes by
-    ``w_j x col`` (W axes; a prismatic joint: 0); the others (rotation elements upstream of joint j,
-    the tracker's) do not change.
-
-    Returns:
-        Omega (n, 3, n_full) [rad per unit]; dOmega (n, n_joints, 3, n_full) [per rad or mm].
+    A revolute joint j turns every axis it moves by ``w_j x``: a joint element's column ``R_TW u``
+    (element moved by j) becomes ``R_TW (w_j x u)``, the probe's ``R_TW R_WF w_F`` (joint j on the
+    probe link's path) ``R_TW (w_j x R_WF w_F)``; prismatic joints, elements upstream of j and the
+    tracker's columns: 0.
     """
     lay = model.layout
     frames = model.frames(q) if frames is None else frames
-    Om = angular_jacobian(model, q, frames=frames)
-    nj = lay.n_joints
+    n = frames.R.shape[0]
+    nj, P = frames.elem_rot.shape
     R_TW = model.R_WT.T
-    w = np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes) @ R_TW.T  # (n, nj, 3) in T
     on = frames.point_path(None)
+    u = np.where(frames.elem_rot[None, :, :, None], frames.elem_u, 0.0)  # (n, nj, P, 3)
+    if on is not None:
+        u = u * on[:, :, None, None]
+    w = np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes)  # (n, nj, 3)
     if on is not None:
         w = w * on[:, :, None]
-    turned = np.einsum("njab,nbc->njac", _skew(w), Om)  # (n, nj, 3, n_full): w_j x every column
-    moved = np.zeros((nj, lay.size), dtype=bool)
-    moved[:, lay.joints] = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, -1)
-    moved[:, lay.probe_rotation] = True
-    return Om, np.where(moved[None, :, None, :], turned, 0.0)
+    Wx = _skew(w)  # (n, nj, 3, 3)
+    moved = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, nj * P)  # joint j moves element c
+    turned = Wx @ u.reshape(n, 1, nj * P, 3).swapaxes(-1, -2)  # (n, nj, 3, nj P): w_j x u_c
+    dOm = np.zeros((n, nj, 3, lay.size))
+    dOm[..., lay.joints] = R_TW @ np.where(moved[None, :, None, :], turned, 0.0)
+    if lay.probe:
+        s = model.p[lay.probe_rotation]
+        S = small_rotation(s)
+        w_F = np.stack([vee(dS.T @ S.T) for dS in _drot_transposed(s)], axis=-1)  # (3, 3)
+        dOm[..., lay.probe_rotation] = R_TW @ Wx @ (frames.at_link(None)[0] @ w_F)[:, None]
+    return dOm
 
 
-def check_measure(measure: str, sigma_deg: float, *, n_targets: int, extended: bool) -> bool:
-    """True for a design's pose measurements (:data:`MEASURES`), False for points.
-
-    Raises:
-        InputError: an unknown measure, a ``sigma_deg`` outside (0, 180) deg, or pose measurements with
-            several targets or effects (their orientation rows are not modelled).
+def tcp_angular_jacobian(model: TrackerModel, q_work: np.ndarray) -> np.ndarray:
+    """(3, n_full) the TCP frame's small rotation in W per parameter at ``q_work`` (n_joints,)
+    [rad/rad, rad/mm]: the angular Jacobian of the tool's orientation, the orientation KPI's
+    ``Js_rot``. The tool is fixed to the flange and, with a probe (``layout.probe``), to the probe
+    as the position KPI's TCP is to the reflector: its columns are the joints' rotation elements on
+    the path (``u``, W), the probe's rotations (``R_WF w_F``) and 0 for the tracker and all
+    translations (:func:`angular_jacobian` turned back to W, the tracker's columns zero).
     """
-    if measure not in MEASURES:
-        raise InputError(
-            f"measure must be one of {', '.join(MEASURES)}, got {measure!r}", fields=("measure",)
-        )
-    ok = isinstance(sigma_deg, int | float) and not isinstance(sigma_deg, bool) and 0 < sigma_deg < 180
-    if not ok:
-        raise InputError(f"sigma_deg: expected degrees in (0, 180), got {sigma_deg!r}", fields=("sigma_deg",))
-    if measure == "pose" and (extended or n_targets > 1):
-        raise InputError(
-            "measure pose: one 6-DoF probe (one target) and no effects (extend): their orientation rows "
-            "are not modelled",
-            fields=("measure",),
-        )
-    return measure == "pose"
+    Om = angular_jacobian(model, np.asarray(q_work, dtype=float)[None, :])[0]
+    Js = model.R_WT @ Om
+    Js[:, model.layout.tracker_rotation] = 0.0
+    return Js

@@ -115,3 +115,11 @@ def store(key: str, approx: ApproximateDesign) -> Path | None:
         Path(tmp).unlink(missing_ok=True)
         return None
     return path
+
+
+def unit_noise(problem: Problem) -> Problem:
+    """``problem`` with unit noise, the one whose search is stored: ``sigma`` 1 and a probe's
+    orientation noise ``sigma_rot`` over ``sigma`` (every row of F1 times ``sigma``, so that the
+    certificate's ``with_noise`` scales back)."""
+    rot = None if problem.sigma_rot is None else problem.sigma_rot / problem.sigma
+    return dataclasses.replace(problem, sigma=1.0, sigma_rot=rot)

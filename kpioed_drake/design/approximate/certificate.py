@@ -5,6 +5,9 @@ of :mod:`kpioed_drake.design.approximate.design`). For any matrix ``Y`` (k, 3) a
 
     tr(Cs)/3 of any n poses in X  >=  tr(K^T Y)^2 / (n max_{x in X} ||F_x Y||_F^2).
 
+The proof below uses only the shapes of ``K`` and ``F_x``: it holds for any KPI factor (with an
+orientation KPI, ``Js`` stacked with ``L Js_rot``) and any rows per pose (3, 3T targets, 6 of a pose).
+
 Proof: for poses ``x_1..x_n`` with information ``M = sum_i F_i^T F_i`` put ``Z_i = F_i M^-1 K``;
 then ``sum_i F_i^T Z_i = K`` and ``sum_i ||Z_i||_F^2 = tr(K^T M^-1 K)``, so by Cauchy-Schwarz
 ``tr(K^T Y) = sum_i tr(Z_i^T F_i Y) <= sqrt(g_max) sum_i ||Z_i|| <= sqrt(g_max n tr(K^T M^-1 K))``.
@@ -221,7 +224,7 @@ def certified_design(
     if warm is not None:
         approx = _search(problem, collision=collision, seed=seed, warm=warm)
     else:  # the search of the problem with unit noise, scaled (it does not depend on the noise)
-        unit = dataclasses.replace(problem, sigma=1.0)
+        unit = certcache.unit_noise(problem)
         disk_key = certcache.problem_key(unit, collision=collision, seed=seed, settings=search_settings())
         approx = certcache.load(disk_key)
         if approx is None:

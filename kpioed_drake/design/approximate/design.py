@@ -1,8 +1,8 @@
 """Approximate (continuous-weight) KPI design by column generation, and its rounding to n poses.
 
 An approximate design puts weights ``w`` (sum 1) on candidate poses ``x_i``; its information is
-``M(w) = sum_i w_i F_i^T F_i`` (``F_i``: the pose's 3 rows of the weighted identification Jacobian,
-paper eq. 24d). Its KPI criterion (eq. 24a, 24c; Appendix: ``Cs = Js M^-1 Js^T``) is the L-criterion
+``M(w) = sum_i w_i F_i^T F_i`` (``F_i``: the pose's rows of F1, eq. 24d: 3, 3 T with T targets, 6
+with a probe's pose). Its KPI criterion (eq. 24a, 24c; Appendix: ``Cs = Js M^-1 Js^T``): the L-criterion
 
     Phi(w) = tr(A M(w)^-1),   A = K K^T,   K = Js^T / sqrt(3)   (Js: paper eq. 24e),
 

@@ -3,9 +3,10 @@
 ``g`` is the pricing function of the approximate design's column generation and the quantity whose
 maximum over the feasible poses (paper eq. 24b) makes the certificate's bound
 (:mod:`kpioed_drake.design.approximate.design`, :mod:`kpioed_drake.design.approximate.certificate`);
-``F_x`` is the pose's 3 rows of the weighted identification Jacobian (paper eq. 24d) and ``Y``
-(k, 3) a dual matrix. Up to a factor, ``g`` is the directional derivative
-``d(x, w) = tr(A M^-1 M_x M^-1)`` of the general equivalence theorem.
+``F_x`` is the pose's rows of the weighted identification Jacobian (paper eq. 24d; 3, or 6 with a
+6-DoF probe's pose) and ``Y`` (k, c) a dual matrix (c: the KPI's rows, 3 per working pose). Up to a
+factor, ``g`` is the directional derivative ``d(x, w) = tr(A M^-1 M_x M^-1)`` of the general
+equivalence theorem.
 
 - :func:`maximize_dual`: local maxima by SNOPT under the design's own constraint rows (a
   :class:`DesignProgram` of a few poses whose objective is ``-sum g``);
@@ -46,7 +47,8 @@ deep in incidence violation)."""
 
 
 def pose_rows(problem: Problem, q: np.ndarray) -> np.ndarray:
-    """Each pose's 3 rows of the weighted identification Jacobian: (m, 3, k) for ``q`` (m, 6) [rad]."""
+    """Each pose's rows of the weighted identification Jacobian: (m, r, k) for ``q`` (m, 6) [rad]
+    (r = :attr:`Problem.rows_per_pose`: 3, 3 T with T targets, 6 with pose measurements)."""
     q = np.asarray(q, dtype=float).reshape(-1, problem.robot.n_joints)
     return problem.F1(q).reshape(q.shape[0], -1, problem.n_params)
 
