@@ -3,5 +3,9 @@
 - :mod:`.measurement`: ``h(p, q)``, its Jacobian, incidence, the KPI Jacobian;
 - :mod:`.data`: the one :class:`~kpioed_drake.tracker.data.Measurements` type and the read of a
   measurement file into it (the file formats: :mod:`kpioed_drake.files.tables`);
-- :mod:`.feasibility`: the independent checker (Drake signed distances, limits, incidence; eq. 24b).
+- :mod:`.feasibility`: the independent checker (Drake signed distances, limits, incidence; eq. 24b);
+- :mod:`.orientation`: a 6-DoF probe's orientation rows (model, residual, Jacobian, first registration);
+- measurements without a tracker: :mod:`.contactdata` (the data types ``DistanceData`` and
+  ``PlaneData``), :mod:`.distance` (lengths between tool points or to a pivot), :mod:`.plane`
+  (a tool point touching a plane), :mod:`.contacts` (their parameters, starts, gauge and rows in a fit).
 """
