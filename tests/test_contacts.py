@@ -4,6 +4,8 @@ truth within 3 sigma (distances, planes, points with planes, distances with plan
 of the stacked whitened Jacobian, the gauge, and the data checks."""
 
 import dataclasses
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -262,3 +264,12 @@ def test_data_checks_name_the_row_and_field():
     planes = PlaneData.from_arrays(_poses(robot, 4, np.random.default_rng(0)), [0, 0, 0, 0])
     with pytest.raises(InputError, match="effects or orientation rows"):
         estimate(model, None, None, planes=planes, R_TP=np.zeros((0, 3, 3)))
+
+
+def test_the_guide_example_prints_what_the_guide_says(capsys):
+    """docs/contacts.md: its Python block runs and prints its text block."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "contacts.md").read_text()
+    code = re.search(r"```python\n(.*?)```", text, re.DOTALL).group(1)
+    shown = re.search(r"It prints:\n\n```text\n(.*?)```", text, re.DOTALL).group(1)
+    exec(compile(code, "docs/contacts.md", "exec"), {})
+    assert capsys.readouterr().out == shown
