@@ -273,3 +273,21 @@ def test_the_guide_example_prints_what_the_guide_says(capsys):
     shown = re.search(r"It prints:\n\n```text\n(.*?)```", text, re.DOTALL).group(1)
     exec(compile(code, "docs/contacts.md", "exec"), {})
     assert capsys.readouterr().out == shown
+
+
+def test_a_model_with_its_own_gauge_is_used_as_given():
+    """``contact_model``'s model with one more parameter held: ``estimate`` keeps that layout; a
+    model whose contact parameters do not fit the data is refused."""
+    robot, model = _nominal("kr16")
+    q, plane = _plane_poses(robot, model, 10, 1)
+    data, _ = simulate_planes(robot, q, plane, normals=NORMALS, offsets=OFFSETS, seed=3)
+    start, gauge = contact_model(model, planes=data)
+    held = gauge.names + ("a1",)
+    lay = parameter_layout(robot, fixed=held, contacts=start.layout.contacts)
+    res = estimate(dataclasses.replace(start, layout=lay), None, None, planes=data)
+    assert "a1" not in res.free_names and res.n_params == start.layout.n_free - 1
+    assert set(res.contacts.gauge.base) == set(held) | set(robot.extra_gauge)
+    with pytest.raises(InputError, match="do not fit the data"):
+        estimate(start, None, None, planes=dataclasses.replace(data, plane=np.minimum(data.plane, 2)))
+    with pytest.raises(InputError, match="give distance rows, plane rows or both"):
+        contact_model(model)

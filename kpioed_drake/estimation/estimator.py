@@ -417,8 +417,9 @@ def estimate(
     conditions = Conditions() if conditions is None else conditions
     contacts = None
     if distances is not None or planes is not None:
+        other = bool(effects or R_TP is not None)
         model, contacts, q, eta = contact_inputs(
-            model, q, eta, distances, planes, sigma, mask, bool(effects or R_TP is not None)
+            model, q, eta, distances, planes, sigma, mask, conditions, other
         )
     if R_TP is not None:
         R_TP, sigma_rot, model = _pose_inputs(model, q, R_TP, sigma_rot, effects)

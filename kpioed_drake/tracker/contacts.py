@@ -88,7 +88,8 @@ def contact_layout(distances: DistanceData | None, planes: PlaneData | None) -> 
     )
 
 
-def _check_data(model: TrackerModel, data, what: str) -> None:
+def _check_data(model: TrackerModel, data: DistanceData | PlaneData) -> None:
+    """The rows' joint count and targets fit the model."""
     nj, T = model.robot.n_joints, model.layout.n_targets
     if data.q.shape[1] != nj:
         raise InputError(f"{data.source}: q: expected {nj} joint values per row, got {data.q.shape[1]}")
@@ -261,9 +262,11 @@ def contact_model(
         raise InputError(
             "distances and planes: the model has a probe's orientations or contact parameters already"
         )
-    for data, what in ((distances, "distances"), (planes, "planes")):
+    if distances is None and planes is None:
+        raise InputError("distances and planes: give distance rows, plane rows or both")
+    for data in (distances, planes):
         if data is not None:
-            _check_data(model, data, what)
+            _check_data(model, data)
     points = q_points is not None and len(q_points) > 0
     held = [n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist())]
     if not points:
@@ -316,11 +319,13 @@ def contact_inputs(
     planes: PlaneData | None,
     sigma: float,
     mask: np.ndarray | None,
+    conditions,
     other_rows: bool,
 ) -> tuple[TrackerModel, ContactRows, np.ndarray, np.ndarray]:
     """The estimator's contact inputs: the tracker rows (None: none, as (0, n_joints), (0, 3)), the
     model with the contact parameters (:func:`contact_model` on the tracker rows ``mask`` uses,
-    unless ``model`` has them for these data already) and the rows.
+    unless ``model`` has them for these data already) and the rows. ``conditions``: the estimator's
+    per-pose conditions (their ``target``: the tracker rows' 0-based targets).
 
     Raises:
         InputError: ``other_rows`` (effects or orientations are not modelled with contacts), a mask
@@ -337,8 +342,14 @@ def contact_inputs(
     if used.shape != (len(q),):
         raise InputError("estimate: mask and weights must have one entry per pose, weights > 0")
     if not model.layout.contacts.size:
+        target = None if conditions.target is None else np.asarray(conditions.target)[used]
         model, gauge = contact_model(
-            model, distances=distances, planes=planes, q_points=q[used], sigma_points=sigma
+            model,
+            distances=distances,
+            planes=planes,
+            q_points=q[used],
+            target_points=target,
+            sigma_points=sigma,
         )
         return model, ContactRows(distances, planes, gauge), q, eta
     want = contact_layout(distances, planes)

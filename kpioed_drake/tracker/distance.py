@@ -11,9 +11,10 @@ residual ``r = d - (L + dL_b)``: the model minus the measured length ``L`` [mm],
 row's bar's length correction ``dL_b`` (``bar{b}_dL``; 0 for a row of known length). Jacobian in
 closed form, with ``u = (p_i - p_j) / d`` (``p_j = p_WC`` for a pivot row) and ``J_i`` the tool
 point's Jacobian: ``dr/dp = u^T (J_i - J_j)`` (``J_j = 0`` for a pivot), ``dr/dp_WC = -u^T``,
-``dr/d dL_b = -1``. A distance is blind to where the robot stands: no tracker parameter, and of the
-robot none that moves every tool point rigidly (theta1, d1 of the six-joint tables: their columns
-are zero), enters it; the base frame's six degrees of freedom are unobservable.
+``dr/d dL_b = -1``. A distance is blind to where the robot stands: no tracker parameter enters it,
+and a parameter that moves every tool point rigidly (theta1, d1 of the six-joint tables) has a zero
+column in pair rows and trades exactly against the pivots' positions in pivot rows; the base
+frame's six degrees of freedom are unobservable.
 
 :func:`pivot_start`: the closed-form start of the pivots (a sphere fit: ``|p_i - c|^2 = L_i^2``
 is linear in ``c`` and ``|c|^2``). Units: millimetres and radians.
