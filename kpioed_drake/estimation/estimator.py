@@ -417,10 +417,8 @@ def estimate(
     conditions = Conditions() if conditions is None else conditions
     contacts = None
     if distances is not None or planes is not None:
-        other = bool(effects or R_TP is not None)
-        model, contacts, q, eta = contact_inputs(
-            model, q, eta, distances, planes, sigma, mask, conditions, other
-        )
+        kw = dict(sigma=sigma, mask=mask, conditions=conditions, other_rows=bool(effects or R_TP is not None))
+        model, contacts, q, eta = contact_inputs(model, q, eta, distances=distances, planes=planes, **kw)
     if R_TP is not None:
         R_TP, sigma_rot, model = _pose_inputs(model, q, R_TP, sigma_rot, effects)
     free = model.layout.free

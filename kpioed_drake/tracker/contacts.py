@@ -315,6 +315,7 @@ def contact_inputs(
     model: TrackerModel,
     q: np.ndarray | None,
     eta: np.ndarray | None,
+    *,
     distances: DistanceData | None,
     planes: PlaneData | None,
     sigma: float,
