@@ -4,6 +4,8 @@
   with ``v = (p, s)``, ``F1 = dh/dv / sigma`` (zero columns for s) and ``F2 = [Js, -I]`` from the
   explicit KPI constraint ``f2 = TCP(p, q_work) - s = 0`` (eq. 12, 24e).
 - :func:`nullspace_covariance`: the Appendix form ``Z (Z^T F1^T F1 Z)^-1 Z^T``.
+- :func:`covariance`: ``(J^T J)^-1`` of a weighted Jacobian (column-scaled Cholesky, or the
+  pseudo-inverse of a singular one), the estimator's ``Cp``;
 - :func:`kpi_covariance`: the cheap form ``Cp = (F1^T F1)^-1`` (Cholesky), ``Cs = Js Cp Js^T``
   (Appendix proposition: equal to the KKT blocks).
 
@@ -64,3 +66,26 @@ def kpi_covariance(F1p: np.ndarray, Js: np.ndarray) -> tuple[np.ndarray, np.ndar
     c = scipy.linalg.cho_factor(M)
     Cp = scipy.linalg.cho_solve(c, np.eye(M.shape[0]))
     return Cp, Js @ Cp @ Js.T
+
+
+def covariance(J: np.ndarray, *, singular_ok: bool = False) -> np.ndarray:
+    """``(J^T J)^-1`` of a weighted (m, k) Jacobian, from the column-scaled information matrix.
+
+    Cholesky when the information is positive definite; otherwise, with ``singular_ok``, its
+    pseudo-inverse (the parameters without information get none).
+
+    Raises:
+        numpy.linalg.LinAlgError: the information matrix is singular and ``singular_ok`` is False.
+    """
+    D = np.linalg.norm(J, axis=0)
+    D[D == 0] = 1.0
+    Js = J / D
+    A = Js.T @ Js
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        if not singular_ok:
+            raise
+        return np.linalg.pinv(A) / np.outer(D, D)
+    Linv = scipy.linalg.solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    return (Linv.T @ Linv) / np.outer(D, D)

@@ -14,7 +14,8 @@ The one estimator of the package, used by calibration and by the diagnosis:
   ``R_WT_ref`` times three small rotations; after every accepted step the small rotations are
   folded into the reference (:meth:`TrackerModel.rebased`), so they stay near zero and the
   parametrisation never approaches a singularity, whatever the tracker's orientation.
-- :func:`covariance`: ``(J^T J)^-1`` of a weighted Jacobian (column-scaled Cholesky).
+- :func:`covariance` (:mod:`kpioed_drake.estimation.covariance`, re-exported): ``(J^T J)^-1`` of a
+  weighted Jacobian (column-scaled Cholesky).
 
 The covariance of the estimated parameters is ``Cp = (F1^T F1)^-1`` with ``F1 = J / sigma`` at the
 solution (paper eq. 19 without constraints): the a-priori covariance given the noise ``sigma``.
@@ -29,14 +30,16 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.linalg
 
 from kpioed_drake import effects as fx
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError
+from kpioed_drake.estimation.covariance import covariance  # noqa: F401 (re-exported)
 from kpioed_drake.estimation.registration import register_tracker, registered_model  # noqa: F401 (re-exported)
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.robot.parameters import ParameterLayout
+from kpioed_drake.tracker.contactdata import DistanceData, PlaneData
+from kpioed_drake.tracker.contacts import ContactFit, ContactRows, contact_inputs
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.measurement import TrackerModel
 from kpioed_drake.tracker.orientation import orientation_jacobian, orientation_residuals, with_probe
@@ -110,29 +113,6 @@ def response(
     return f(model, q, effects, compliance_payload_kg=c.payload_kg, **kw)
 
 
-def covariance(J: np.ndarray, *, singular_ok: bool = False) -> np.ndarray:
-    """``(J^T J)^-1`` of a weighted (m, k) Jacobian, from the column-scaled information matrix.
-
-    Cholesky when the information is positive definite; otherwise, with ``singular_ok``, its
-    pseudo-inverse (the parameters without information get none).
-
-    Raises:
-        numpy.linalg.LinAlgError: the information matrix is singular and ``singular_ok`` is False.
-    """
-    D = np.linalg.norm(J, axis=0)
-    D[D == 0] = 1.0
-    Js = J / D
-    A = Js.T @ Js
-    try:
-        L = np.linalg.cholesky(A)
-    except np.linalg.LinAlgError:
-        if not singular_ok:
-            raise
-        return np.linalg.pinv(A) / np.outer(D, D)
-    Linv = scipy.linalg.solve_triangular(L, np.eye(L.shape[0]), lower=True)
-    return (Linv.T @ Linv) / np.outer(D, D)
-
-
 # ----------------------------------------------------------------------------------------------
 # Levenberg-Marquardt
 # ----------------------------------------------------------------------------------------------
@@ -164,6 +144,8 @@ class EstimationResult:
         rot_residuals: (n, 3) ``log(R_meas R_model^T)`` of every row, used or not [rad, tracker
             axes], or None. With orientations ``J`` has 3 m orientation rows after the 3 m
             position rows (pose-major both), ``cost`` and ``dof`` count them.
+        contacts: the distance and plane rows' outcome (:mod:`kpioed_drake.tracker.contacts`), or
+            None. With them ``J`` ends with their rows, distances first; ``cost`` and ``dof`` count them.
     """
 
     model: TrackerModel
@@ -185,6 +167,7 @@ class EstimationResult:
     R_TP: np.ndarray | None = None
     sigma_rot: np.ndarray | None = None
     rot_residuals: np.ndarray | None = None
+    contacts: ContactFit | None = None
 
     @property
     def free(self) -> np.ndarray:
@@ -241,8 +224,14 @@ class _Problem:
     conditions: Conditions
     R_TP: np.ndarray | None = None
     w_rot: np.ndarray | None = None
+    contacts: ContactRows | None = None
 
     def weighted(self, model: TrackerModel, effects, *, jac: bool = True):
+        """Whitened residuals (and Jacobian) of every row: tracker, orientations, then contacts."""
+        rows = self._tracker_rows(model, effects, jac=jac)
+        return rows if self.contacts is None else self.contacts.stacked(model, rows, jac=jac)
+
+    def _tracker_rows(self, model: TrackerModel, effects, *, jac: bool = True):
         w = self.sw[:, None] / self.sigma
         if not jac:
             r = ((self.eta - response(model, effects, self.q, self.conditions, jac=False)) * w).reshape(-1)
@@ -256,7 +245,7 @@ class _Problem:
         free = model.layout.free
         J = np.concatenate([H[:, :, free], E], axis=2) * w[:, :, None]
         if self.R_TP is None:
-            return r, J.reshape(r.size, -1)
+            return r, J.reshape(r.size, J.shape[2])
         e, Hr = orientation_jacobian(model, self.q, self.R_TP)
         Jr = Hr[:, :, free] * self.w_rot[:, :, None]
         r = np.concatenate([r, (e * self.w_rot).reshape(-1)])
@@ -386,6 +375,8 @@ def estimate(
     singular_ok: bool = False,
     R_TP: np.ndarray | None = None,
     sigma_rot: np.ndarray | None = None,
+    distances: DistanceData | None = None,
+    planes: PlaneData | None = None,
 ) -> EstimationResult:
     """Estimate the free parameters of ``model`` (and the effects' values) from measured reflector positions.
 
@@ -411,6 +402,9 @@ def estimate(
             the fit (:mod:`kpioed_drake.tracker.orientation`; the model gets the probe's three
             rotations if its layout lacks them, registered with the tracker when ``register``).
         sigma_rot: (n, 3) the orientations' noise about the tracker axes [rad] (needed with ``R_TP``).
+        distances, planes: distance and plane-contact rows joining the fit (alone: ``q`` and ``eta``
+            None or empty; the model gets their parameters, starts and gauge,
+            :func:`kpioed_drake.tracker.contacts.contact_model`, unless it has them already).
 
     Returns:
         :class:`EstimationResult`.
@@ -421,17 +415,26 @@ def estimate(
     """
     effects = [e.with_values(e.value_array()) for e in effects]
     conditions = Conditions() if conditions is None else conditions
+    contacts = None
+    if distances is not None or planes is not None:
+        kw = dict(sigma=sigma, mask=mask, conditions=conditions, other_rows=bool(effects or R_TP is not None))
+        model, contacts, q, eta = contact_inputs(model, q, eta, distances=distances, planes=planes, **kw)
     if R_TP is not None:
         R_TP, sigma_rot, model = _pose_inputs(model, q, R_TP, sigma_rot, effects)
     free = model.layout.free
     n_params = free.size + sum(e.n_params for e in effects)
     per_pose = 3 if R_TP is None else 6
-    q, eta, mask, w = _check_inputs(q, eta, sigma, mask, weights, n_params, model.robot.n_joints, per_pose)
+    nj = model.robot.n_joints
+    q, eta, mask, w = _check_inputs(
+        q, eta, sigma, mask, weights, n_params if contacts is None else 0, nj, per_pose
+    )
     m = int(np.count_nonzero(mask))
-    prob = _Problem(q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask))
+    prob = _Problem(
+        q[mask], eta[mask], np.sqrt(w[mask]), float(sigma), conditions.subset(mask), contacts=contacts
+    )
     if R_TP is not None:
         prob = dataclasses.replace(prob, R_TP=R_TP[mask], w_rot=prob.sw[:, None] / sigma_rot[mask])
-    if register:
+    if register and m:
         model = registered_model(model, prob.q, prob.eta, prob.conditions.target, prob.R_TP)
 
     model, effects, J, cost, converged, message, it = _levenberg_marquardt(
@@ -447,7 +450,8 @@ def estimate(
         residuals=eta - response(model, effects, q, conditions, jac=False),
         rot_residuals=None if R_TP is None else orientation_residuals(model, q, R_TP),
         sigma=float(sigma),
-        dof=per_pose * m - n_params,
+        dof=per_pose * m + (0 if contacts is None else contacts.n_rows) - n_params,
+        contacts=None if contacts is None else contacts.fit(model),
         Cp=_solution_covariance(J, m, n_params, singular_ok),
         J=J,
         effects=tuple(effects),

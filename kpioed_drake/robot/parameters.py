@@ -29,6 +29,11 @@ the orientation rows determine them, and the rank test of the data holds what th
 robot's automatic gauge is chosen on positions and orientations
 (:attr:`kpioed_drake.robot.models.Robot.pose_gauge`).
 
+Distance and plane-contact measurements (:mod:`kpioed_drake.tracker.contacts`) append their own
+parameters after all of these (:class:`ContactLayout`, ``ParameterLayout.contacts``): a length
+correction per bar ``bar{b}_dL`` [mm], a pivot's position ``pivot{c}_x, _y, _z`` in W [mm], and per
+plane two tilts of its normal ``plane{k}_tx, _ty`` [rad] and its offset ``plane{k}_d`` [mm].
+
 SPEC's scaling of the criteria to millimetres at the tool: lengths 1, angles times the reach.
 """
 
@@ -52,6 +57,33 @@ REFLECTOR_NAMES = ("reflector_x", "reflector_y", "reflector_z")
 PROBE_NAMES = ("probe_rx", "probe_ry", "probe_rz")
 """The probe's small rotations on the flange (a 6-DoF probe's orientations measured)."""
 ANGLE_PREFIXES = ("theta", "alpha", "beta", "tracker_r", "probe_r")
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactLayout:
+    """The parameters of distance and plane-contact systems, in this order: ``bars`` length
+    corrections (1 each) [mm], ``pivots`` positions in W (3 each) [mm], ``planes`` (the normal's two
+    tilts [rad] and the offset [mm] each); names 1-based (``bar1_dL``, ``pivot2_x``, ``plane3_tx``)."""
+
+    bars: int = 0
+    pivots: int = 0
+    planes: int = 0
+
+    @property
+    def size(self) -> int:
+        return self.bars + 3 * self.pivots + 3 * self.planes
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        bars = tuple(f"bar{b + 1}_dL" for b in range(self.bars))
+        pivots = tuple(f"pivot{c + 1}_{x}" for c in range(self.pivots) for x in "xyz")
+        planes = tuple(f"plane{k + 1}_{x}" for k in range(self.planes) for x in ("tx", "ty", "d"))
+        return bars + pivots + planes
+
+    @property
+    def is_angle(self) -> np.ndarray:
+        """(size,) True for the planes' tilts [rad]."""
+        return np.array([n.endswith(("_tx", "_ty")) for n in self.names], dtype=bool)
 
 
 def n_parameters(n_joints: int = N_JOINTS, *, per_joint: int = PER_JOINT, n_targets: int = 1) -> int:
@@ -82,7 +114,9 @@ class ParameterLayout:
         n_targets: reflectors (each 3 offset coordinates in the flange frame).
         n_effects: effect parameters estimated after the free geometric ones (0 for the
             geometric model).
-        probe: the vector ends with the probe's three small rotations (data with orientations).
+        probe: the vector has the probe's three small rotations (data with orientations).
+        contacts: the distance and plane-contact parameters at the end of the vector (none for
+            tracker data alone).
     """
 
     names: tuple[str, ...]
@@ -93,6 +127,7 @@ class ParameterLayout:
     n_targets: int = 1
     n_effects: int = 0
     probe: bool = False
+    contacts: ContactLayout = ContactLayout()
 
     # --- segments of the full vector --------------------------------------------------------
     @property
@@ -143,6 +178,26 @@ class ParameterLayout:
     def free_probe_rotation(self) -> np.ndarray:
         """Positions of the probe's small rotations in the free vector (empty without a probe)."""
         return self.in_free(self.probe_rotation)
+
+    @property
+    def contact(self) -> slice:
+        """The distance and plane-contact parameters (:class:`ContactLayout`; empty without them)."""
+        j = self.probe_rotation.stop
+        return slice(j, j + self.contacts.size)
+
+    def bar_columns(self, bar: np.ndarray) -> np.ndarray:
+        """(n,) indices of the length corrections of the (n,) 0-based ``bar`` indices."""
+        return self.contact.start + np.asarray(bar, dtype=int)
+
+    def pivot_columns(self, pivot: np.ndarray) -> np.ndarray:
+        """(n, 3) indices of the positions of the (n,) 0-based ``pivot`` indices."""
+        start = self.contact.start + self.contacts.bars
+        return start + 3 * np.asarray(pivot, dtype=int)[:, None] + np.arange(3)
+
+    def plane_columns(self, plane: np.ndarray) -> np.ndarray:
+        """(n, 3) indices of (tilt x, tilt y, offset) of the (n,) 0-based ``plane`` indices."""
+        start = self.contact.start + self.contacts.bars + 3 * self.contacts.pivots
+        return start + 3 * np.asarray(plane, dtype=int)[:, None] + np.arange(3)
 
     def target(self, t: int = 0) -> slice:
         """Offset ``p_FQ`` of target ``t`` (0-based) [mm]."""
@@ -207,9 +262,10 @@ class ParameterLayout:
 
     @property
     def free_robot_side(self) -> np.ndarray:
-        """Full-vector indices of the free joint and target parameters (the tracker excluded)."""
-        tr = np.arange(self.size)[self.tracker]
-        return self.free[~np.isin(self.free, tr)]
+        """Full-vector indices of the free joint and target parameters (the tracker and the
+        contact parameters excluded)."""
+        idx = np.arange(self.size)
+        return self.free[~np.isin(self.free, np.concatenate([idx[self.tracker], idx[self.contact]]))]
 
     def with_effects(self, n_effects: int) -> ParameterLayout:
         """The same layout with ``n_effects`` effect parameters after the free ones."""
@@ -236,6 +292,7 @@ def parameter_layout(
     n_targets: int | None = None,
     n_effects: int = 0,
     probe: bool = False,
+    contacts: ContactLayout | None = None,
 ) -> ParameterLayout:
     """The layout of ``robot``'s parameter vector and the indices of the estimated parameters.
 
@@ -250,6 +307,7 @@ def parameter_layout(
             the model file's ``extra_gauge`` is then not applied (the orientations determine what a
             point on joint 6's axis leaves undetermined) and a chain robot's default gauge is its
             :attr:`~kpioed_drake.robot.models.Robot.pose_gauge`.
+        contacts: append the parameters of distance and plane-contact systems (:class:`ContactLayout`).
 
     Raises:
         ValueError: a fixed name that is not a parameter of the model.
@@ -259,11 +317,13 @@ def parameter_layout(
     )
     n_targets = robot.n_targets if n_targets is None else int(n_targets)
     n_joints = robot.n_joints
+    contacts = ContactLayout() if contacts is None else contacts
     names = (
         tuple(robot.param_names()) + TRACKER_NAMES + _target_names(n_targets) + (PROBE_NAMES if probe else ())
     )
     tail = [n.startswith(ANGLE_PREFIXES) for n in names[len(robot.param_names()) :]]
-    is_angle = np.array(list(robot.param_is_angle()) + tail, dtype=bool)
+    is_angle = np.array(list(robot.param_is_angle()) + tail + list(contacts.is_angle), dtype=bool)
+    names += contacts.names
     unknown = set(fixed) - set(names)
     if unknown:
         raise ValueError(f"fixed parameters not in the model: {sorted(unknown)}")
@@ -277,6 +337,7 @@ def parameter_layout(
         n_targets=n_targets,
         n_effects=n_effects,
         probe=bool(probe),
+        contacts=contacts,
     )
 
 

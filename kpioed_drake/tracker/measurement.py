@@ -54,6 +54,8 @@ class TrackerModel:
         R_FP_ref: (3, 3) reference orientation of a 6-DoF probe's frame P on the flange the probe's
             small rotations refer to (``layout.probe``), or the model file's probe orientation, or
             None (no orientation known: points only).
+        n_W_ref: (K, 3) reference unit normals in W of the contact planes the planes' tilts refer
+            to (``layout.contacts``, :mod:`kpioed_drake.tracker.plane`), or None (no planes).
     """
 
     robot: Robot
@@ -61,6 +63,7 @@ class TrackerModel:
     R_WT_ref: np.ndarray
     layout: ParameterLayout
     R_FP_ref: np.ndarray | None = None
+    n_W_ref: np.ndarray | None = None
 
     @property
     def geometry(self) -> np.ndarray:
@@ -183,13 +186,36 @@ def hold_unused_targets(model: TrackerModel, target: np.ndarray | None) -> Track
         return model
     names = tuple(lay.names[i] for t in unused for i in range(lay.size)[lay.target(t)])
     held = tuple(n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist()))
-    layout = parameter_layout(model.robot, fixed=held + names, n_targets=lay.n_targets, probe=lay.probe)
+    layout = parameter_layout(
+        model.robot, fixed=held + names, n_targets=lay.n_targets, probe=lay.probe, contacts=lay.contacts
+    )
     return dataclasses.replace(model, layout=layout)
 
 
 def reflector_world(model: TrackerModel, q: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) position in W of each row's target (``target`` (n,) 0-based; None: target 0) [mm]."""
     return flange_point(model.frames(q), model.target_points(target), model.target_links(target))
+
+
+def world_point_jacobian(
+    model: TrackerModel, q: np.ndarray, target: np.ndarray | None = None, *, frames: Frames | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rows' target points in W and their Jacobian w.r.t. the full parameter vector.
+
+    ``p_WQ(p, q)`` of eq. 3 before the tracker: no tracker column (nor any other) is nonzero but
+    the joint rows' and the row's target offset's (``target`` (n,) 0-based; None: target 0).
+
+    Returns:
+        p_WQ: (n, 3) [mm]; J: (n, 3, n_full) dp_WQ/dp [mm/rad, mm/mm].
+    """
+    lay = model.layout
+    frames = model.frames(q) if frames is None else frames
+    p_WQ, JW = point_jacobian(frames, model.target_points(target), link=model.target_links(target))
+    nj = lay.joints.stop
+    J = np.zeros((p_WQ.shape[0], 3, lay.size))
+    J[:, :, lay.joints] = JW[:, :, :nj]
+    _set_target_columns(J, JW[:, :, nj : nj + 3], lay, target)
+    return p_WQ, J
 
 
 def measure(model: TrackerModel, q: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
