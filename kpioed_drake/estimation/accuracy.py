@@ -42,6 +42,11 @@ KINDS = ("fit", "held-out")
 """Fit: the model was fitted to the poses scored; held-out: it did not see them."""
 
 
+def labels(model: str, kind: str, tracker: str) -> dict:
+    """The JSON labels of a block of figures: what was scored, fit or held-out, the tracker frame."""
+    return {"model": model or None, "kind": kind, "tracker": tracker, "tracker_text": TRACKER[tracker]}
+
+
 @dataclasses.dataclass(frozen=True)
 class Figures:
     """Accuracy figures of one set of residuals (:func:`accuracy`) [mm].
@@ -94,10 +99,7 @@ class Figures:
     def to_dict(self) -> dict:
         """The JSON block (mm)."""
         return {
-            "model": self.model or None,
-            "kind": self.kind,
-            "tracker": self.tracker,
-            "tracker_text": TRACKER[self.tracker],
+            **labels(self.model, self.kind, self.tracker),
             "n_poses": self.n_poses,
             "n_rows": self.n_rows,
             "rms_mm": self.rms_mm,
@@ -212,10 +214,7 @@ class OrientationFigures:
     def to_dict(self) -> dict:
         """The JSON block (deg)."""
         return {
-            "model": self.model or None,
-            "kind": self.kind,
-            "tracker": self.tracker,
-            "tracker_text": TRACKER[self.tracker],
+            **labels(self.model, self.kind, self.tracker),
             "n_rows": self.n_rows,
             "rms_deg": self.rms_deg,
             "rms_xyz_deg": list(self.rms_xyz_deg),

@@ -286,13 +286,14 @@ def auto_gauge(
     norms = np.linalg.norm(A, axis=0)
     live = norms > ZERO_COLUMN * norms.max()  # an exactly zero column (round-off) stays zero
     A = np.where(live, A / np.where(live, norms, 1.0), 0.0)
-    basis, held = _kept_columns(A, rtol, param_names(nj), n_always)
+    kept, held = _kept_columns(A, rtol, param_names(nj), n_always)
     _, Rq, _ = scipy.linalg.qr(A, mode="economic", pivoting=True)
     dq = np.abs(np.diag(Rq))
     rank = int(np.sum(dq > rtol * dq[0]))
-    if rank != len(basis):
+    found = int(kept.sum())
+    if rank != found:
         raise ValueError(
-            f"gauge selection found rank {len(basis)}, pivoted QR {rank}; it would hold {', '.join(held)}"
+            f"gauge selection found rank {found}, pivoted QR {rank}; it would hold {', '.join(held)}"
         )
     return tuple(held)
 
@@ -369,21 +370,28 @@ def _with_orientation_rows(
     return np.concatenate([full[:, :n_always], probe, full[:, n_always:]], axis=1)
 
 
-def _kept_columns(A: np.ndarray, rtol: float, names: list[str], n_fixed: int) -> tuple[list, list[str]]:
-    """The orthonormal basis of the columns of ``A`` kept in order (residual > ``rtol``) and the
-    names of the joint columns held; the first ``n_fixed`` (tracker, targets) must all be kept."""
+def independent_columns(A: np.ndarray, rtol: float) -> np.ndarray:
+    """(k,) bool: the columns of ``A`` (m, k; unit length, or zero) that add to the span of the kept
+    ones before them, in order: their residual after projection on those (Gram-Schmidt, twice for
+    orthogonality) exceeds ``rtol``."""
     basis: list[np.ndarray] = []
-    held = []
+    kept = np.zeros(A.shape[1], dtype=bool)
     for k in range(A.shape[1]):
         v = A[:, k].copy()
-        for _ in range(2):  # Gram-Schmidt, twice for orthogonality
+        for _ in range(2):
             for b in basis:
                 v -= (b @ v) * b
         r = np.linalg.norm(v)
         if r > rtol:
             basis.append(v / r)
-        elif k >= n_fixed:
-            held.append(names[k - n_fixed])
-        else:
-            raise ValueError("tracker or target columns are dependent: reflector or chain degenerate")
-    return basis, held
+            kept[k] = True
+    return kept
+
+
+def _kept_columns(A: np.ndarray, rtol: float, names: list[str], n_fixed: int) -> tuple[np.ndarray, list[str]]:
+    """:func:`independent_columns` of ``A`` and the names of the joint columns held; the first
+    ``n_fixed`` (tracker, targets) must all be kept."""
+    kept = independent_columns(A, rtol)
+    if not kept[:n_fixed].all():
+        raise ValueError("tracker or target columns are dependent: reflector or chain degenerate")
+    return kept, [names[k - n_fixed] for k in np.flatnonzero(~kept) if k >= n_fixed]

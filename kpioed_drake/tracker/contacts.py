@@ -34,7 +34,7 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.chain import GAUGE_RTOL
+from kpioed_drake.robot.chain import GAUGE_RTOL, independent_columns
 from kpioed_drake.robot.parameters import ContactLayout, parameter_layout
 from kpioed_drake.tracker.contactdata import DistanceData, PlaneData
 from kpioed_drake.tracker.distance import distance_jacobian, distance_residuals, pivot_start
@@ -142,23 +142,11 @@ def _rank_held(A: np.ndarray, order: np.ndarray, names, n_env: int, rtol: float 
     norms = np.linalg.norm(A[:, order], axis=0)
     live = norms > 1e-9 * max(float(norms.max(initial=0.0)), 1e-300)
     U = np.where(live, A[:, order] / np.where(live, norms, 1.0), 0.0)
-    basis: list[np.ndarray] = []
-    held = []
-    for k in range(order.size):
-        v = U[:, k].copy()
-        for _ in range(2):  # Gram-Schmidt, twice for orthogonality
-            for b in basis:
-                v -= (b @ v) * b
-        r = np.linalg.norm(v)
-        if r > rtol:
-            basis.append(v / r)
-        elif k < n_env:
-            raise InputError(
-                f"the rows do not determine {names[order[k]]} (a plane or pivot without enough rows)"
-            )
-        else:
-            held.append(names[order[k]])
-    return held
+    kept = independent_columns(U, rtol)
+    for k in np.flatnonzero(~kept[:n_env])[:1]:
+        what = names[order[k]]
+        raise InputError(f"the rows do not determine {what} (a plane or pivot without enough rows)")
+    return [names[order[k]] for k in np.flatnonzero(~kept) if k >= n_env]
 
 
 @dataclasses.dataclass(frozen=True)
