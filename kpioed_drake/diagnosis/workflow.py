@@ -27,6 +27,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
+from kpioed_drake import progress
 from kpioed_drake.calibration import calibrate, hold_undetermined
 from kpioed_drake.calibration.inputs import read_inputs
 from kpioed_drake.calibration.options import CalibrationOptions
@@ -211,28 +212,33 @@ def diagnose(
         )
     repeats = ns.repeat_scatter(data.q, data.eta, data.target)
     stated = ns.stated(opts.sigma_mm, repeats, DEFAULT_SIGMA_MM)
-    prob, cands, notes, resized = _prepared(robot, data, opts, cell, stated[0])
-    sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
-    base, base_hold = _baseline(prob, k_folds)
-    prob, cands, more = reduce_absorbed(prob, base, cands, resized)
-    notes += more
-    noise = _noise(prob, base, cands, stated, repeats)
-    if noise.sigma_mm != prob.sigma:  # the tests rest on the residuals' scale
-        prob = dataclasses.replace(prob, sigma=noise.sigma_mm)
+    with progress.stage("diagnosis", total=4, unit="stage"):
+        prob, cands, notes, resized = _prepared(robot, data, opts, cell, stated[0])
+        sides = side_patterns(prob, [e.joint for e in cands if e.family == "backlash"])
         base, base_hold = _baseline(prob, k_folds)
-    test = _gof_test(base, alpha)
-    structure = score_tests(prob, base, cands)
-    sel = select_effects(
-        prob,
-        base,
-        base_hold,
-        cands,
-        sides=sides,
-        alpha=alpha,
-        k_folds=k_folds,
-        max_effects=opts.max_effects,
-    )
-    sel, causes, basis_notes = _named_causes(sel, cands, robot, alpha=alpha, k_folds=k_folds)
+        prob, cands, more = reduce_absorbed(prob, base, cands, resized)
+        notes += more
+        progress.step(done="geometric fit", candidates=len(cands))
+        noise = _noise(prob, base, cands, stated, repeats)
+        if noise.sigma_mm != prob.sigma:  # the tests rest on the residuals' scale
+            prob = dataclasses.replace(prob, sigma=noise.sigma_mm)
+            base, base_hold = _baseline(prob, k_folds)
+        test = _gof_test(base, alpha)
+        structure = score_tests(prob, base, cands)
+        progress.step(done="noise and goodness of fit")
+        sel = select_effects(
+            prob,
+            base,
+            base_hold,
+            cands,
+            sides=sides,
+            alpha=alpha,
+            k_folds=k_folds,
+            max_effects=opts.max_effects,
+        )
+        progress.step(done="stepwise selection", effects=len(sel.fit.effects))
+        sel, causes, basis_notes = _named_causes(sel, cands, robot, alpha=alpha, k_folds=k_folds)
+        progress.step(done="causes and their alternatives")
     final = sel.problem
     baseline = rp.fit_summary(base, base_hold)
     extended = rp.fit_summary(sel.fit, sel.holdout)
