@@ -54,7 +54,7 @@ from kpioed_drake.compensation.workflow import EffectsArgument, compensate_file
 from kpioed_drake.design import DesignOptions, DesignReport, evaluate_file, run_design
 from kpioed_drake.diagnosis import DiagnosisOptions, DiagnosisReport, diagnose_file
 from kpioed_drake.effects.model import Effect
-from kpioed_drake.estimation.identifiability import check_identifiability
+from kpioed_drake.estimation.identifiability import check_identifiability, pose_identifiability
 from kpioed_drake.online import NextOptions, next_file
 from kpioed_drake.options import options_from
 from kpioed_drake.robot.geometry import beam_targets
@@ -94,7 +94,7 @@ def info(robot: str, *, cell_path: MaybePath = None) -> dict:
         ``unidentifiable`` (names, if any), ``car_shift_x_mm``, ``joints`` (name and 1-based
         parent joint, 0 = the base, per joint: a tree robot's branches) and ``targets`` (1-based
         link, i.e. the joint that moves it, and offset [mm] per target). A prismatic joint's values
-        in ``q_work_deg`` and ``joint_limits_deg`` are millimetres.
+        in ``q_work_deg`` and ``joint_limits_deg`` are millimetres. ``pose``: what a 6-DoF probe adds.
     """
     rob = load_robot(robot)
     cell = load_cell(cell_path, robot=rob)
@@ -112,6 +112,7 @@ def info(robot: str, *, cell_path: MaybePath = None) -> dict:
         "identifiable": rep.identifiable,
         "unidentifiable": rep.unidentifiable,
         "car_shift_x_mm": rob.car_shift_x,
+        "pose": pose_identifiability(rob, cell),
         "joints": [
             {"name": n, "parent": int(p) + 1} for n, p in zip(rob.joint_names, _parents(rob), strict=True)
         ],

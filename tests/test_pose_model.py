@@ -332,3 +332,15 @@ def test_rank_test_with_orientations(name, n_points, n_pose):
         assert (points.n_candidates, pose.n_candidates) == (n_points, n_pose)
         every = check_identifiability(robot, cell, measure="pose", all_params=True)
         assert every.n_candidates - every.rank == 6
+
+
+def test_info_says_what_orientations_add():
+    """``kpioed info``: the UR10's on-axis probe leaves theta5 and alpha5 to orientations, with the
+    probe's three rotations; kr16 only the probe's rotations; several targets: no pose line."""
+    from kpioed_drake import api
+
+    ur10, kr16 = api.info("ur10")["pose"], api.info("kr16")["pose"]
+    assert ur10["added"] == ["theta5", "alpha5", "probe_rx", "probe_ry", "probe_rz"]
+    assert ur10["n_params"] == 30 and ur10["identifiable"]
+    assert kr16["added"] == ["probe_rx", "probe_ry", "probe_rz"] and kr16["n_params"] == 30
+    assert api.info("models/robots/humanoid18.urdf")["pose"] is None

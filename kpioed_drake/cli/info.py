@@ -26,6 +26,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"fixed        {', '.join(d['fixed'])} (gauge: trade exactly against tracker pose / reflector)")
     ok = "all identifiable" if d["identifiable"] else f"NOT identifiable: {', '.join(d['unidentifiable'])}"
     print(f"n_params     {d['n_params']} ({ok})")
+    pose = d["pose"]
+    if pose is not None:
+        print(
+            f"6-DoF probe  {pose['n_params']} with orientations (kpioed calibrate of pose data): they add "
+            f"{', '.join(pose['added']) or 'nothing'}"
+        )
     names = [j["name"] for j in d["joints"]]
     branches = [
         f"{j['name']} ({k + 1}) on {names[j['parent'] - 1] if j['parent'] else 'the base'}"

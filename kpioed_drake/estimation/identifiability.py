@@ -27,6 +27,7 @@ import scipy.linalg
 
 from kpioed_drake.robot.chain import ORIENTATION_ROW_MM
 from kpioed_drake.robot.models import Cell, Robot
+from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.kpi import check_measure
 from kpioed_drake.tracker.measurement import measurement_jacobian, nominal_model
 from kpioed_drake.tracker.orientation import angular_jacobian, with_probe
@@ -343,3 +344,16 @@ def trades_against(
     names = [o for o, w in ranked[:k] if top > 0 and w >= 0.1 * top]
     remaining = identifiability(J_kept, J_cand)["remaining"]
     return names, float(1.0 - remaining**2)
+
+
+def pose_identifiability(robot: Robot, cell: Cell) -> dict | None:
+    """What a 6-DoF probe's orientations determine beyond points (``kpioed info``): the rank with
+    orientation rows (``n_params``, ``identifiable``) and the parameters they ``add`` to the points'
+    estimated set (the probe's three rotations, and what an on-axis reflector leaves: a model file's
+    ``extra_gauge``); None for several targets (pose measurements take one probe)."""
+    if robot.n_targets > 1:
+        return None
+    rep = check_identifiability(robot, cell, measure="pose")
+    points = set(parameter_layout(robot).free_names)
+    added = [n for n in with_probe(nominal_model(robot, cell)).layout.free_names if n not in points]
+    return {"n_params": rep.rank, "identifiable": rep.identifiable, "added": added}
