@@ -37,9 +37,10 @@ format: setup
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
-bench: setup   ## benchmark report (ratios within one run) -> bench/results.md; certificate -> bench/bound_results.md
+bench: setup   ## benchmark report (ratios within one run) -> bench/results.md; certificate -> bench/bound_results.md; first runs -> bench/cold_results.md
 	$(PY) bench/run_bench.py
 	$(PY) bench/bound_bench.py
+	$(PY) bench/cold_bench.py
 
 tables: setup   ## full study: paper Tables 6-8, Figures 7-8 -> studies/results
 	$(VENV)/bin/kpioed study --out studies/results
