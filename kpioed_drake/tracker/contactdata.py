@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.contacts import read_distance_file, read_plane_file
 
 ArrayLike = np.ndarray | Sequence[float] | float
 
@@ -261,3 +262,43 @@ class PlaneData:
                 "points not on one line"
             )
         return data
+
+
+def read_planes(path, robot, *, n_planes: int | None = None) -> PlaneData:
+    """A plane-contact file (:func:`kpioed_drake.files.contacts.read_plane_file`) as :class:`PlaneData`:
+    checked as a fit needs its rows (``n_planes`` None), or held-out rows of ``n_planes`` known planes
+    (ids up to them, any count per plane)."""
+    f = read_plane_file(path, robot, n_planes=n_planes)
+    if n_planes is not None:
+        return PlaneData(**f)
+    return PlaneData.from_arrays(
+        f["q"],
+        f["plane"],
+        distance_mm=f["distance"],
+        sigma_mm=f["sigma"],
+        target=f["target"],
+        n_joints=robot.n_joints,
+        source=f["source"],
+        rows=f["rows"],
+    )
+
+
+def read_distances(path, robot, *, n_pivots: int | None = None, n_bars: int | None = None) -> DistanceData:
+    """A distance file (:func:`kpioed_drake.files.contacts.read_distance_file`) as :class:`DistanceData`:
+    checked as a fit needs its rows (counts None), or held-out rows of a model file's pivots and bars."""
+    f = read_distance_file(path, robot, n_pivots=n_pivots, n_bars=n_bars)
+    if n_pivots is not None or n_bars is not None:
+        return DistanceData(**f)
+    pair = f["pivot"] < 0
+    return DistanceData.from_arrays(
+        f["q"],
+        f["length"],
+        q_other=f["q_other"] if pair.any() else None,
+        pivot=f["pivot"],
+        bar=f["bar"],
+        sigma_mm=f["sigma"],
+        target=f["target"],
+        n_joints=robot.n_joints,
+        source=f["source"],
+        rows=f["rows"],
+    )
