@@ -22,6 +22,7 @@ every plane has 3 rows at least (the rows a fit estimates the planes from).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -141,6 +142,9 @@ def read_distance_file(
         )
     extra = ("length_mm",)
     optional = ("bar", "sigma_mm")
+    q_other: np.ndarray | None = None
+    pivot: np.ndarray | None = None
+    target: np.ndarray | None = None
     if has_pair:
         table = read_joint_table(
             path, None, joints="none", required=(*pair, *extra), optional=(*optional, TARGET_COLUMN)
@@ -152,8 +156,7 @@ def read_distance_file(
             )
             for p in PAIR_PREFIXES
         ]
-        q, q_other, pivot = q2[0], q2[1], None
-        target = None
+        q, q_other = q2
         if TARGET_COLUMN in table.header:
             numbers = _numbers(path, table.header, table.data, TARGET_COLUMN)
             target = parse_targets(
@@ -161,7 +164,7 @@ def read_distance_file(
             )
     else:
         table = read_joint_table(path, robot, required=("pivot", *extra), optional=(*optional, TARGET_COLUMN))
-        rows, q, q_other, target = table.rows, table.q, None, table.target
+        rows, q, target = table.rows, cast(np.ndarray, table.q), table.target
         pivot = _ids(path, table.values["pivot"], rows, "pivot", n_pivots, zero_ok=False)
     bar = None
     if "bar" in table.values:
