@@ -7,6 +7,7 @@ its residuals; hostile files refused with messages naming the file, row and colu
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pandas as pd
@@ -14,6 +15,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from kpioed_drake import api
+from kpioed_drake.cli import main
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.jointmap import q_columns, q_to_file
 from kpioed_drake.robot.models import load_cell, load_robot
@@ -230,3 +232,41 @@ def dataclasses_replace_length(data, row: int, value: float):
     length = data.length.copy()
     length[row] = value
     return dataclasses.replace(data, length=length)
+
+
+def test_pivot_rows_and_the_command_line(tmp_path, capsys):
+    """Pivot rows (a ballbar's centre cup) through a file with the planes, by the command line: its
+    JSON is the API's; held-out pivot lengths with the model file's pivot."""
+    robot, data, truth, files = _scenario(tmp_path, "kr16", 1)
+    rng = np.random.default_rng(7)
+    q = _inside(robot, rng, 40)
+    centre = reflector_world(truth["model"], q).mean(axis=0)
+    dist, _ = simulate_distances(
+        robot, q, pivot=np.zeros(40, int), pivots=centre[None], sigma_mm=0.01, seed=8, truth=truth["model"]
+    )
+    frame = pd.DataFrame(q_to_file(robot, dist.q), columns=q_columns(robot))
+    frame["pivot"], frame["length_mm"] = 1, dist.length
+    held = np.arange(dist.n) % 4 == 0
+    frame[~held].to_csv(tmp_path / "pivot.csv", index=False)
+    frame[held].to_csv(tmp_path / "pivot_held.csv", index=False)
+    out = tmp_path / "cal.yaml"
+    argv = [
+        "calibrate",
+        "--robot",
+        "kr16",
+        "--planes",
+        str(files["fit"]),
+        "--distances",
+        str(tmp_path / "pivot.csv"),
+    ]
+    assert main([*argv, "--out", str(out), "--json", "-"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    direct = api.calibrate("kr16", planes=files["fit"], distances=tmp_path / "pivot.csv")
+    assert printed == json.loads(json.dumps(direct.to_dict()))
+    assert_allclose(printed["pivots_mm"][0], centre, rtol=0, atol=0.5)  # the pivot, in the fit's gauge
+    assert main(["validate", "--robot", str(out), "--distances", str(tmp_path / "pivot_held.csv")]) == 0
+    text = capsys.readouterr().out
+    assert "length errors [held-out] (10 rows)" in text and "nothing fitted" in text
+    val = api.validate(str(out), distances=tmp_path / "pivot_held.csv")
+    nom = api.validate("kr16", distances=tmp_path / "pivot_held.csv")
+    assert val.figures()["distances"]["rms_mm"] <= 0.5 * nom.figures()["distances"]["rms_mm"]
