@@ -270,3 +270,17 @@ def test_pivot_rows_and_the_command_line(tmp_path, capsys):
     val = api.validate(str(out), distances=tmp_path / "pivot_held.csv")
     nom = api.validate("kr16", distances=tmp_path / "pivot_held.csv")
     assert val.figures()["distances"]["rms_mm"] <= 0.5 * nom.figures()["distances"]["rms_mm"]
+
+
+def test_nominal_validation_of_some_planes_only(tmp_path):
+    """Held-out rows of planes 2 and 3 only: the nominal model's planes fitted to them (ids kept
+    apart, no gap refused); a plane with 2 held-out rows cannot be fitted: refused, named."""
+    robot, data, truth, files = _scenario(tmp_path, "kr16", 1)
+    frame = pd.read_csv(files["held"])
+    some = frame[frame.plane > 1]
+    some.to_csv(tmp_path / "some.csv", index=False)
+    nom = api.validate("kr16", planes=tmp_path / "some.csv")
+    assert nom.fitted and nom.figures()["planes"]["n"] == len(some) > 0
+    pd.concat([some, frame[frame.plane == 1].iloc[:2]]).to_csv(tmp_path / "two.csv", index=False)
+    with pytest.raises(InputError, match=r"two.csv: column 'plane': plane 1 has 2 rows"):
+        api.validate("kr16", planes=tmp_path / "two.csv")

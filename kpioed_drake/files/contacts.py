@@ -38,9 +38,16 @@ PAIR_PREFIXES = ("a_", "b_")
 
 
 def _ids(
-    path, values: np.ndarray, rows: np.ndarray, column: str, count: int | None, zero_ok: bool
+    path,
+    values: np.ndarray,
+    rows: np.ndarray,
+    column: str,
+    count: int | None,
+    zero_ok: bool,
+    gaps: bool = False,
 ) -> np.ndarray:
-    """(n,) 0-based ids of a 1-based id column (``zero_ok``: 0 or empty means none, -1 inside)."""
+    """(n,) 0-based ids of a 1-based id column (``zero_ok``: 0 means none, -1 inside); without a
+    ``count`` numbered without gaps unless ``gaps``."""
     v = np.where(np.isnan(values), 0.0, values) if zero_ok else values
     low = 0 if zero_ok else 1
     bad = ~np.isfinite(v) | (v != np.round(v)) | (v < low) | ((v > count) if count is not None else False)
@@ -52,7 +59,7 @@ def _ids(
             + (" or 0 (none)" if zero_ok else "")
         )
     ids = v.astype(int) - 1
-    if count is None:
+    if count is None and not gaps:
         used = set(ids[ids >= 0].tolist())
         for k in sorted(set(range(max(used, default=-1) + 1)) - used)[:1]:
             raise InputError(
@@ -75,7 +82,9 @@ def _sigma(path, table) -> np.ndarray:
     return sigma
 
 
-def read_plane_file(path: str | Path, robot: Robot, *, n_planes: int | None = None) -> dict:
+def read_plane_file(
+    path: str | Path, robot: Robot, *, n_planes: int | None = None, gaps: bool = False
+) -> dict:
     """A plane-contact file (module docstring): the fields of ``PlaneData`` (``q`` (n, n_joints)
     [rad; mm], 0-based ``plane`` (n,), ``distance`` and ``sigma`` (n,) [mm], ``target`` or None,
     ``source`` the file, ``rows`` its row numbers).
@@ -83,6 +92,7 @@ def read_plane_file(path: str | Path, robot: Robot, *, n_planes: int | None = No
     Args:
         path: the CSV file; robot: the model (its joint columns and targets).
         n_planes: the planes of a model file (ids checked against them, held-out rows), or None.
+        gaps: without ``n_planes``, ids may leave gaps (rows of some planes only, to fit them).
 
     Raises:
         InputError: naming the file, row and column: a missing column, text or NaN in a number,
@@ -97,11 +107,11 @@ def read_plane_file(path: str | Path, robot: Robot, *, n_planes: int | None = No
         suggest=("distance_mm", "sigma_mm"),
     )
     rows = table.rows
-    plane = _ids(path, table.values["plane"], rows, "plane", n_planes, zero_ok=False)
+    plane = _ids(path, table.values["plane"], rows, "plane", n_planes, zero_ok=False, gaps=gaps)
     sigma = _sigma(path, table)
     if n_planes is None:
         counts = np.bincount(plane)
-        for k in np.flatnonzero(counts < 3)[:1]:
+        for k in np.flatnonzero((counts > 0) & (counts < 3))[:1]:
             raise InputError(
                 f"{path}: column 'plane': plane {k + 1} has {counts[k]} rows; a fitted plane needs 3 "
                 "(contact points not on one line)"
@@ -118,7 +128,12 @@ def read_plane_file(path: str | Path, robot: Robot, *, n_planes: int | None = No
 
 
 def read_distance_file(
-    path: str | Path, robot: Robot, *, n_pivots: int | None = None, n_bars: int | None = None
+    path: str | Path,
+    robot: Robot,
+    *,
+    n_pivots: int | None = None,
+    n_bars: int | None = None,
+    gaps: bool = False,
 ) -> dict:
     """A distance file (module docstring, pair or pivot layout): the fields of ``DistanceData``
     (pair rows: ``pivot`` -1; pivot rows: ``q_other`` NaN; ``bar`` -1: a known length).
@@ -126,6 +141,7 @@ def read_distance_file(
     Args:
         path: the CSV file; robot: the model.
         n_pivots, n_bars: a model file's pivots and bars (ids checked against them), or None.
+        gaps: without them, ids may leave gaps.
 
     Raises:
         InputError: naming the file, row and column (as :func:`read_plane_file`; a length <= 0; a
@@ -165,10 +181,10 @@ def read_distance_file(
     else:
         table = read_joint_table(path, robot, required=("pivot", *extra), optional=(*optional, TARGET_COLUMN))
         rows, q, target = table.rows, cast(np.ndarray, table.q), table.target
-        pivot = _ids(path, table.values["pivot"], rows, "pivot", n_pivots, zero_ok=False)
+        pivot = _ids(path, table.values["pivot"], rows, "pivot", n_pivots, zero_ok=False, gaps=gaps)
     bar = None
     if "bar" in table.values:
-        bar = _ids(path, table.values["bar"], rows, "bar", n_bars, zero_ok=True)
+        bar = _ids(path, table.values["bar"], rows, "bar", n_bars, zero_ok=True, gaps=gaps)
     length = table.values["length_mm"]
     for k in np.flatnonzero(~(length > 0))[:1]:
         raise InputError(

@@ -123,11 +123,14 @@ def validate_contacts_file(
         if env is None
         else {"planes": len(env.planes), "pivots": len(env.pivots_mm), "bars": len(env.bars_dL_mm)}
     )
-    p_rows = None if planes is None else read_planes(planes, rob, n_planes=counts.get("planes"))
+    fit = env is None  # a nominal model: the planes, pivots, bars the rows use are fitted to them
+    p_rows = None if planes is None else read_planes(planes, rob, n_planes=counts.get("planes"), renumber=fit)
     d_rows = (
         None
         if distances is None
-        else read_distances(distances, rob, n_pivots=counts.get("pivots"), n_bars=counts.get("bars"))
+        else read_distances(
+            distances, rob, n_pivots=counts.get("pivots"), n_bars=counts.get("bars"), renumber=fit
+        )
     )
     model = fit_environment(base, d_rows, p_rows) if env is None else spec_model(base, env)
     d_res, p_res = ContactRows(d_rows, p_rows).residuals(model)
