@@ -284,3 +284,29 @@ def test_nominal_validation_of_some_planes_only(tmp_path):
     pd.concat([some, frame[frame.plane == 1].iloc[:2]]).to_csv(tmp_path / "two.csv", index=False)
     with pytest.raises(InputError, match=r"two.csv: column 'plane': plane 1 has 2 rows"):
         api.validate("kr16", planes=tmp_path / "two.csv")
+
+
+def test_a_bar_of_unknown_length(tmp_path):
+    """Pair rows sharing bar 1 (its length correction estimated, the bar's nominal length the
+    scale): the correction written to the model file and used on held-out rows."""
+    robot, data, truth, files = _scenario(tmp_path, "kr16", 1)
+    rng = np.random.default_rng(9)
+    q_a, q_b = _inside(robot, rng, 60), _inside(robot, rng, 60)
+    dist, dtruth = simulate_distances(
+        robot, q_a, q_other=q_b, bar=np.zeros(60, int), sigma_mm=0.01, seed=10, truth=truth["model"]
+    )
+    held = np.arange(dist.n) % 4 == 0
+    _write_pairs(tmp_path / "bar.csv", robot, dist, ~held, bar=True)
+    _write_pairs(tmp_path / "bar_held.csv", robot, dist, held, bar=True)
+    out = tmp_path / "cal.yaml"
+    rep = api.calibrate("kr16", planes=files["fit"], distances=tmp_path / "bar.csv", out=out)
+    assert (
+        "bar1_dL: no row measures a known length" in rep.summary()
+        and "bar 1: length correction" in rep.summary()
+    )
+    assert rep.to_dict()["bars_dL_mm"] == [0.0]  # held as the scale: its nominal length
+    val = api.validate(str(out), distances=tmp_path / "bar_held.csv")
+    own = api.validate(str(out), distances=tmp_path / "bar.csv")
+    assert_allclose(own.distance_residuals, rep.result.contacts.distance_residuals, rtol=0, atol=1e-9)
+    nom = api.validate("kr16", distances=tmp_path / "bar_held.csv")  # its correction fitted
+    assert nom.fitted and val.figures()["distances"]["rms_mm"] <= 0.5 * nom.figures()["distances"]["rms_mm"]
