@@ -46,7 +46,7 @@ from typing import Any, cast
 import numpy as np
 import pandas as pd
 
-from kpioed_drake.calibration import CalibrationReport, calibrate_file
+from kpioed_drake.calibration import CalibrationReport, calibrate_file, contacts
 from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.validate import ValidationReport, validate_file
 from kpioed_drake.compensation.report import CompensationReport
@@ -159,18 +159,9 @@ def design(
     Returns:
         :class:`~kpioed_drake.design.DesignReport`.
     """
-    return run_design(
-        robot,
-        options_from(DesignOptions, options, **settings),
-        q_work_deg=q_work_deg,
-        q_work_file=q_work_file,
-        kpi_weights=kpi_weights,
-        given=given,
-        out=out,
-        json_path=json_path,
-        plot=plot,
-        html=html,
-    )
+    poses = dict(q_work_deg=q_work_deg, q_work_file=q_work_file, kpi_weights=kpi_weights, given=given)
+    files = dict(out=out, json_path=json_path, plot=plot, html=html)
+    return run_design(robot, options_from(DesignOptions, options, **settings), **poses, **files)  # type: ignore[arg-type]
 
 
 def next(  # noqa: A001 (the command's name)
@@ -215,8 +206,7 @@ def next(  # noqa: A001 (the command's name)
     Returns:
         The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
         ``predicted_kpi_avg_var_mm2``, ``n_planned``, ``min_more_poses``, ``bound_mm2``, ``efficiency``,
-        ``next_q_deg``, ...) and
-        ``summary``.
+        ``next_q_deg``, ...) and ``summary``.
     """
     options = NextOptions(
         target_var_mm2=target_var_mm2,
@@ -235,7 +225,7 @@ def next(  # noqa: A001 (the command's name)
 
 def calibrate(
     robot: str,
-    data_path: str | Path,
+    data_path: str | Path | None = None,
     *,
     sigma_mm: float = 0.02,
     q_work_deg: str | None = None,
@@ -250,7 +240,9 @@ def calibrate(
     data_format: MaybePath = None,
     strict: bool = False,
     sigma_deg: float = 0.01,
-) -> CalibrationReport:
+    planes: MaybePath = None,
+    distances: MaybePath = None,
+) -> CalibrationReport | contacts.ContactCalibrationReport:
     """Calibrate from a measurement file (``kpioed calibrate``):
     :func:`kpioed_drake.calibration.calibrate_file` with ``sigma_mm``, ``extend`` (as ``effects``),
     ``outlier_alpha``, ``force`` and ``strict`` as its
@@ -272,7 +264,11 @@ def calibrate(
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter instead of holding the
             undetermined ones at nominal with a warning.
+        planes, distances: plane-contact and distance files (docs/contacts.md), fitted with the points
+            (``data_path`` optional): :func:`kpioed_drake.calibration.contacts.calibrate_contacts_file`.
     """
+    if planes is not None or distances is not None or data_path is None:
+        return contacts.contact_calibration(robot, data_path, planes, distances, locals())
     effects = tuple(extend or ())
     same = dict(
         sigma_mm=sigma_mm, sigma_deg=sigma_deg, outlier_alpha=outlier_alpha, force=force, strict=strict
@@ -407,7 +403,7 @@ def evaluate(
 
 def validate(
     robot: str,
-    data_path: str | Path,
+    data_path: str | Path | None = None,
     *,
     data_format: MaybePath = None,
     tracker_frame: str | None = None,
@@ -416,22 +412,20 @@ def validate(
     plots_dir: str | Path | None = None,
     cell_path: MaybePath = None,
     force: bool = False,
-) -> ValidationReport:
+    planes: MaybePath = None,
+    distances: MaybePath = None,
+) -> ValidationReport | contacts.ContactValidationReport:
     """A model's prediction errors on measurements (``kpioed validate``), nothing fitted to the poses
     scored unless ``tracker_frame="in-sample"`` says so (``kept``: the model's tracker frame;
     ``cross``: registered on one half of the poses, scored on the other):
-    :func:`kpioed_drake.calibration.validate.validate_file`, whose docstring details the arguments."""
-    return validate_file(
-        robot,
-        data_path,
-        data_format=data_format,
-        tracker_frame=tracker_frame,
-        keep_tracker=keep_tracker,
-        json_path=json_path,
-        plots_dir=plots_dir,
-        cell_path=cell_path,
-        force=force,
-    )
+    :func:`kpioed_drake.calibration.validate.validate_file`, whose docstring details the arguments;
+    with ``planes`` or ``distances`` (held-out contacts, docs/contacts.md) and ``data_path`` optional:
+    :func:`kpioed_drake.calibration.contacts.validate_contacts_file`."""
+    if planes is not None or distances is not None or data_path is None:
+        return contacts.contact_validation(robot, data_path, planes, distances, locals())
+    kw = dict(data_format=data_format, tracker_frame=tracker_frame, keep_tracker=keep_tracker, force=force)
+    files = dict(json_path=json_path, plots_dir=plots_dir, cell_path=cell_path)
+    return validate_file(robot, data_path, **kw, **files)  # type: ignore[arg-type]
 
 
 def study(

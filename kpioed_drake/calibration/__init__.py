@@ -18,7 +18,10 @@ One module per concern:
 - :mod:`.plots`: residual plots;
 - :mod:`.workflow`: :func:`calibrate_file`, the whole ``kpioed calibrate`` run;
 - :mod:`.validate`: ``kpioed validate``, a model's predictions of fresh measurements (nothing
-  fitted; :func:`~kpioed_drake.calibration.validate.validate_file`).
+  fitted; :func:`~kpioed_drake.calibration.validate.validate_file`);
+- :mod:`.contacts`: the same two commands on plane-contact and distance files (docs/contacts.md):
+  the fit with the planes, pivots and bars written into the model file, held-out contacts scored
+  with them.
 
 Reading and validating the data: :mod:`kpioed_drake.tracker.data`.
 """

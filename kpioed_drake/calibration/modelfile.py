@@ -23,8 +23,10 @@ from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import effect_specs
 from kpioed_drake.robot.jointmap import joint_map_spec
 from kpioed_drake.robot.models import N_JOINTS, CapsuleSpec, JointSpec, LinkSpec, Robot, RobotSpec
+from kpioed_drake.robot.modelspec import ContactEnvironmentSpec
 from kpioed_drake.robot.reference import file_rows
 from kpioed_drake.robot.urdf.write import calibrated_sidecar, calibrated_urdf
+from kpioed_drake.tracker.measurement import TrackerModel
 
 
 def _spec_from_robot(robot: Robot) -> RobotSpec:
@@ -86,9 +88,30 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
     extended model; none for a geometric calibration). Capsules, masses, limits, q_work and the
     joint map are the nominal model's.
     """
-    rob = report.robot
+    return robot_yaml(
+        report.robot,
+        report.model,
+        note=_note(report),
+        effects=_effects(report),
+        estimated_errors=_estimated_errors(report),
+        payload_point=_payload_point(report),
+    )
+
+
+def robot_yaml(
+    rob: Robot,
+    model: TrackerModel,
+    *,
+    note: str,
+    effects: list | None = None,
+    estimated_errors: list | None = None,
+    payload_point: list | None = None,
+    environment: ContactEnvironmentSpec | None = None,
+) -> str:
+    """The model-file text of ``model`` (a fit of ``rob``): :func:`calibrated_robot_yaml`'s fields,
+    ``note`` (the calibration's line), and a contact calibration's ``environment``."""
     spec = _robot_spec(rob)
-    g = report.model.geometry
+    g = model.geometry
     for i, j in enumerate(spec.joints):
         conv = rob.conventions[i]
         j.convention = conv
@@ -106,19 +129,22 @@ def calibrated_robot_yaml(report: CalibrationReport) -> str:
             j.theta_deg, j.a_mm, j.alpha_deg = float(np.rad2deg(th)), float(a), float(np.rad2deg(al))
             j.beta_deg, j.d_mm = float(np.rad2deg(be)), 0.0
     spec.name = f"{rob.name}-calibrated"
-    spec.reflector_position_mm = report.model.p_FQ.tolist()
-    if spec.targets_mm or report.model.layout.n_targets > 1:
-        spec.targets_mm = report.model.target_offsets.tolist()
-    spec.tracker_position_mm = report.model.p_WT.tolist()
-    spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(report.model.R_WT)).vector()).tolist()
-    spec.effects = _effects(report)
-    spec.estimated_errors = _estimated_errors(report)
-    spec.payload_point_mm = _payload_point(report)
-    R_FP = report.model.R_FP
+    spec.reflector_position_mm = model.p_FQ.tolist()
+    if spec.targets_mm or model.layout.n_targets > 1:
+        spec.targets_mm = model.target_offsets.tolist()
+    spec.tracker_position_mm = model.p_WT.tolist()
+    spec.tracker_rpy_deg = np.rad2deg(RollPitchYaw(RotationMatrix(model.R_WT)).vector()).tolist()
+    spec.effects = effects or []
+    spec.estimated_errors = (
+        file_rows(rob, model.geometry - rob.geometry) if estimated_errors is None else estimated_errors
+    )
+    spec.payload_point_mm = payload_point or []
+    spec.contact_environment = environment
+    R_FP = model.R_FP
     spec.probe_rpy_deg = (
         [] if R_FP is None else np.rad2deg(RollPitchYaw(RotationMatrix(R_FP)).vector()).tolist()
     )
-    cal_note = _note(report) + (
+    cal_note = note + (
         " Joint rows hold the estimates (the gauge parameters nominal); reflector_position_mm "
         "(targets_mm: every target) and "
         "tracker_position_mm/tracker_rpy_deg hold the estimated reflector offset and tracker pose "

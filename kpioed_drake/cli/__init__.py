@@ -105,9 +105,31 @@ DATA_HELP = (
 """The help of a command's measurement file argument."""
 
 
-def add_data(p: argparse.ArgumentParser, *, help: str = DATA_HELP) -> None:
-    """The positional measurement file ``DATA.csv``."""
-    p.add_argument("data", metavar="DATA.csv", help=help)
+def add_data(p: argparse.ArgumentParser, *, help: str = DATA_HELP, optional: bool = False) -> None:
+    """The positional measurement file ``DATA.csv`` (``optional``: may be left out)."""
+    if optional:
+        p.add_argument(
+            "data", metavar="DATA.csv", nargs="?", default=None, help=help + " (optional with contacts)"
+        )
+    else:
+        p.add_argument("data", metavar="DATA.csv", help=help)
+
+
+def add_contacts(p: argparse.ArgumentParser) -> None:
+    """``--planes`` and ``--distances``: contact files (docs/contacts.md)."""
+    p.add_argument(
+        "--planes",
+        default=None,
+        metavar="PLANES.csv",
+        help="plane-contact CSV (joint columns, plane 1..P, optional target, distance_mm, sigma_mm)",
+    )
+    p.add_argument(
+        "--distances",
+        default=None,
+        metavar="DIST.csv",
+        help="distance CSV (a_q1_deg.. and b_q1_deg.., or q1_deg.. and pivot; length_mm, optional bar, "
+        "target, sigma_mm)",
+    )
 
 
 DESIGN_HELP = f"design CSV: {JOINT_COLUMNS}"

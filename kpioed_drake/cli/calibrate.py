@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
     )
     cli.add_robot(p)
-    cli.add_data(p)
+    cli.add_data(p, optional=True)
+    cli.add_contacts(p)
     cli.add_sigma(p, default=0.02)
     p.add_argument(
         "--sigma-deg",
@@ -51,7 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    same = cli.passed(args, "sigma_mm", "sigma_deg", "extend", "outlier_alpha", "out", "strict")
+    same = cli.passed(
+        args, "sigma_mm", "sigma_deg", "extend", "outlier_alpha", "out", "strict", "planes", "distances"
+    )
     report = api.calibrate(args.robot, args.data, q_work_deg=args.q_work, **same, **cli.data_outputs(args))
     written = ((args.out, "calibrated model (use it as --robot FILE)"), (args.html, "3-D page"))
     return cli.print_result(args, report.to_dict, report.summary, written)

@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
     )
     cli.add_robot(p)
-    cli.add_data(p)
+    cli.add_data(p, optional=True)
+    cli.add_contacts(p)
     cli.add_format(p)
     p.add_argument(
         "--tracker-frame",
@@ -40,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
     outputs = {"json_path": cli.json_file(args.json), "plots_dir": args.plots, "data_format": args.format}
     keep = args.keep_tracker or None
     result = api.validate(
-        args.robot, args.data, keep_tracker=keep, **cli.passed(args, "tracker_frame", "force"), **outputs
+        args.robot,
+        args.data,
+        keep_tracker=keep,
+        **cli.passed(args, "tracker_frame", "force", "planes", "distances"),
+        **outputs,
     )
     return cli.print_result(args, result.to_dict, result.summary)

@@ -9,6 +9,9 @@
   sigmas -> sigmas about the tracker axes (pure numpy);
 - :mod:`.orientation_columns`: a 6-DoF probe's orientation columns of a measurement file (the
   native ``qw, qx, qy, qz``, a format file's ``orientation`` block) -> ``R_TP``, ``sigma_rot_rad``;
+- :mod:`.contacts`: plane-contact and distance files (joint columns, plane / pivot / bar ids
+  1-based, lengths) -> checked arrays of :class:`~kpioed_drake.tracker.contactdata.PlaneData` and
+  ``DistanceData``, messages naming the file, row and column;
 - :mod:`.designs`: design files (read through :mod:`.tables`, written atomically), a measurement
   plan's condition offsets, working poses given as text.
 

@@ -145,6 +145,26 @@ def checked_effects(specs: Iterable[EffectSpec], where: str) -> tuple[EffectSpec
 
 
 @dataclasses.dataclass
+class PlaneSpec:
+    """A plane of a contact calibration in W: ``normal . x = offset_mm`` (unit normal)."""
+
+    normal: list[float] = dataclasses.field(default_factory=list)
+    offset_mm: float = 0.0
+
+
+@dataclasses.dataclass
+class ContactEnvironmentSpec:
+    """What a calibration with plane contacts or distances estimated besides the robot
+    (docs/contacts.md): the planes (id k = entry k), pivots (position in W [mm]) and bars' length
+    corrections [mm], in the order of the files' ids 1, 2, ...; ``kpioed validate`` scores held-out
+    contacts with them."""
+
+    planes: list[PlaneSpec] = dataclasses.field(default_factory=list)
+    pivots_mm: list[list[float]] = dataclasses.field(default_factory=list)
+    bars_dL_mm: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
 class RobotSpec:
     """A robot model file."""
 
@@ -197,6 +217,9 @@ class RobotSpec:
     URDF joint's seven: offset [deg; prismatic mm], x, y, z [mm], rx, ry, rz [deg]). An extended
     model's effects (gravity torques, mass-free bases, pivots) are evaluated on that model's geometry,
     this file's minus these errors, as the fit evaluated them: the file predicts what the fit did."""
+    contact_environment: ContactEnvironmentSpec | None = None
+    """Written by a calibration with plane contacts or distances: its estimated planes, pivots and
+    bars (:class:`ContactEnvironmentSpec`)."""
 
 
 @dataclasses.dataclass
@@ -317,6 +340,8 @@ class SidecarSpec:
     """As in the YAML files: a 6-DoF probe's orientation on the flange (roll, pitch, yaw) [deg]."""
     estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
     """As in the YAML files (:class:`RobotSpec`): a calibration's errors of the URDF's joints."""
+    contact_environment: ContactEnvironmentSpec | None = None
+    """As in the YAML files: a contact calibration's planes, pivots and bars."""
     notes: str = ""
 
 

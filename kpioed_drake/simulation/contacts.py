@@ -124,6 +124,7 @@ def simulate_planes(
     cell: Cell | None = None,
     truth: TrackerModel | None = None,
     hold: Sequence[str] = (),
+    target: Sequence[int] | np.ndarray | None = None,
 ) -> tuple[PlaneData, dict]:
     """Simulated plane contacts (:class:`~kpioed_drake.tracker.contactdata.PlaneData`).
 
@@ -134,6 +135,8 @@ def simulate_planes(
         normals: (K, 3) the planes' true normals in W (normalised here); offsets: (K,) [mm].
         sigma_mm: the contacts' noise along the normal [mm].
         seed, cell, truth, hold: as :func:`simulate_distances` (draws: the truth, then the noise).
+        target: (n,) 0-based tool target touching in each row (None: target 0), e.g. the two arms'
+            of a two-arm robot.
 
     Returns:
         (data, truth): the touched poses; ``truth`` holds ``model``, ``normals`` (K, 3),
@@ -145,7 +148,7 @@ def simulate_planes(
     """
     rng = np.random.default_rng(seed)
     model = _truth(robot, rng, cell, truth, hold)
-    data = PlaneData.from_arrays(q, plane, sigma_mm=sigma_mm, n_joints=robot.n_joints)
+    data = PlaneData.from_arrays(q, plane, sigma_mm=sigma_mm, n_joints=robot.n_joints, target=target)
     n = np.atleast_2d(np.asarray(normals, dtype=float))
     d = np.asarray(offsets, dtype=float)
     if n.shape != (data.n_planes, 3) or d.shape != (data.n_planes,):
@@ -154,22 +157,25 @@ def simulate_planes(
         )
     n = n / np.linalg.norm(n, axis=1, keepdims=True)
     eps = rng.normal(0.0, sigma_mm, data.n) if sigma_mm > 0 else np.zeros(data.n)
-    q_touch = _touch(model, data.q, n[data.plane], d[data.plane] + eps)
+    q_touch = _touch(model, data.q, n[data.plane], d[data.plane] + eps, data.target)
     touched = dataclasses.replace(data, q=q_touch)
     return touched, {"model": model, "normals": n, "offsets": d, "sigma_mm": float(sigma_mm), "seed": seed}
 
 
-def _touch(model: TrackerModel, q: np.ndarray, n: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(n, n_joints) joint values near ``q`` at which the tool point satisfies ``n . p = d`` (rows)."""
+def _touch(
+    model: TrackerModel, q: np.ndarray, n: np.ndarray, d: np.ndarray, target: np.ndarray | None = None
+) -> np.ndarray:
+    """(n, n_joints) joint values near ``q`` at which the rows' tool points (``target``, None:
+    target 0) satisfy ``n . p = d``; only the joints that move a row's point move."""
     q = q.copy()
     for _ in range(TOUCH_ITERATIONS):
         frames = model.frames(q)
-        p = reflector_world(model, q)
+        p = reflector_world(model, q, target)
         f = np.sum(n * p, axis=1) - d
         if np.all(np.abs(f) < TOUCH_TOL_MM):
             return q
         dp_dq = frames.joint_motion(p)  # (n, nj, 3)
-        on = frames.point_path(None)
+        on = frames.point_path(model.target_links(target))
         if on is not None:
             dp_dq = dp_dq * on[:, :, None]
         g = np.einsum("nji,ni->nj", dp_dq, n)

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from kpioed_drake.errors import InputError
+from kpioed_drake.files.contacts import read_distance_file, read_plane_file
 
 ArrayLike = np.ndarray | Sequence[float] | float
 
@@ -261,3 +262,59 @@ class PlaneData:
                 "points not on one line"
             )
         return data
+
+
+def _renumbered(ids: np.ndarray) -> np.ndarray:
+    """Ids >= 0 numbered 0, 1, ... in their order (-1 stays -1)."""
+    out = ids.copy()
+    used = ids >= 0
+    out[used] = np.unique(ids[used], return_inverse=True)[1]
+    return out
+
+
+def read_planes(path, robot, *, n_planes: int | None = None, renumber: bool = False) -> PlaneData:
+    """A plane-contact file (:func:`kpioed_drake.files.contacts.read_plane_file`) as :class:`PlaneData`:
+    checked as a fit needs its rows (``n_planes`` None), or held-out rows of ``n_planes`` known planes
+    (ids up to them, any count per plane); ``renumber``: the planes the rows touch numbered 0, 1, ...
+    (rows of some planes only, whose planes are fitted to them; 3 rows a plane at least)."""
+    f = read_plane_file(path, robot, n_planes=n_planes, gaps=renumber)
+    if n_planes is not None:
+        return PlaneData(**f)
+    if renumber:
+        f["plane"] = _renumbered(f["plane"])
+    return PlaneData.from_arrays(
+        f["q"],
+        f["plane"],
+        distance_mm=f["distance"],
+        sigma_mm=f["sigma"],
+        target=f["target"],
+        n_joints=robot.n_joints,
+        source=f["source"],
+        rows=f["rows"],
+    )
+
+
+def read_distances(
+    path, robot, *, n_pivots: int | None = None, n_bars: int | None = None, renumber: bool = False
+) -> DistanceData:
+    """A distance file (:func:`kpioed_drake.files.contacts.read_distance_file`) as :class:`DistanceData`:
+    checked as a fit needs its rows (counts None), or held-out rows of a model file's pivots and bars;
+    ``renumber``: the pivots and bars the rows use numbered 0, 1, ... (fitted to them)."""
+    f = read_distance_file(path, robot, n_pivots=n_pivots, n_bars=n_bars, gaps=renumber)
+    if n_pivots is not None or n_bars is not None:
+        return DistanceData(**f)
+    if renumber:
+        f["pivot"], f["bar"] = _renumbered(f["pivot"]), _renumbered(f["bar"])
+    pair = f["pivot"] < 0
+    return DistanceData.from_arrays(
+        f["q"],
+        f["length"],
+        q_other=f["q_other"] if pair.any() else None,
+        pivot=f["pivot"],
+        bar=f["bar"],
+        sigma_mm=f["sigma"],
+        target=f["target"],
+        n_joints=robot.n_joints,
+        source=f["source"],
+        rows=f["rows"],
+    )

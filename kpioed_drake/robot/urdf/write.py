@@ -21,7 +21,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.models import Robot, load_yaml_typed
-from kpioed_drake.robot.modelspec import EffectSpec
+from kpioed_drake.robot.modelspec import ContactEnvironmentSpec, EffectSpec
 from kpioed_drake.robot.urdf.origins import moved_origins
 from kpioed_drake.robot.urdf.read import SidecarSpec, sidecar_path
 
@@ -78,11 +78,13 @@ def calibrated_sidecar(
     estimated_errors: Sequence[Sequence[float]] = (),
     payload_point: Sequence[float] = (),
     R_FP: np.ndarray | None = None,
+    environment: ContactEnvironmentSpec | None = None,
 ) -> str:
     """Sidecar text: the original's fields, the estimated reflector offset, tracker pose and (with
     ``R_FP``) a 6-DoF probe's orientation on the flange, the
     estimated effects (``effects``: :class:`~kpioed_drake.robot.modelspec.EffectSpec` entries) and
-    the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact)."""
+    the nominal robot's gauge (the calibrated errors make its exact dependencies only nearly exact);
+    a contact calibration's planes, pivots and bars (``environment``)."""
     src = sidecar_path(Path(robot.urdf.path))
     side = load_yaml_typed(src, SidecarSpec) if src.is_file() else SidecarSpec()
     if side.targets:  # targets on links: each back in its named link's frame
@@ -108,6 +110,7 @@ def calibrated_sidecar(
         probe_rpy_deg=[]
         if R_FP is None
         else np.rad2deg(RollPitchYaw(RotationMatrix(R_FP)).vector()).tolist(),
+        contact_environment=environment,
     )
     header = "# Sidecar of a calibrated URDF robot (kpioed-drake). Units: mm, deg. Format: models/README.md\n"
     return header + yaml_dump_typed(side)
