@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
@@ -189,13 +190,9 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
     rob, model = report.robot, report.model
     note = _note(report)
     urdf = calibrated_urdf(rob, model.geometry, note.replace("--", "-"))
-    targets = model.target_offsets if model.layout.n_targets > 1 else None
-    side = calibrated_sidecar(
+    side = model_sidecar(
         rob,
-        p_FQ=model.p_FQ,
-        p_WT=model.p_WT,
-        R_WT=model.R_WT,
-        targets=targets,
+        model,
         note=note,
         effects=_effects(report),
         estimated_errors=_estimated_errors(report),
@@ -203,3 +200,13 @@ def calibrated_urdf_files(report: CalibrationReport) -> tuple[str, str]:
         R_FP=model.R_FP,
     )
     return urdf, side
+
+
+def model_sidecar(rob: Robot, model: TrackerModel, *, note: str, **fields: Any) -> str:
+    """The sidecar text of a calibrated URDF robot: ``model``'s reflector offsets (several targets:
+    each) and tracker pose, the ``note`` and ``fields`` (effects, estimated errors, ...) of
+    :func:`~kpioed_drake.robot.urdf.write.calibrated_sidecar`."""
+    targets = model.target_offsets if model.layout.n_targets > 1 else None
+    return calibrated_sidecar(
+        rob, p_FQ=model.p_FQ, p_WT=model.p_WT, R_WT=model.R_WT, targets=targets, note=note, **fields
+    )

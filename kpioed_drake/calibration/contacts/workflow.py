@@ -11,11 +11,11 @@ from pathlib import Path
 from kpioed_drake.arguments import check_paths, require
 from kpioed_drake.calibration.contacts.environment import environment_of
 from kpioed_drake.calibration.contacts.fit import ContactCalibrationReport, calibrate_contacts
-from kpioed_drake.calibration.modelfile import robot_yaml
+from kpioed_drake.calibration.modelfile import model_sidecar, robot_yaml
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
 from kpioed_drake.robot.reference import file_rows
-from kpioed_drake.robot.urdf.write import calibrated_sidecar, calibrated_urdf, check_out_path, sidecar_of
+from kpioed_drake.robot.urdf.write import calibrated_urdf, check_out_path, sidecar_of
 from kpioed_drake.tracker.contactdata import read_distances, read_planes
 from kpioed_drake.tracker.data import read_data
 
@@ -90,17 +90,7 @@ def model_files(report: ContactCalibrationReport, out: str | Path) -> list[tuple
     errors = file_rows(rob, model.geometry - rob.geometry)
     if Path(str(out)).suffix != ".urdf":
         return [(out, robot_yaml(rob, model, note=note, estimated_errors=errors, environment=env))]
-    targets = model.target_offsets if model.layout.n_targets > 1 else None
-    side = calibrated_sidecar(
-        rob,
-        p_FQ=model.p_FQ,
-        p_WT=model.p_WT,
-        R_WT=model.R_WT,
-        targets=targets,
-        note=note,
-        estimated_errors=errors,
-        environment=env,
-    )
+    side = model_sidecar(rob, model, note=note, estimated_errors=errors, environment=env)
     return [(out, calibrated_urdf(rob, model.geometry, note.replace("--", "-"))), (sidecar_of(out), side)]
 
 
