@@ -127,3 +127,12 @@ def test_the_exact_criterion_gradient_matches_differences_and_the_polish_lowers_
     assert problem.criteria(q_p)["kpi_avg_var_mm2"] < phi
     p = _drake_tool_points(problem, q_p)
     assert_allclose(np.sum(NORMALS[plane] * p, axis=1), OFFSETS[plane], atol=1e-5)
+
+
+def test_a_plane_touched_once_or_twice_gives_its_touches_to_the_other_planes():
+    plane = np.array([0, 0, 1, 1, 2, 2, 3])
+    counts = np.array([3, 0, 2, 1, 2, 0, 1])  # plane 3 once: undetermined
+    out = plane_opt._without_lone_planes(counts, plane)
+    assert out.sum() == counts.sum() and out[6] == 0
+    assert_allclose(out[:6] - counts[:6], [1, 0, 0, 0, 0, 0])
+    assert_allclose(plane_opt._without_lone_planes(out, plane), out)

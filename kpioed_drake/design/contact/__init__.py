@@ -1,4 +1,4 @@
-"""The KPI design of plane contacts (issue 44): touches of given planes, one row per pose.
+"""The KPI design of plane contacts: touches of given planes, one row per pose.
 
 :mod:`.poses` (the feasible set: poses whose tool point lies on a plane, sampled, projected and
 checked), :mod:`.problem` (:class:`PlaneProblem`: F1 of touches and its closed-form dF1/dq, the

@@ -14,13 +14,19 @@ projected on the tangent of the pose's plane constraint (``dg/dq`` minus its com
 is a feasible touch and ``g`` went up (else it is halved). It keeps each pose's plane.
 
 The design: the weights rounded to ``n`` poses (efficient rounding) and improved by exchanges over
-the candidates (:func:`~kpioed_drake.design.approximate.design.exchange_counts`); every pose is a
-candidate, so on its plane. The certificate (the bound of
+the candidates (:func:`~kpioed_drake.design.approximate.design.exchange_counts`), then polished on
+the exact criterion with every pose kept on its plane (:func:`polish_on_planes`). Polished poses may
+have a larger ``g`` than the search found: they then join the candidates and the column generation
+continues (:data:`REFINEMENTS`), and the bound uses the largest ``g`` of the design's poses too.
+The certificate (the bound of
 :mod:`~kpioed_drake.design.approximate.certificate`, which holds for one row per pose): any ``n``
 touches in the set searched have tr(Cs)/3 >= ``tr(K^T Y)^2 / (n g_max)``, ``g_max`` the largest
 ``g`` over the candidates, :data:`VERIFY_POOL` fresh feasible touches (another seed) and the local
 maxima reached from the best of them. As with tracker designs this bounds every feasible design
-only if the search missed no pose of larger ``g`` (a search, not a proof). There is no exact
+only if the search missed no pose of larger ``g`` (a search, not a proof). The bound of every round's
+``Y`` is valid over the set it searched once the candidates added later and the design's poses are
+evaluated with it: the best round's is taken if larger than the last's (the column generation's bound
+is not monotone). There is no exact
 optimisation of the poses with the on-plane equality in the exact design's program (not built).
 
 Units: millimetres and radians; variances in mm^2.
@@ -61,6 +67,10 @@ A_WEIGHT = 1e-3
 LIVE_SHARE = 1e-9
 """A parameter whose weighted information is below this share of the largest belongs to a plane the
 approximate design does not touch (no A-criterion term for it)."""
+REFINEMENTS = 3
+"""Most times the polished design's poses, beyond the search, join the candidates and the column
+generation continues (for :data:`REFINE_ROUNDS` more rounds at most)."""
+REFINE_ROUNDS = 10
 POLISH_STEPS = 200
 """Most steps of :func:`polish_on_planes`."""
 VERIFY_POOL = 2000
@@ -186,11 +196,15 @@ def _starts(g: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([top, rng.choice(rest, size=min(n // 2, rest.size), replace=False)])
 
 
-def _rounded(F: np.ndarray, K: np.ndarray, w: np.ndarray, n: int, phi: float) -> np.ndarray:
+def _rounded(
+    F: np.ndarray, K: np.ndarray, w: np.ndarray, n: int, phi: float, plane: np.ndarray
+) -> np.ndarray:
     """Counts (m,) of an ``n``-pose design from weights ``w``: efficient rounding, then exchanges on
     ``[K, delta D]`` (``D``: the parameters' scales ``diag(M_w)^-1/2``, ``delta^2 = A_WEIGHT phi / k``:
     the normalised A-criterion, a small share, keeps the design regular, which rounding alone often
-    does not with one row per pose), then exchanges on ``K`` alone while it stays regular."""
+    does not with one row per pose), then exchanges on ``K`` alone; the first of these that is
+    regular, else with the touches of a plane touched once or twice moved (``plane``: (m,) the
+    candidates' planes)."""
     G = F.transpose(0, 2, 1) @ F
     diag = np.einsum("i,ikk->k", w, G)
     live = diag > LIVE_SHARE * diag.max()  # not the parameters of a plane the weights leave out
@@ -199,9 +213,35 @@ def _rounded(F: np.ndarray, K: np.ndarray, w: np.ndarray, n: int, phi: float) ->
     ridge = np.diag(np.where(live, 1e-12 * diag, 1e-12 * diag.max()))
     counts = exchange_counts(F, K_aug, efficient_rounding(w, n), M0=ridge)
     try:
-        return exchange_counts(F, K, counts, M0=ridge)
+        tries = [exchange_counts(F, K, counts, M0=ridge), counts]
     except np.linalg.LinAlgError:
-        return counts
+        tries = [counts]
+    tries += [_without_lone_planes(c, plane) for c in tries]
+    return next((c for c in tries if _regular(np.einsum("i,ikl->kl", c, G))), tries[-1])
+
+
+def _without_lone_planes(counts: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """``counts`` with the touches of a plane touched once or twice (its three parameters undetermined)
+    moved to the most repeated candidates of the other planes, one each in turn."""
+    c = counts.copy()
+    lone = [k for k in np.unique(plane) if 0 < c[plane == k].sum() < 3]
+    if not lone:
+        return c
+    moved = int(c[np.isin(plane, lone)].sum())
+    c[np.isin(plane, lone)] = 0
+    order = np.argsort(-c, kind="stable")
+    for i in range(moved):
+        c[order[i % max(int(np.sum(c > 0)), 1)]] += 1
+    return c
+
+
+def _regular(M: np.ndarray) -> bool:
+    """The information ``M`` (k, k) determines every parameter whose column it has (a plane left out
+    has none): the normalised matrix of those is positive definite (smallest eigenvalue > 1e-12)."""
+    d = np.diag(M)
+    on = d > 0
+    s = 1.0 / np.sqrt(d[on])
+    return bool(np.linalg.eigvalsh(M[np.ix_(on, on)] * s[:, None] * s[None, :])[0] > 1e-12)
 
 
 def plane_design(
@@ -236,7 +276,8 @@ def plane_design(
     if verify:
         q_v, k_v = plane_poses(problem, N, d, n=verify, seed=seed + 1, collision=collision)
         F_v = pose_rows(problem, q_v)
-    n_searched, done = 0, 0
+    n_searched, done, limit, refined = 0, 0, rounds, 0
+    best: tuple | None = None
     while True:
         done += 1
         sol = solve_pool(F, K)
@@ -253,8 +294,18 @@ def plane_design(
             g_new = np.concatenate([g_new, g_v, g_l])
         g_max = max(1.0, float(g_new.max()))
         converged = g_max <= 1.0 + tol
-        if converged or done >= rounds:
-            break
+        if best is None or sol.dual / g_max > best[0] / best[2]:
+            best = (sol.dual, sol.Y, g_max)  # the round of the best bound over what it searched
+        if converged or done >= limit:
+            q_design = replicate_poses(problem, q, _rounded(F, K, sol.w, n, sol.phi, plane))
+            k_design = problem.plane_of(q_design)
+            q_design = polish_on_planes(problem, q_design, k_design, collision=collision)
+            g_d = dual_values(pose_rows(problem, q_design), sol.Y)  # polished: may leave the set
+            if float(g_d.max()) <= g_max * (1.0 + tol) or refined >= REFINEMENTS:
+                break
+            refined, limit = refined + 1, done + REFINE_ROUNDS  # its poses join the candidates
+            q_new, k_new = np.concatenate([q_new, q_design]), np.concatenate([k_new, k_design])
+            g_new = np.concatenate([g_new, g_d])
         F_new = pose_rows(problem, q_new)
         keep = (g_new > 1.0) & distinct_rows(F, F_new)
         q, plane, F = (
@@ -262,11 +313,14 @@ def plane_design(
             np.concatenate([plane, k_new[keep]]),
             np.concatenate([F, F_new[keep]]),
         )
-    q_design = replicate_poses(problem, q, _rounded(F, K, sol.w, n, sol.phi))
-    q_design = polish_on_planes(problem, q_design, problem.plane_of(q_design), collision=collision)
-    g_design = float(dual_values(pose_rows(problem, q_design), sol.Y).max())  # polished: may leave X
+    g_design = float(g_d.max())
     value = float(problem.criteria(q_design)["kpi_avg_var_mm2"])
     bound = sol.dual / (max(g_max, g_design) * n)
+    dual, Y, g_best = best  # valid too once the later candidates and the design are evaluated with its Y
+    g_best = max(
+        g_best, float(dual_values(F, Y).max()), float(dual_values(pose_rows(problem, q_design), Y).max())
+    )
+    bound = max(bound, dual / (g_best * n))
     return PlaneDesign(
         q=q_design,
         plane=problem.plane_of(q_design),

@@ -1,4 +1,4 @@
-"""The identification problem of plane contacts: F1 of touches, one row per pose (issue 44).
+"""The identification problem of plane contacts: F1 of touches, one row per pose.
 
 A design pose touches one of K given planes ``n_k . x = d_k`` in W (unit normals ``n_k`` pointing to
 the planes' free side, offsets ``d_k`` [mm]): its tool point (target 0) lies on the plane. Its one
