@@ -131,7 +131,7 @@ def test_the_exact_criterion_gradient_matches_differences_and_the_polish_lowers_
 
 def test_a_plane_touched_once_or_twice_gives_its_touches_to_the_other_planes():
     plane = np.array([0, 0, 1, 1, 2, 2, 3])
-    counts = np.array([3, 0, 2, 1, 2, 0, 1])  # plane 3 once: undetermined
+    counts = np.array([3, 0, 2, 1, 3, 0, 1])  # plane 3 touched once: undetermined
     out = plane_opt._without_lone_planes(counts, plane)
     assert out.sum() == counts.sum() and out[6] == 0
     assert_allclose(out[:6] - counts[:6], [1, 0, 0, 0, 0, 0])
