@@ -52,7 +52,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
 from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
@@ -306,9 +306,14 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
     ln_n = np.log(3 * prob.data.n)
     for _ in range(MAX_SWAPS + 1):
         ext, out, swap = sel.fit, {}, None
+
+        def alternatives(i: int, ext=ext) -> tuple[Fit, list]:
+            f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
+            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds)
+
+        every = independent(alternatives, len(ext.effects), size=ext.J.size)  # each cause's, at once
         for i, a in enumerate(ext.effects):
-            f0 = prob.fit([x for x in ext.effects if x.name != a.name], start=ext)
-            found = competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds)
+            f0, found = every[i]
             lr_a = max(f0.cost - ext.cost, 0.0)
             if found and len(sel.swaps) < MAX_SWAPS:
                 ev = found[0][2]

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
 from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.records import Alternative, Selection
 from kpioed_drake.diagnosis.selection import backward_step, columns
@@ -360,22 +360,24 @@ def _unexplained_candidates(sel: Selection) -> list[tuple]:
     from the data (:func:`_best_side`), each fitted beside the model."""
     prob = sel.problem
     have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY, "backlash")}
-    tried = []
-    for j in range(1, prob.robot.n_joints + 1):
-        jb = gb.joint_basis(prob.robot, j)
-        if j in have or jb.rank == 0:
-            continue
+    joints = [
+        j for j in range(1, prob.robot.n_joints + 1) if j not in have and gb.joint_basis(prob.robot, j).rank
+    ]
+
+    def tried(k: int) -> list[tuple]:  # (effect, the torques of its fit or None: the problem's, fit)
+        j, jb = joints[k], gb.joint_basis(prob.robot, joints[k])
         b = basis_for(prob, j)
         f = prob.fit([*sel.fit.effects, b], start=sel.fit)
-        tried.append((b, prob, f))
         theta = next(x for x in f.effects if x.name == b.name).value_array()[: jb.rank]
         shape = _best_side(prob, sel, b, jb.regressor(prob.robot, prob.data.q), theta)
         side = np.sign(shape)
-        if min(np.sum(side > 0), np.sum(side < 0)) >= BACKLASH_MIN_SIDE:
-            trial = prob.with_tau(_fitted_torque(prob, j, shape))
-            bl = fx.Effect("backlash", j)
-            tried.append((bl, trial, trial.fit([*sel.fit.effects, bl], start=sel.fit)))
-    return tried
+        if min(np.sum(side > 0), np.sum(side < 0)) < BACKLASH_MIN_SIDE:
+            return [(b, None, f)]
+        tau, bl = _fitted_torque(prob, j, shape), fx.Effect("backlash", j)
+        return [(b, None, f), (bl, tau, prob.with_tau(tau).fit([*sel.fit.effects, bl], start=sel.fit))]
+
+    every = independent(tried, len(joints), size=sel.fit.J.size)  # the joints at once
+    return [(e, prob if tau is None else prob.with_tau(tau), f) for ts in every for e, tau, f in ts]
 
 
 def _add_basis_if_unexplained(
