@@ -374,11 +374,10 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
     ``settled`` (:func:`settle`'s) and then ``more`` (``{name: [Alternative]}``)."""
     prob, ext = sel.problem, sel.fit
     std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
-    out, c = [], ext.layout.effects.start
-    for i, e in enumerate(ext.effects):
-        e_std = std[c : c + e.n_params]
-        c += e.n_params
-        sig = prob.effect_signal(ext, i)
+    starts = np.cumsum([ext.layout.effects.start] + [e.n_params for e in ext.effects])
+
+    def cause(i: int) -> Cause:
+        e, sig = ext.effects[i], prob.effect_signal(ext, i)
         f0, found = settled[e.name]
         ev = {
             **sel.evidence.get(e.name, {}),
@@ -391,17 +390,11 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
             ok, why = judged(prob, fb, len(fb.effects) - 1)
             alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
         ok, why = judged(prob, ext, i)
-        out.append(
-            Cause(
-                effect=e,
-                std=tuple(e.display_values(e_std)),
-                evidence=ev,
-                plausible=ok,
-                plausible_reason=why,
-                alternatives=(*alts, *more.get(e.name, ())),
-            )
-        )
-    return tuple(out)
+        e_std = std[starts[i] : starts[i + 1]]
+        alts += more.get(e.name, ())
+        return Cause(e, tuple(e.display_values(e_std)), ev, ok, why, alternatives=tuple(alts))
+
+    return tuple(independent(cause, len(ext.effects), size=ext.J.size))  # the causes at once
 
 
 _WHAT = {

@@ -222,15 +222,23 @@ def _stand_in_alternatives(sel: Selection, *, alpha: float) -> dict:
     Returns ``{name: [Alternative]}``."""
     prob, out = sel.problem, {}
     named = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
-    for x in sel.fit.effects:
-        if x.family not in fx.JOINT_FAMILIES or x.family == "joint_elasticity" or x.joint in named:
-            continue
-        if gb.joint_basis(prob.robot, x.joint).rank == 0:
-            continue
+    tried = [
+        x
+        for x in sel.fit.effects
+        if x.family in fx.JOINT_FAMILIES and x.family != "joint_elasticity" and x.joint not in named
+        and gb.joint_basis(prob.robot, x.joint).rank > 0
+    ]  # fmt: skip
+
+    def fits(k: int) -> tuple[Fit, Fit]:  # the basis in x's place, then x beside it
+        x = tried[k]
         b = basis_for(prob, x.joint)
         others = [y for y in sel.fit.effects if y.name != x.name]
         f_b = prob.fit([*others, b], start=sel.fit)
-        lr_x = max(f_b.cost - prob.fit([*others, b, x], start=f_b).cost, 0.0)
+        return f_b, prob.fit([*others, b, x], start=f_b)
+
+    for x, (f_b, f_bx) in zip(tried, independent(fits, len(tried), size=sel.fit.J.size), strict=True):
+        b = basis_for(prob, x.joint)
+        lr_x = max(f_b.cost - f_bx.cost, 0.0)
         p_x = float(scipy.stats.chi2.sf(lr_x, x.n_params))
         if p_x < alpha:
             continue
