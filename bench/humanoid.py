@@ -11,7 +11,11 @@ yaw, elbow, forearm yaw, wrist pitch, wrist roll) with a hand and its reflector.
 - :func:`poses` draws seeded poses in the joint box with the coupling.
 - :func:`stand_in_data` simulates the elastic truth (joint compliance of the torso pitch joints,
   the shoulder and the elbow; 0.5 mm noise) on the truth file and returns fitted and held-out
-  measurement tables for the mass-free file.
+  measurement tables for the mass-free file; of the two-arm twin too (``twin``, with ``lateral``
+  the torso yaw's and the shoulders' bearings), and the two-arm diagnosis stand-in of issue 46
+  (``spread``: the twin with 8 compliant bearings of the torso and both arms beside the elasticity
+  of 9 joints, :data:`LATERAL_SPREAD`), whose diagnosis names about ten effects as the real robot's
+  names thirteen.
 
 Run ``python bench/humanoid.py`` to (re)write the model files.
 """
