@@ -11,7 +11,11 @@ yaw, elbow, forearm yaw, wrist pitch, wrist roll) with a hand and its reflector.
 - :func:`poses` draws seeded poses in the joint box with the coupling.
 - :func:`stand_in_data` simulates the elastic truth (joint compliance of the torso pitch joints,
   the shoulder and the elbow; 0.5 mm noise) on the truth file and returns fitted and held-out
-  measurement tables for the mass-free file.
+  measurement tables for the mass-free file; of the two-arm twin too (``twin``, with ``lateral``
+  the torso yaw's and the shoulders' bearings), and the two-arm diagnosis stand-in of issue 46
+  (``spread``: the twin with 8 compliant bearings of the torso and both arms beside the elasticity
+  of 9 joints, :data:`LATERAL_SPREAD`), whose diagnosis names about ten effects as the real robot's
+  names thirteen.
 
 Run ``python bench/humanoid.py`` to (re)write the model files.
 """
@@ -19,6 +23,7 @@ Run ``python bench/humanoid.py`` to (re)write the model files.
 from __future__ import annotations
 
 import os
+import resource
 import time
 from pathlib import Path
 
@@ -155,14 +160,21 @@ LATERAL = {1: 1e-4, 5: 3e-4}
 shoulder (hand deflection a few millimetres at most)."""
 
 
+LATERAL_SPREAD = {1: 5e-5, 3: 2e-5, 5: 1e-4, 6: 5e-5, 8: 5e-5}
+"""The two-arm diagnosis stand-in's lateral compliance [rad/(N m)] (issue 46, ``spread``): the torso
+yaw and the lower torso pitch bearings, and in each arm the shoulder pitch and roll and the elbow;
+with the twin's mirrored left arm, bearings of 8 joints beside the elasticity of 9."""
+
+
 LEFT = 7
 """Joint k of the right arm (5..11) is joint k + 7 of the left arm in the twin (12..18)."""
 
 
-def truth_effects(lateral: bool = False, twin: bool = False) -> tuple[str, ...]:
-    """The truth's effect texts (:data:`ELASTICITY`, with ``lateral`` also :data:`LATERAL`); the
-    ``twin``'s left arm has the right arm's (its joints :data:`LEFT` further on)."""
-    el, lat = dict(ELASTICITY), dict(LATERAL) if lateral else {}
+def truth_effects(lateral: bool = False, twin: bool = False, spread: bool = False) -> tuple[str, ...]:
+    """The truth's effect texts (:data:`ELASTICITY`, with ``lateral`` also :data:`LATERAL`, with
+    ``spread`` :data:`LATERAL_SPREAD` instead); the ``twin``'s left arm has the right arm's (its
+    joints :data:`LEFT` further on)."""
+    el, lat = dict(ELASTICITY), dict(LATERAL_SPREAD if spread else LATERAL) if lateral or spread else {}
     if twin:
         el |= {j + LEFT: c for j, c in ELASTICITY.items() if j >= 5}
         lat |= {j + LEFT: c for j, c in lat.items() if j >= 5}
@@ -178,18 +190,20 @@ def stand_in_data(
     sigma_mm: float = 0.5,
     lateral: bool = False,
     twin: bool = False,
+    spread: bool = False,
 ):
     """Simulated data of the stand-in: (model robot, fitted Measurements, held-out Measurements, truth).
 
     The truth is :func:`write_models`'s truth file with SPEC-sized geometric errors and
     :func:`truth_effects`; the measurements are read against the mass-free model file. The
-    ``twin`` measures both hands at every pose (two rows a pose).
+    ``twin`` measures both hands at every pose (two rows a pose); ``spread``: the two-arm diagnosis
+    stand-in (the twin with :data:`LATERAL_SPREAD`).
     """
     from kpioed_drake.robot.models import load_robot
     from kpioed_drake.tracker.data import Measurements
 
     name, table, rows, info = _truth_table(
-        n_fit, n_hold, seed=seed, sigma_mm=sigma_mm, lateral=lateral, twin=twin
+        n_fit, n_hold, seed=seed, sigma_mm=sigma_mm, lateral=lateral, twin=twin or spread, spread=spread
     )
     model = load_robot(str(ROBOTS / f"{name}.urdf"))
     fit = Measurements.from_table(table.iloc[:rows].reset_index(drop=True), model, source="stand-in fit")
@@ -199,7 +213,9 @@ def stand_in_data(
     return model, fit, hold, info
 
 
-def _truth_table(n_fit: int, n_hold: int, *, seed: int, sigma_mm: float, lateral: bool, twin: bool):
+def _truth_table(
+    n_fit: int, n_hold: int, *, seed: int, sigma_mm: float, lateral: bool, twin: bool, spread: bool = False
+):
     """(model name, the simulated table of n_fit + n_hold poses, the fitted rows, the truth):
     the truth file with SPEC-sized geometric errors and :func:`truth_effects`, both hands of the
     ``twin`` at every pose (two rows a pose)."""
@@ -210,10 +226,19 @@ def _truth_table(n_fit: int, n_hold: int, *, seed: int, sigma_mm: float, lateral
     truth = load_robot(str(ROBOTS / f"{name}_truth.urdf"))
     q = poses(truth, n_fit + n_hold, seed)
     opts = SimulationOptions(
-        sigma_mm=sigma_mm, seed=seed, effects=truth_effects(lateral, twin), n_targets=2 if twin else None
+        sigma_mm=sigma_mm,
+        seed=seed,
+        effects=truth_effects(lateral, twin, spread),
+        n_targets=2 if twin else None,
     )
     table, info = simulate(truth, q, opts)
     return name, table, 2 * n_fit if twin else n_fit, info
+
+
+def _cpu() -> float:
+    """CPU time of this process and of its finished children (the diagnosis's worker processes) [s]."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def measure(
@@ -224,6 +249,7 @@ def measure(
     seed: int = 0,
     lateral: bool = False,
     twin: bool = False,
+    spread: bool = False,
 ) -> dict:
     """The stand-in's experiment: geometric calibration against ``diagnose --out``, both validated
     on the held-out poses (``kpioed validate``, tracker frame kept: the same simulated set-up);
@@ -232,7 +258,8 @@ def measure(
 
     Returns:
         ``geometric_mm`` / ``extended_mm`` (held-out mean 3-D error; per hand for the twin:
-        ``*_per_target_mm``), ``named`` (the causes), ``diagnose_s`` (the diagnosis's wall time).
+        ``*_per_target_mm``), ``named`` (the causes), ``diagnose_s`` and ``diagnose_cpu_s`` (the
+        diagnosis's wall time and the CPU time of this process and its worker processes).
     """
     from kpioed_drake.calibration import CalibrationOptions
     from kpioed_drake.calibration.validate import validate_file
@@ -240,15 +267,18 @@ def measure(
     from kpioed_drake.diagnosis import DiagnosisOptions
     from kpioed_drake.diagnosis.workflow import diagnose_file
 
-    name, table, rows, _ = _truth_table(n_fit, n_hold, seed=seed, sigma_mm=0.5, lateral=lateral, twin=twin)
+    twin = twin or spread
+    name, table, rows, _ = _truth_table(
+        n_fit, n_hold, seed=seed, sigma_mm=0.5, lateral=lateral, twin=twin, spread=spread
+    )
     fit_csv, hold_csv = folder / "fit.csv", folder / "holdout.csv"
     table.iloc[:rows].to_csv(fit_csv, index=False)
     table.iloc[rows:].to_csv(hold_csv, index=False)
     model = str(ROBOTS / f"{name}.urdf")
     calibrate_file(model, fit_csv, CalibrationOptions(sigma_mm=0.5), out=folder / "geometric.urdf")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu()
     rep = diagnose_file(model, fit_csv, DiagnosisOptions(sigma_mm=0.5), out=folder / "extended.urdf")
-    dt = time.perf_counter() - t0
+    dt, cpu = time.perf_counter() - t0, _cpu() - c0
     out = {}
     for kind in ("geometric", "extended"):
         v = validate_file(str(folder / f"{kind}.urdf"), hold_csv)
@@ -260,6 +290,7 @@ def measure(
     return out | {
         "named": [c.effect.name for c in rep.cause_records],
         "diagnose_s": dt,
+        "diagnose_cpu_s": cpu,
         "baseline_holdout_rms_mm": rep.baseline["holdout_rms_mm"],
         "extended_holdout_rms_mm": rep.extended["holdout_rms_mm"],
     }

@@ -28,7 +28,8 @@ Wall times depend on the machine and on its load; CPU time of this process is re
    no masses (``bench/humanoid.py``): wall and CPU time, the causes named, their ratio.
 7. One online step (``kpioed next``) at 100 measured kr16 poses (``bench/online_bench.py``).
 8. The 18-joint two-arm twin: its 40-pose KPI design (cold and warm certificate cache, and without
-   the certificate), a warm online step, two diagnoses of 400 poses (``bench/twin_bench.py``).
+   the certificate), a warm online step, three diagnoses of 400 poses: the two twin stand-ins and
+   the two-arm diagnosis stand-in of issue 46 (``bench/twin_bench.py``).
 
 Usage: ``python bench/run_bench.py [--seeds 5] [--sizes 15,30,60,120,240] [--out bench/results.md]``;
 ``--only fits|compensate|humanoid|online|twin`` runs section 4, 5, 6, 7 or 8 alone and replaces only

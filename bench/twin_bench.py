@@ -7,8 +7,10 @@ Three jobs a humanoid user waits for, each timed once in this process:
   (the search read from that folder), and without the certificate (``--no-certify``);
 - one online step (``kpioed next``) at the 40 designed poses measured (simulated, 0.05 mm), warm;
 - ``diagnose`` of 400 poses of the elastic twin stand-ins (``bench/humanoid.py``: joint elasticity
-  of 9 joints; and with lateral compliance of the torso yaw and both shoulders), validated on 100
-  held-out poses per hand.
+  of 9 joints; and with lateral compliance of the torso yaw and both shoulders; and the two-arm
+  diagnosis stand-in of issue 46, lateral compliance of 8 bearings of the torso and both arms
+  beside the 9 elasticities), validated on 100 held-out poses per hand. CPU: this process and the
+  diagnosis's worker processes.
 """
 
 from __future__ import annotations
@@ -88,18 +90,28 @@ def _online(q: np.ndarray) -> tuple[str, float]:
     return row, wall
 
 
+DIAGNOSES = (
+    ("elastic twin", {"lateral": False}),
+    ("elastic + lateral twin", {"lateral": True}),
+    ("two-arm stand-in (elastic 9 joints + lateral 8 bearings)", {"spread": True}),
+)
+"""The diagnosis rows: label and :func:`humanoid.measure`'s stand-in."""
+
+
 def _diagnoses(folder: Path) -> tuple[list[str], float]:
-    """Rows of the two twin diagnoses and the slower one's wall time."""
+    """Rows of the twin diagnoses and the slowest one's wall time."""
     rows, slowest = [], 0.0
-    for label, lateral in (("elastic", False), ("elastic + lateral", True)):
-        sub = folder / label.replace(" + ", "-")
+    for k, (label, kind) in enumerate(DIAGNOSES):
+        sub = folder / f"diagnosis{k}"
         sub.mkdir()
-        m = humanoid.measure(sub, lateral=lateral, twin=True)
+        m = humanoid.measure(sub, twin=True, **kind)
         g, e = m["geometric_per_target_mm"], m["extended_per_target_mm"]
         rows.append(
-            f"| `diagnose`, 400 poses, {label} twin | {m['diagnose_s']:.1f} | - | {len(m['named'])} "
-            f"effects; held-out mean per hand {g[0]:.2f} / {g[1]:.2f} -> {e[0]:.2f} / {e[1]:.2f} mm |"
+            f"| `diagnose`, 400 poses, {label} | {m['diagnose_s']:.1f} | {m['diagnose_cpu_s']:.1f} | "
+            f"{len(m['named'])} effects; held-out mean per hand {g[0]:.2f} / {g[1]:.2f} -> "
+            f"{e[0]:.2f} / {e[1]:.2f} mm |"
         )
+        print(rows[-1], file=sys.stderr, flush=True)
         slowest = max(slowest, m["diagnose_s"])
     return rows, slowest
 

@@ -4,13 +4,19 @@
   compared here with full Levenberg-Marquardt refits of every fold.
 - ``estimate`` stops when the Gauss-Newton step predicts a cost decrease below ``tol``; compared
   with the same fit run to a tolerance a thousand times tighter.
+- ``fit.independent``: a step's independent fits in forked worker processes (issue 46); the
+  diagnosis with them gives the report of the loop in one process, number for number.
 """
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
+from kpioed_drake import diagnosis as D
+from kpioed_drake.diagnosis import fit as ft
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.effects import parse_effect
 from kpioed_drake.estimation import estimator
@@ -57,3 +63,33 @@ def test_predicted_decrease_stop_is_converged(problem):
     assert abs(fast.cost - tight.cost) <= 1e-9 * tight.cost
     dz = (fast.model.p[fast.free] - tight.model.p[tight.free]) / tight.std
     assert np.max(np.abs(dz)) < 1e-3  # parameter differences far below their standard deviations
+
+
+def test_independent_keeps_the_order_and_the_loop(monkeypatch):
+    monkeypatch.setenv(ft.WORKERS_ENV, "2")
+    square = lambda i: (i * i, ft.mp.current_process().daemon)  # noqa: E731
+    forked = ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES)
+    assert [v for v, _ in forked] == [0, 1, 4, 9, 16] and all(d for _, d in forked)  # in workers
+    assert ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES - 1) == [(i * i, False) for i in range(5)]
+    monkeypatch.setenv(ft.WORKERS_ENV, "1")
+    assert ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES) == [(i * i, False) for i in range(5)]
+
+
+def test_diagnosis_with_workers_equals_the_loop(monkeypatch):
+    """Every step's refits, the causes' alternatives and the unexplained rest's candidates in two
+    workers: the same report (named causes, statistics, alternatives, notes) as in one process."""
+    robot = models.load_robot("kr16")
+    rng = np.random.default_rng(21)
+    case = synthetic_case(robot, rng, ["joint_elasticity:2=4e-7", "gear_cyclic:4:2=0.012,-0.008"], n_poses=70)
+    opts = D.DiagnosisOptions(sigma_mm=SIGMA)
+    monkeypatch.setenv(ft.WORKERS_ENV, "1")
+    loop = D.diagnose(robot, case.data, opts)
+    monkeypatch.setenv(ft.WORKERS_ENV, "2")
+    monkeypatch.setattr(ft, "PARALLEL_MIN_ENTRIES", 0)
+    calls = []
+    real = ft.mp.get_context
+    monkeypatch.setattr(ft.mp, "get_context", lambda m: calls.append(m) or real(m))
+    forked = D.diagnose(robot, case.data, opts)
+    assert calls and set(calls) == {"fork"}  # the workers did run
+    assert loop.cause_names == forked.cause_names and loop.cause_names
+    assert json.dumps(forked.to_json(), sort_keys=True) == json.dumps(loop.to_json(), sort_keys=True)

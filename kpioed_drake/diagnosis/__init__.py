@@ -5,7 +5,8 @@ One module per concern (method and JSON contract: docs/diagnosis.md):
 - :mod:`.workflow`: :func:`diagnose`, the four steps (calibration and goodness of fit, residual
   structure, stepwise selection of the cause, the extended model and its gain);
 - :mod:`.fit`: :class:`FitProblem` (immutable), fits of any set of effects on any subset of poses
-  with the package's one estimator (:mod:`kpioed_drake.estimation.estimator`), cross-validation;
+  with the package's one estimator (:mod:`kpioed_drake.estimation.estimator`), cross-validation, a
+  step's independent fits in worker processes (:func:`~.fit.independent`);
 - :mod:`.selection`: candidates, identifiability, score tests, stepwise selection; :mod:`.pairs`:
   pairs of candidates that cancel; :mod:`.sides`: the side of a backlash under the mass prior;
 - :mod:`.elastic_basis`: elasticity (and backlash) with other link masses than the file's;

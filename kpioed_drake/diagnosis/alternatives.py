@@ -52,7 +52,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
 from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
@@ -179,7 +179,7 @@ def _refit(
 
 
 def competing(
-    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence[Effect], *, alpha: float, k_folds: int
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence, *, alpha: float, k_folds: int, beside=None
 ) -> list[tuple[object, Fit, dict]]:
     """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
 
@@ -190,6 +190,8 @@ def competing(
         f0: the fit of ``ext``'s other effects without A (started from ``ext``).
         pool: the candidate effects (those already in ``ext`` are skipped).
         alpha: the test level; k_folds: folds of the held-out error.
+        beside: the :class:`_Beside` of ``ext`` and the candidates not in it, shared by its causes
+            (computed once); None: made here.
 
     Returns:
         Up to ``MAX_ALTERNATIVES`` tuples ``(effect B with its fitted values, fit of R + B, evidence)``,
@@ -207,7 +209,7 @@ def competing(
     Q, _ = np.linalg.qr(Jm)
     r = (f0.residuals / prob.sigma).reshape(-1)
     U_a = projected_basis(Q, cols[0])
-    beside = _Beside(prob, ext, others)
+    beside = _Beside(prob, ext, others) if beside is None else beside
     keep = _screen(Q, r, others, cols[1:], lr_a, c, alpha, beside)
     found = [_refit(prob, f0, t, U_a, Q, lr_a, c, alpha=alpha, beside=beside) for t in keep]
     found = sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
@@ -306,9 +308,16 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
     ln_n = np.log(3 * prob.data.n)
     for _ in range(MAX_SWAPS + 1):
         ext, out, swap = sel.fit, {}, None
+        # what the candidates keep beside all causes: the same for every cause, computed once
+        beside = _Beside(prob, ext, [b for b in pool if b.name not in {e.name for e in ext.effects}])
+
+        def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list]:
+            f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
+            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds, beside=beside)
+
+        every = independent(alternatives, len(ext.effects), size=ext.J.size)  # each cause's, at once
         for i, a in enumerate(ext.effects):
-            f0 = prob.fit([x for x in ext.effects if x.name != a.name], start=ext)
-            found = competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds)
+            f0, found = every[i]
             lr_a = max(f0.cost - ext.cost, 0.0)
             if found and len(sel.swaps) < MAX_SWAPS:
                 ev = found[0][2]
@@ -369,11 +378,10 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
     ``settled`` (:func:`settle`'s) and then ``more`` (``{name: [Alternative]}``)."""
     prob, ext = sel.problem, sel.fit
     std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
-    out, c = [], ext.layout.effects.start
-    for i, e in enumerate(ext.effects):
-        e_std = std[c : c + e.n_params]
-        c += e.n_params
-        sig = prob.effect_signal(ext, i)
+    starts = np.cumsum([ext.layout.effects.start] + [e.n_params for e in ext.effects])
+
+    def cause(i: int) -> Cause:
+        e, sig = ext.effects[i], prob.effect_signal(ext, i)
         f0, found = settled[e.name]
         ev = {
             **sel.evidence.get(e.name, {}),
@@ -386,17 +394,11 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
             ok, why = judged(prob, fb, len(fb.effects) - 1)
             alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
         ok, why = judged(prob, ext, i)
-        out.append(
-            Cause(
-                effect=e,
-                std=tuple(e.display_values(e_std)),
-                evidence=ev,
-                plausible=ok,
-                plausible_reason=why,
-                alternatives=(*alts, *more.get(e.name, ())),
-            )
-        )
-    return tuple(out)
+        e_std = std[starts[i] : starts[i + 1]]
+        alts += more.get(e.name, ())
+        return Cause(e, tuple(e.display_values(e_std)), ev, ok, why, alternatives=tuple(alts))
+
+    return tuple(independent(cause, len(ext.effects), size=ext.J.size))  # the causes at once
 
 
 _WHAT = {

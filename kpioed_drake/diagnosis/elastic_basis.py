@@ -28,7 +28,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
 from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.records import Alternative, Selection
 from kpioed_drake.diagnosis.selection import backward_step, columns
@@ -222,15 +222,23 @@ def _stand_in_alternatives(sel: Selection, *, alpha: float) -> dict:
     Returns ``{name: [Alternative]}``."""
     prob, out = sel.problem, {}
     named = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY)}
-    for x in sel.fit.effects:
-        if x.family not in fx.JOINT_FAMILIES or x.family == "joint_elasticity" or x.joint in named:
-            continue
-        if gb.joint_basis(prob.robot, x.joint).rank == 0:
-            continue
+    tried = [
+        x
+        for x in sel.fit.effects
+        if x.family in fx.JOINT_FAMILIES and x.family != "joint_elasticity" and x.joint not in named
+        and gb.joint_basis(prob.robot, x.joint).rank > 0
+    ]  # fmt: skip
+
+    def fits(k: int) -> tuple[Fit, Fit]:  # the basis in x's place, then x beside it
+        x = tried[k]
         b = basis_for(prob, x.joint)
         others = [y for y in sel.fit.effects if y.name != x.name]
         f_b = prob.fit([*others, b], start=sel.fit)
-        lr_x = max(f_b.cost - prob.fit([*others, b, x], start=f_b).cost, 0.0)
+        return f_b, prob.fit([*others, b, x], start=f_b)
+
+    for x, (f_b, f_bx) in zip(tried, independent(fits, len(tried), size=sel.fit.J.size), strict=True):
+        b = basis_for(prob, x.joint)
+        lr_x = max(f_b.cost - f_bx.cost, 0.0)
         p_x = float(scipy.stats.chi2.sf(lr_x, x.n_params))
         if p_x < alpha:
             continue
@@ -360,22 +368,24 @@ def _unexplained_candidates(sel: Selection) -> list[tuple]:
     from the data (:func:`_best_side`), each fitted beside the model."""
     prob = sel.problem
     have = {e.joint for e in sel.fit.effects if e.family in ("joint_elasticity", gb.FAMILY, "backlash")}
-    tried = []
-    for j in range(1, prob.robot.n_joints + 1):
-        jb = gb.joint_basis(prob.robot, j)
-        if j in have or jb.rank == 0:
-            continue
+    joints = [
+        j for j in range(1, prob.robot.n_joints + 1) if j not in have and gb.joint_basis(prob.robot, j).rank
+    ]
+
+    def tried(k: int) -> list[tuple]:  # (effect, the torques of its fit or None: the problem's, fit)
+        j, jb = joints[k], gb.joint_basis(prob.robot, joints[k])
         b = basis_for(prob, j)
         f = prob.fit([*sel.fit.effects, b], start=sel.fit)
-        tried.append((b, prob, f))
         theta = next(x for x in f.effects if x.name == b.name).value_array()[: jb.rank]
         shape = _best_side(prob, sel, b, jb.regressor(prob.robot, prob.data.q), theta)
         side = np.sign(shape)
-        if min(np.sum(side > 0), np.sum(side < 0)) >= BACKLASH_MIN_SIDE:
-            trial = prob.with_tau(_fitted_torque(prob, j, shape))
-            bl = fx.Effect("backlash", j)
-            tried.append((bl, trial, trial.fit([*sel.fit.effects, bl], start=sel.fit)))
-    return tried
+        if min(np.sum(side > 0), np.sum(side < 0)) < BACKLASH_MIN_SIDE:
+            return [(b, None, f)]
+        tau, bl = _fitted_torque(prob, j, shape), fx.Effect("backlash", j)
+        return [(b, None, f), (bl, tau, prob.with_tau(tau).fit([*sel.fit.effects, bl], start=sel.fit))]
+
+    every = independent(tried, len(joints), size=sel.fit.J.size)  # the joints at once
+    return [(e, prob if tau is None else prob.with_tau(tau), f) for ts in every for e, tau, f in ts]
 
 
 def _add_basis_if_unexplained(

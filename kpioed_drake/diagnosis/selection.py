@@ -6,18 +6,16 @@
   backlash of the joints whose gravity torque takes both signs, thermal expansion and tracker scale
   if the temperature varies, tracker drift if the time does.
 - :func:`identifiability`: the fraction of a candidate's columns outside the span of the current
-  model's columns (``remaining``; 1 = orthogonal, 0 = absorbed) and the largest canonical
-  correlation with them.
+  model's (``remaining``; 1 = orthogonal, 0 = absorbed), the largest canonical correlation with them.
 - :func:`score_tests`: the residual structure, ``r^T P r / sigma^2`` per candidate with P the
   projector on the part of its columns the model cannot absorb (chi^2 under "no effect").
 - :func:`select_effects`: forward selection with the likelihood ratio against the known noise
   (``LR = chi^2_before - chi^2_after`` ~ chi^2(k), its family-wise p-value over the candidates of a
   step by the weighted min-p method, :mod:`~kpioed_drake.estimation.multiplicity`; a backlash scored
   with every side its joint's torque may take under the mass prior, its sides weighted by
-  :func:`~kpioed_drake.diagnosis.sides.side_weights`),
-  BIC (``LR > k ln(3 n)``) and the K-fold held-out error, which must fall by more than its own
-  uncertainty (:func:`.fit.held_out_gain`); no fixed number of effects; after each addition every chosen
-  effect is re-tested for removal (stepwise).
+  :func:`~kpioed_drake.diagnosis.sides.side_weights`), BIC (``LR > k ln(3 n)``) and the K-fold
+  held-out error, which must fall by more than its own uncertainty (:func:`.fit.held_out_gain`); no
+  fixed number of effects; after each addition every chosen effect is re-tested for removal.
 """
 
 from __future__ import annotations
@@ -28,6 +26,7 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis import fit as ft
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain, held_out_gain, pose_groups, stop_reason
 from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING, PAIR_ALPHA_SHARE
 from kpioed_drake.diagnosis.pairs import pair_step
@@ -286,10 +285,13 @@ def _test_step(prob: FitProblem, current: Fit, pool, sides, *, alpha: float, ln_
     )
     null = min_p_null(bases, weights=weights) if bases and p_min < 2 * alpha else None
     tests, refit = _screen(tests, lambda w: critical_p(alpha, null, m, weight=w), ln_n)
-    best = None
-    for i in refit:
-        tests[i] = _refit(prob, current, tests[i], null=null, m=m, alpha=alpha, ln_n=ln_n)
-        if tests[i].fit is not None and (best is None or tests[i].delta_bic > tests[best].delta_bic):
+    best, kw = None, {"null": null, "m": m, "alpha": alpha, "ln_n": ln_n}
+    done = ft.independent(
+        lambda k: _refit(prob, current, tests[refit[k]], **kw), len(refit), size=current.J.size
+    )  # the refits at once
+    for i, t in zip(refit, done, strict=True):
+        tests[i] = t
+        if t.fit is not None and (best is None or t.delta_bic > tests[best].delta_bic):
             best = i
     # held-out error of the best significant candidate only: the one the step may add (the others'
     # held-out errors would not change the decision, and they are the expensive part)

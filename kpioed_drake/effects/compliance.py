@@ -53,7 +53,14 @@ import numpy as np
 
 from kpioed_drake.effects.gravity import gravity_model, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import Frames, cross, flange_point, forward_kinematics, subtree_links
+from kpioed_drake.robot.kinematics import (
+    Frames,
+    cross,
+    flange_point,
+    forward_kinematics,
+    link_paths,
+    subtree_links,
+)
 from kpioed_drake.robot.models import Robot
 
 COLUMN = "column_compliance"
@@ -91,6 +98,36 @@ class Rotation:
     def displacement(self, p_W: np.ndarray) -> np.ndarray:
         """(n, 3) ``m x (p - pivot)``: displacement of the points p_W (n, 3) [mm] per unit c."""
         return cross(self.m, p_W - self.pivot)
+
+
+def carried_rows(model, joint: int | None, target, n: int) -> np.ndarray | None:
+    """(n,) 1 on the rows whose target link joint ``joint`` carries, 0 on the others (another arm);
+    None when it carries every row's."""
+    if joint is None or model.robot.target_links is None:
+        return None
+    links = model.target_links(target)
+    on = link_paths(model.robot)[model.robot.tip if links is None else links, joint - 1].astype(float)
+    return None if np.all(on == 1.0) else np.ascontiguousarray(np.broadcast_to(on, (n,)))
+
+
+def on_carried_rows(rot, on: np.ndarray):
+    """``rot`` zero on the rows where ``on`` (:func:`carried_rows`) is 0."""
+    parts = {k: v for k in ("dm", "dm_dp") if (v := getattr(rot, k)) is not None}
+    scaled = {k: v * on.reshape((-1,) + (1,) * (v.ndim - 1)) for k, v in parts.items()}
+    return dataclasses.replace(rot, m=rot.m * on[:, None], **scaled)
+
+
+def rotation_columns(parts: list[Rotation], p_W: np.ndarray, s: np.ndarray, R_TW: np.ndarray) -> np.ndarray:
+    """(n, 3, k) the displacements of the points p_W (n, 3) [mm] per unit of each of the k
+    rotations ``parts``, in the tracker frame (rotation ``R_TW``) and scaled by ``s`` (n,)."""
+    if not parts:
+        return np.zeros((p_W.shape[0], 3, 0))
+    M = np.stack([r.m for r in parts])  # (k, n, 3)
+    if all(r.pivot is parts[0].pivot for r in parts):
+        d = (p_W - parts[0].pivot)[None]
+    else:
+        d = np.stack([p_W - r.pivot for r in parts])
+    return s[:, None, None] * np.einsum("kna,ba->nbk", cross(M, d), R_TW)
 
 
 def check_column(robot: Robot, joint: int, spec: str = "") -> None:

@@ -122,15 +122,32 @@ class LateralBasis:
     def rank(self) -> int:
         return self.V.shape[1]
 
-    def rotations(self, robot: Robot, q: np.ndarray, *, with_dq: bool = False) -> list[Rotation]:
-        """The :class:`~.compliance.Rotation` of each parameter at poses ``q`` (n, nj)."""
+    def rotations(
+        self, robot: Robot, q: np.ndarray, *, with_dq: bool = False, on: np.ndarray | None = None
+    ) -> list[Rotation]:
+        """The :class:`~.compliance.Rotation` of each parameter at poses ``q`` (n, nj); with ``on``
+        (n,) 0/1, zero on the rows whose point the joint does not carry (another arm of a tree).
+        Without ``with_dq`` memoized (:func:`~.gravity.memoized`; a fit's iterations ask for the
+        same poses again): the rotations depend on the commanded poses and the basis only."""
+        if not with_dq:
+            key = (int(self.joint), self.D.tobytes(), self.V.tobytes(), None if on is None else on.tobytes())
+            M, C = memoized("lateral_m", robot, np.asarray(q, float), key, lambda: self._m(robot, q, on))
+            return [Rotation(M[r], C) for r in range(self.rank)]
         out = moment_regressor(robot, q, self.joint, with_dq=with_dq)
         T = self.V / self.D[:, None]
         m = np.einsum("nap,pr->nra", out[0], T)
         if not with_dq:
             return [Rotation(m[:, r], out[1]) for r in range(self.rank)]
         dm = np.einsum("njap,pr->nrja", out[2], T)
+        if on is not None:
+            m, dm = m * on[:, None, None], dm * on[:, None, None, None]
         return [Rotation(m[:, r], out[1], dm[:, r], out[3]) for r in range(self.rank)]
+
+    def _m(self, robot: Robot, q: np.ndarray, on: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(r, n, 3) rotation vectors per unit parameter (times ``on``) and the pivots (n, 3)."""
+        X, C = moment_regressor(robot, q, self.joint)
+        M = np.einsum("nap,pr->rna", X, self.V / self.D[:, None])
+        return (M if on is None else M * on[None, :, None]), C
 
 
 def _reduced(X: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,6 @@ or base compliance (:mod:`.compliance`) turns the reflector point about its pivo
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -19,7 +18,7 @@ from kpioed_drake.effects.gravity_basis import FAMILY as BASIS_FAMILY
 from kpioed_drake.effects.gravity_basis import basis_factors
 from kpioed_drake.effects.model import Effect, parse_effect, resolve, scale_and_drift
 from kpioed_drake.errors import InputError
-from kpioed_drake.robot.kinematics import cross, flange_point, link_paths, point_jacobian
+from kpioed_drake.robot.kinematics import cross, flange_point, point_jacobian
 from kpioed_drake.tracker.measurement import TrackerModel, tracker_jacobian
 
 
@@ -127,32 +126,29 @@ def effect_rotations(
             )
             out[i] = [rot]
         elif e.family == lb.FAMILY:
-            out[i] = lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq)
-        if i in out and e.joint is not None and model.robot.target_links is not None:
-            out[i] = [_on_carried_rows(model, r, e.joint, target) for r in out[i]]
+            on = cp.carried_rows(model, e.joint, target, q.shape[0])
+            out[i] = lb.lateral_basis(model.robot, e.joint).rotations(model.robot, q, with_dq=with_dq, on=on)
+        on = cp.carried_rows(model, e.joint, target, len(q)) if i in out and e.family != lb.FAMILY else None
+        if on is not None:
+            out[i] = [cp.on_carried_rows(r, on) for r in out[i]]
     return out
 
 
-def _on_carried_rows(model: TrackerModel, rot, joint: int, target):
-    """``rot`` zero on the rows whose target link joint ``joint`` does not carry (another arm)."""
-    links = model.target_links(target)
-    on = link_paths(model.robot)[model.robot.tip if links is None else links, joint - 1].astype(float)
-    if np.all(on == 1.0):
-        return rot
-    on = np.broadcast_to(on, rot.m.shape[:1])
-    parts = {k: v for k in ("dm", "dm_dp") if (v := getattr(rot, k)) is not None}
-    scaled = {k: v * on.reshape((-1,) + (1,) * (v.ndim - 1)) for k, v in parts.items()}
-    return dataclasses.replace(rot, m=rot.m * on[:, None], **scaled)
-
-
 def _turned(effects, rots: dict, p_W: np.ndarray):
-    """``p_W`` (n, 3) turned by the rotation effects at their values, and their rotation vector (n, 3)."""
+    """``p_W`` (n, 3) turned by the rotation effects at their values, and their rotation vector (n, 3)
+    (an effect's parameters about one pivot summed first: one cross product an effect)."""
     w = np.zeros_like(p_W)
     shift = np.zeros_like(p_W)
     for i, parts in rots.items():
-        for v, r in zip(effects[i].value_array(), parts, strict=True):
-            w += v * r.m
-            shift += v * r.displacement(p_W)
+        vals = effects[i].value_array()
+        if not parts:
+            continue
+        w_i = sum(v * r.m for v, r in zip(vals, parts, strict=True))
+        w += w_i
+        if all(r.pivot is parts[0].pivot for r in parts):
+            shift += cross(w_i, p_W - parts[0].pivot)
+        else:
+            shift += sum(v * r.displacement(p_W) for v, r in zip(vals, parts, strict=True))
     return p_W + shift, w
 
 
@@ -322,8 +318,8 @@ def _effect_columns(model, effects, jd, rots: dict, out, p_raw, theta_raw, *, s,
                     dG[..., None] * f[:, None, None, :] + G[:, None, :, None] * df[:, :, None, :]
                 )
         elif idx in rots:
-            for c, r in enumerate(rots[idx], start=col):
-                E[:, :, c] = s[:, None] * (r.displacement(p_raw) @ R_TW.T)
+            E[:, :, col : col + m] = cp.rotation_columns(rots[idx], p_raw, s, R_TW)
+            for c, r in enumerate(rots[idx] if with_dq else (), start=col):
                 if with_dq:
                     d = cross(r.dm, (p_raw - r.pivot)[:, None, :]) + cross(r.m[:, None, :], dp_raw - r.dpivot)
                     dE[:, :, :, c] = s[:, None, None] * (d @ R_TW.T)

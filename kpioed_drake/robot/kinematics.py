@@ -189,6 +189,19 @@ def _as_poses(q, n_joints: int) -> np.ndarray:
     return q
 
 
+def _repeats(q: np.ndarray) -> int:
+    """``k`` > 1 when every pose of ``q`` (n, nj) is on k rows in a row (the rows of a pose's k
+    targets, ``np.repeat(poses, k, axis=0)``), else 1."""
+    n = q.shape[0]
+    k = 1
+    while k < n and np.array_equal(q[k], q[0]):
+        k += 1
+    if k == 1 or n % k or k == n:
+        return 1
+    blocks = q.reshape(n // k, k, -1)
+    return k if np.array_equal(blocks, np.broadcast_to(blocks[:, :1], blocks.shape)) else 1
+
+
 def forward_kinematics(robot: Robot, q: np.ndarray, geometry: np.ndarray | None = None) -> Frames:
     """Frames of all links and the identification elements.
 
@@ -200,6 +213,9 @@ def forward_kinematics(robot: Robot, q: np.ndarray, geometry: np.ndarray | None 
     """
     nj = robot.n_joints
     q = _as_poses(q, nj)
+    times = _repeats(q)
+    if times > 1:  # every pose on `times` rows in a row (its targets): the poses once, then repeated
+        return forward_kinematics(robot, q[::times], geometry).repeated(times)
     g = robot.geometry if geometry is None else np.asarray(geometry, dtype=float)
     if robot.chain is not None:
         c = chain_frames(robot.chain, q, g)
