@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from kpioed_drake import diagnosis as D
+from kpioed_drake import parallel
 from kpioed_drake.diagnosis import fit as ft
 from kpioed_drake.diagnosis.fit import FitProblem
 from kpioed_drake.effects import parse_effect
@@ -66,12 +67,12 @@ def test_predicted_decrease_stop_is_converged(problem):
 
 
 def test_independent_keeps_the_order_and_the_loop(monkeypatch):
-    monkeypatch.setenv(ft.WORKERS_ENV, "2")
-    square = lambda i: (i * i, ft.mp.current_process().daemon)  # noqa: E731
+    monkeypatch.setenv(parallel.WORKERS_ENV, "2")
+    square = lambda i: (i * i, parallel.mp.current_process().daemon)  # noqa: E731
     forked = ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES)
     assert [v for v, _ in forked] == [0, 1, 4, 9, 16] and all(d for _, d in forked)  # in workers
     assert ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES - 1) == [(i * i, False) for i in range(5)]
-    monkeypatch.setenv(ft.WORKERS_ENV, "1")
+    monkeypatch.setenv(parallel.WORKERS_ENV, "1")
     assert ft.independent(square, 5, size=ft.PARALLEL_MIN_ENTRIES) == [(i * i, False) for i in range(5)]
 
 
@@ -82,13 +83,13 @@ def test_diagnosis_with_workers_equals_the_loop(monkeypatch):
     rng = np.random.default_rng(21)
     case = synthetic_case(robot, rng, ["joint_elasticity:2=4e-7", "gear_cyclic:4:2=0.012,-0.008"], n_poses=70)
     opts = D.DiagnosisOptions(sigma_mm=SIGMA)
-    monkeypatch.setenv(ft.WORKERS_ENV, "1")
+    monkeypatch.setenv(parallel.WORKERS_ENV, "1")
     loop = D.diagnose(robot, case.data, opts)
-    monkeypatch.setenv(ft.WORKERS_ENV, "2")
+    monkeypatch.setenv(parallel.WORKERS_ENV, "2")
     monkeypatch.setattr(ft, "PARALLEL_MIN_ENTRIES", 0)
     calls = []
-    real = ft.mp.get_context
-    monkeypatch.setattr(ft.mp, "get_context", lambda m: calls.append(m) or real(m))
+    real = parallel.mp.get_context
+    monkeypatch.setattr(parallel.mp, "get_context", lambda m: calls.append(m) or real(m))
     forked = D.diagnose(robot, case.data, opts)
     assert calls and set(calls) == {"fork"}  # the workers did run
     assert loop.cause_names == forked.cause_names and loop.cause_names

@@ -23,25 +23,23 @@ cause's competing explanations) in worker processes forked from this one, when t
 (:data:`~kpioed_drake.diagnosis.options.PARALLEL_MIN_ENTRIES`): the workers inherit the problem and
 every cache (nothing but the task's number and its result is pickled), run the same code on the same
 inputs with one BLAS thread, and the results come back in the tasks' order, so the numbers are
-those of the loop in this process. Workers: ``KPIOED_DIAGNOSIS_WORKERS`` (1: no processes), else
-the cores this process may use, at most :data:`~kpioed_drake.diagnosis.options.MAX_WORKERS`.
+those of the loop in this process. Workers: :func:`kpioed_drake.parallel.workers` (``KPIOED_WORKERS``;
+1: no processes).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing as mp
-import os
 from collections.abc import Callable, Iterable
 
 import numpy as np
 import scipy.linalg
 
+from kpioed_drake import parallel
 from kpioed_drake.diagnosis.options import (
     FOLD_SEED,
     GAIN_STANDARD_ERRORS,
     K_FOLDS,
-    MAX_WORKERS,
     PARALLEL_MIN_ENTRIES,
 )
 from kpioed_drake.effects.model import Effect
@@ -322,38 +320,8 @@ def stop_reason(key: str, detail: str = "") -> dict:
     return {"reason": key, "text": text}
 
 
-WORKERS_ENV = "KPIOED_DIAGNOSIS_WORKERS"
-"""Environment variable: the worker processes of :func:`independent` (1: none, the loop here)."""
-_TASK: list = []  # the task of the running :func:`independent` call, inherited by its forked workers
-
-
-def workers() -> int:
-    """The worker processes :func:`independent` may use: ``KPIOED_DIAGNOSIS_WORKERS``, else the cores
-    this process may run on, at most :data:`~.options.MAX_WORKERS`; 1 where processes cannot be forked
-    (no ``fork`` start method, or inside a worker)."""
-    if "fork" not in mp.get_all_start_methods() or mp.current_process().daemon:
-        return 1
-    given = os.environ.get(WORKERS_ENV, "").strip()
-    if given:
-        return max(1, int(given))
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, min(cores, MAX_WORKERS))
-
-
-def _run(i: int):
-    return _TASK[-1](i)
-
-
 def independent(task: Callable[[int], object], n: int, *, size: int) -> list:
-    """``[task(0), ..., task(n - 1)]``, in worker processes forked from this one when ``size`` (the
-    entries of the problem's Jacobian, a measure of one fit's work) reaches
-    :data:`~.options.PARALLEL_MIN_ENTRIES` and there are two tasks or more (module docstring)."""
-    k = min(workers(), n) if size >= PARALLEL_MIN_ENTRIES else 1
-    if k <= 1:
-        return [task(i) for i in range(n)]
-    _TASK.append(task)
-    try:
-        with mp.get_context("fork").Pool(k) as pool:
-            return pool.map(_run, range(n), chunksize=1)
-    finally:
-        _TASK.pop()
+    """``[task(0), ..., task(n - 1)]``, in worker processes forked from this one
+    (:func:`kpioed_drake.parallel.independent`) when ``size`` (the entries of the problem's Jacobian,
+    a measure of one fit's work) reaches :data:`~.options.PARALLEL_MIN_ENTRIES` (module docstring)."""
+    return parallel.independent(task, n, parallel=size >= PARALLEL_MIN_ENTRIES)

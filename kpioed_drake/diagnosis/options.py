@@ -35,8 +35,6 @@ PARALLEL_MIN_ENTRIES = 200_000
 """A step's independent fits run in worker processes (:func:`~.fit.independent`) when the problem's
 weighted Jacobian (3 rows a measured point, a column a parameter) has at least this many entries:
 about where one fit takes longer than starting the workers."""
-MAX_WORKERS = 4
-"""Most worker processes of :func:`~.fit.independent`."""
 BACKLASH_MIN_SIDE = 3
 """Poses a backlash candidate needs on each side of the gravity torque (as ``calibrate --extend``)."""
 PAIR_CORRELATION = 0.5
