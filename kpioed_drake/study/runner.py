@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm.auto import tqdm
 
+from kpioed_drake import parallel
 from kpioed_drake.errors import InputError
 from kpioed_drake.files.designs import write_design
 from kpioed_drake.outputs import atomic_write_json
@@ -86,11 +87,18 @@ def _execute_dask(todo: list[Task], scheduler, design_api, on_done: OnDone) -> N
             client.close()
 
 
+def _one_process_per_task() -> None:
+    """In a study's worker process: no forked workers of its own (:mod:`kpioed_drake.parallel`); the
+    study's workers fill the cores already."""
+    os.environ[parallel.WORKERS_ENV] = "1"
+
+
 def _execute_pool(todo: list[Task], jobs: int, design_api, on_done: OnDone) -> None:
     # one BLAS/OpenMP thread per worker process: the matrices are small and the workers fill the CPUs
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
+    spawn = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=spawn, initializer=_one_process_per_task) as ex:
         futs = {ex.submit(run_task, t, design_api): t for t in todo}
         try:
             for fut in pool_completed(futs):
