@@ -49,7 +49,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
+def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) cross-product matrices ``[v]x`` (``[v]x b = v x b``) of vectors ``v`` (..., 3)."""
     S = np.zeros((*v.shape, 3))
     S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
@@ -332,13 +332,13 @@ def point_jacobian(
         dP = dP * on[:, :, None]
     dJ = np.empty((n, nj, 3, g + 3))
     # element moved by joint j: revolute w_j x col, prismatic 0 (as batched products [w_j]x @ cols)
-    Wx = _skew(np.where(frames.prismatic[None, :, None], 0.0, w) if pris else w)  # (n,j,3,3)
+    Wx = skew(np.where(frames.prismatic[None, :, None], 0.0, w) if pris else w)  # (n,j,3,3)
     full = Wx @ J[:, None, :, :g]  # (n,j,3,g)
     # element upstream of joint j: rotation: u x dP_j = -[dP_j]x u; translation: 0
     uT = (u * rot[None, :, :, None]).reshape(n, g, 3).transpose(0, 2, 1)  # (n,3,g)
     if on is not None:  # elements off the point's path (another arm) stay zero
         uT = uT * np.repeat(on, P, axis=1)[:, None, :]
-    part = -_skew(dP) @ uT[:, None]  # (n,j,3,g)
+    part = -skew(dP) @ uT[:, None]  # (n,j,3,g)
     mask = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, g)  # joint j moves element c
     dJ[:, :, :, :g] = np.where(mask[None, :, None, :], full, part)
     dJ[:, :, :, g:] = Wx @ RF[:, None]  # columns w_j x (flange axes); prismatic joints 0

@@ -34,7 +34,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kpioed_drake.robot.kinematics import Frames
+from kpioed_drake.robot.kinematics import Frames, skew
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.measurement import TrackerModel, _drot_transposed, small_rotation
 
@@ -64,15 +64,8 @@ def inverse_right_jacobian(e: np.ndarray) -> np.ndarray:
     small = t < SMALL_ANGLE
     ts = np.where(small, 1.0, t)
     c = np.where(small, 1.0 / 12.0 + t**2 / 720.0, 1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
-    E = _skew(e)
+    E = skew(e)
     return np.eye(3) + 0.5 * E + c[..., None, None] * (E @ E)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    S = np.zeros((*v.shape, 3))
-    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return S
 
 
 def chordal_mean(R: np.ndarray) -> np.ndarray:
@@ -98,12 +91,11 @@ def with_probe(model: TrackerModel, R_FP_ref: np.ndarray | None = None) -> Track
         )
     rob = model.robot
     base = parameter_layout(rob, n_targets=lay.n_targets)
-    held = {n for i, n in enumerate(lay.names) if i not in set(lay.free.tolist())}
-    held -= {n for i, n in enumerate(base.names) if i not in set(base.free.tolist())}  # the points gauge
+    gauge = set(base.names) - set(base.free_names)  # the points' gauge, not applied with orientations
+    held = set(lay.names) - set(lay.free_names) - gauge
     layout = parameter_layout(rob, n_targets=lay.n_targets, probe=True)
-    fixed = tuple(n for i, n in enumerate(layout.names) if i not in set(layout.free.tolist())) + tuple(
-        sorted(held)
-    )
+    free = set(layout.free_names)
+    fixed = tuple(n for n in layout.names if n not in free) + tuple(sorted(held))
     layout = parameter_layout(rob, fixed=fixed, n_targets=lay.n_targets, probe=True)
     ref = R_FP_ref if R_FP_ref is not None else (model.R_FP_ref if model.R_FP_ref is not None else np.eye(3))
     p = np.concatenate([model.p, np.zeros(3)])
@@ -224,7 +216,7 @@ def angular_jacobian_dq(model: TrackerModel, q: np.ndarray, *, frames: Frames | 
     w = np.where(frames.prismatic[None, :, None], 0.0, frames.joint_axes)  # (n, nj, 3)
     if on is not None:
         w = w * on[:, :, None]
-    Wx = _skew(w)  # (n, nj, 3, 3)
+    Wx = skew(w)  # (n, nj, 3, 3)
     moved = frames.path[frames.moved_by].transpose(2, 0, 1).reshape(nj, nj * P)  # joint j moves element c
     turned = Wx @ u.reshape(n, 1, nj * P, 3).swapaxes(-1, -2)  # (n, nj, 3, nj P): w_j x u_c
     dOm = np.zeros((n, nj, 3, lay.size))
