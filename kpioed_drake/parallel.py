@@ -50,43 +50,40 @@ def _quiet_worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _run(i: int) -> object:
-    return _TASKS[-1](i)
+def _run(arg: Any) -> object:
+    return _TASKS[-1](arg)
 
 
 def independent(task: Callable[[int], T], n: int, *, parallel: bool = True) -> list[T]:
     """``[task(0), ..., task(n - 1)]``; with ``parallel`` and two tasks or more, in worker processes
-    forked from this one (at most :func:`workers`), each task whole in one worker, in order.
+    forked from this one (at most :func:`workers`, at most ``n``), each task whole in one worker, in
+    order.
 
     ``task`` must be a function of the index alone whose result pickles (arrays, numbers); it sees
     this process's state as it was at the fork, and what it changes there stays in the worker.
     """
-    k = min(workers(), n) if parallel else 1
-    if k <= 1:
-        return [task(i) for i in range(n)]
-    _TASKS.append(task)
-    try:
-        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as pool:
-            return pool.map(_run, range(n), chunksize=1)  # type: ignore[return-value]
-    finally:
-        _TASKS.pop()
+    with pool(task, parallel=parallel, most=n) as run:
+        return run(range(n))
 
 
 @contextlib.contextmanager
-def pool(task: Callable[[Any], T], *, parallel: bool = True) -> Iterator[Callable[[Sequence[Any]], list[T]]]:
+def pool(
+    task: Callable[[Any], T], *, parallel: bool = True, most: int | None = None
+) -> Iterator[Callable[[Sequence[Any]], list[T]]]:
     """Within the block, a function ``map(args) -> [task(a) for a in args]`` whose calls run in worker
-    processes forked once, at entry (at most :func:`workers`; none without ``parallel``).
+    processes forked once, at entry (at most :func:`workers` and ``most``; none without ``parallel``
+    or with one at most: the loop here).
 
     For a loop of many small rounds (batches of random poses checked for feasibility): the workers
     inherit ``task``'s data at the fork, and each round sends only its arguments (pickled).
     """
-    k = workers() if parallel else 1
+    k = min(workers(), most if most is not None else workers()) if parallel else 1
     if k <= 1:
         yield lambda args: [task(a) for a in args]
         return
     _TASKS.append(task)
     try:
         with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
-            yield lambda args: workers_pool.map(_run, args, chunksize=1)  # type: ignore[arg-type]
+            yield lambda args: workers_pool.map(_run, args, chunksize=1)
     finally:
         _TASKS.pop()

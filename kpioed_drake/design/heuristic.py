@@ -80,8 +80,9 @@ def heuristic_design(
         return ok
 
     kept, n_kept, draws = [], 0, 0
-    with parallel.pool(feasible, parallel=n >= PARALLEL_POSES) as check:
-        per_round = parallel.workers() if n >= PARALLEL_POSES else 1
+    large = n >= PARALLEL_POSES
+    with parallel.pool(feasible, parallel=large) as check:
+        per_round = parallel.workers() if large else 1
         while n_kept < n and draws < max_draws:  # a round: a batch per worker, in draw order
             qs = []
             for _ in range(per_round):
