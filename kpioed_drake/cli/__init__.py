@@ -60,6 +60,32 @@ COMMANDS = (
 # The arguments the commands share.
 
 
+def command(
+    sub: argparse._SubParsersAction,
+    name: str,
+    *,
+    help: str,
+    description: str | None = None,
+    data: str | None = None,
+    data_help: str | None = None,
+) -> argparse.ArgumentParser:
+    """The parser of command ``name`` with ``--robot`` and, by ``data``, its measurement file:
+    ``"required"``, ``"optional"`` (optional beside the contact files ``--planes``/``--distances``,
+    which it adds) or None (no data argument)."""
+    p = sub.add_parser(name, help=help, description=description)
+    add_robot(p)
+    if data is not None:
+        add_data(p, help=data_help or DATA_HELP, optional=data == "optional")
+    if data == "optional":
+        add_contacts(p)
+    return p
+
+
+def add_model_out(p: argparse.ArgumentParser, *, help: str) -> None:
+    """``--out``: the model file a command writes (YAML, or a URDF with its sidecar)."""
+    p.add_argument("--out", default=None, metavar=MODEL_OUT_METAVAR, help=help)
+
+
 def add_robot(p: argparse.ArgumentParser, *, required: bool = True) -> None:
     p.add_argument(
         "--robot",

@@ -11,13 +11,12 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", 
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "calibrate",
         help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
+        data="optional",
     )
-    cli.add_robot(p)
-    cli.add_data(p, optional=True)
-    cli.add_contacts(p)
     cli.add_sigma(p, default=0.02)
     p.add_argument(
         "--sigma-deg",
@@ -27,10 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "whose rows give none (0.01: about a T-Mac's stated accuracy)",
     )
     cli.add_q_work(p)
-    p.add_argument(
-        "--out",
-        default=None,
-        metavar=cli.MODEL_OUT_METAVAR,
+    cli.add_model_out(
+        p,
         help="write the calibrated robot model file: YAML, or for a URDF robot NAME.urdf (its sidecar "
         "NAME.kpioed.yaml beside it)",
     )

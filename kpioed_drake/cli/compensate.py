@@ -12,11 +12,11 @@ API_NAMES = {"effects": "effect"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "compensate",
         help="compensate a program (nominal joint values) or reach target points with a calibrated model",
     )
-    cli.add_robot(p)
     p.add_argument("--program", default=None, metavar="P.csv", help="nominal joint values (q1_deg, ...)")
     p.add_argument("--targets", default=None, metavar="T.csv", help="points in W (x_mm, y_mm, z_mm)")
     p.add_argument("--out", required=True, metavar="Q.csv", help="compensated joint values to write")

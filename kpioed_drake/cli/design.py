@@ -31,13 +31,13 @@ API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "design",
         help="compute measurement poses (KPI, standard, D, O1 optimal or heuristic)",
         description="Compute a design of measurement poses and write it as a CSV (a column per joint: "
         "q1_deg, q2_deg, ...).",
     )
-    cli.add_robot(p)
     _add_solve_options(p)
     cli.add_sigma(p)
     _add_measure_options(p)

@@ -11,21 +11,19 @@ API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "diagnose",
         help="test measured data against the geometric model and name the missing effect",
         description="Geometric calibration, goodness-of-fit test against the known noise, and a stepwise "
         "search over joint_elasticity, gear_cyclic, joint_scale, joint_coupling, backlash, "
         "thermal_expansion, tracker_scale and tracker_drift; each cause with its competing explanations "
         "and plausibility, and the structure of what stays unexplained (docs/diagnosis.md).",
+        data="required",
     )
-    cli.add_robot(p)
-    cli.add_data(p)
     cli.add_sigma(p)  # None: measured on repeated poses or checked against the residuals
-    p.add_argument(
-        "--out",
-        default=None,
-        metavar=cli.MODEL_OUT_METAVAR,
+    cli.add_model_out(
+        p,
         help="write the extended model of the named causes (the geometric one if none is named): YAML, or "
         "for a URDF robot NAME.urdf with its sidecar",
     )

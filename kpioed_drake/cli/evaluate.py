@@ -13,8 +13,7 @@ API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
-    cli.add_robot(p)
+    p = cli.command(sub, "evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
     p.add_argument("--design", required=True, help=cli.DESIGN_HELP)
     p.add_argument(
         "--certify",

@@ -8,8 +8,7 @@ from kpioed_drake import api, cli
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("info", help="robot parameters, identifiable count, reach, q_work")
-    cli.add_robot(p)
+    p = cli.command(sub, "info", help="robot parameters, identifiable count, reach, q_work")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
 

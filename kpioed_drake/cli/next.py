@@ -12,13 +12,14 @@ API_NAMES = {"target_var_mm2": "target_var", "json_path": "json", "data_format":
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "next",
         help="online calibration: calibrate on the data so far; stop at the target TCP variance or "
         "write the next poses to measure",
+        data="required",
+        data_help=f"the measurements so far; {cli.DATA_HELP}",
     )
-    cli.add_robot(p)
-    cli.add_data(p, help=f"the measurements so far; {cli.DATA_HELP}")
     p.add_argument(
         "--target-var", type=float, required=True, metavar="V", help="TCP precision to reach: tr(Cs)/3 [mm^2]"
     )

@@ -12,10 +12,9 @@ API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "simulate", help="simulate measurements of a design CSV (writes the measurement CSV layout)"
+    p = cli.command(
+        sub, "simulate", help="simulate measurements of a design CSV (writes the measurement CSV layout)"
     )
-    cli.add_robot(p)
     p.add_argument("--design", required=True, help=cli.DESIGN_HELP)
     cli.add_sigma(p, default=0.02)
     cli.add_seed(p, of="the geometric errors, the tracker frame and the noise")

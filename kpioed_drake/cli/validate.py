@@ -11,13 +11,12 @@ API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    p = cli.command(
+        sub,
         "validate",
         help="predict fresh measurements with a model (nothing fitted; tracker kept or cross-registered)",
+        data="optional",
     )
-    cli.add_robot(p)
-    cli.add_data(p, optional=True)
-    cli.add_contacts(p)
     cli.add_format(p)
     p.add_argument(
         "--tracker-frame",

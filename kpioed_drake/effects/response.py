@@ -8,6 +8,7 @@ or base compliance (:mod:`.compliance`) turns the reflector point about its pivo
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -152,30 +153,35 @@ def _turned(effects, rots: dict, p_W: np.ndarray):
     return p_W + shift, w
 
 
+class Conditions(TypedDict, total=False):
+    """The per-row conditions of :func:`augmented_response` (those of :func:`augmented_jacobian`,
+    whose docstring details each)."""
+
+    temperature_C: float | np.ndarray | None
+    time_s: float | np.ndarray | None
+    payload_kg: float | np.ndarray | None
+    tau: np.ndarray | None
+    target: np.ndarray | None
+    side: np.ndarray | None
+    compliance_payload_kg: float | np.ndarray | None
+
+
 def augmented_response(
-    model: TrackerModel,
-    q_cmd: np.ndarray,
-    effects: Sequence[Effect] = (),
-    *,
-    temperature_C: float | np.ndarray | None = None,
-    time_s: float | np.ndarray | None = None,
-    payload_kg: float | np.ndarray | None = None,
-    tau: np.ndarray | None = None,
-    target: np.ndarray | None = None,
-    side: np.ndarray | None = None,
-    compliance_payload_kg: float | np.ndarray | None = None,
+    model: TrackerModel, q_cmd: np.ndarray, effects: Sequence[Effect] = (), **conditions: Unpack[Conditions]
 ) -> np.ndarray:
     """(n, 3) response of the measurement model with effects [mm], without the Jacobian.
 
     The same ``h`` as :func:`augmented_jacobian` (same arguments), at a fraction of the cost.
     """
+    c = conditions
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     effects = list(effects)
-    delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=tau, side=side)
+    payload_kg, target = c.get("payload_kg"), c.get("target")
+    delta, _ = joint_deltas(model, q, effects, payload_kg=payload_kg, tau=c.get("tau"), side=c.get("side"))
     p_WQ = flange_point(model.frames(q + delta), model.target_points(target), model.target_links(target))
-    pay_c = payload_kg if payload_kg is not None else compliance_payload_kg
+    pay_c = payload_kg if payload_kg is not None else c.get("compliance_payload_kg")
     p_WQ, _ = _turned(effects, effect_rotations(model, q, effects, pay_c, target=target), p_WQ)
-    s, drift, _, _, s_T = scale_and_drift(effects, q.shape[0], temperature_C, time_s)
+    s, drift, _, _, s_T = scale_and_drift(effects, q.shape[0], c.get("temperature_C"), c.get("time_s"))
     return s_T[:, None] * ((s[:, None] * p_WQ - model.p_WT - drift) @ model.R_WT)
 
 

@@ -165,19 +165,19 @@ class ContactEnvironmentSpec:
 
 
 @dataclasses.dataclass
-class RobotSpec:
-    """A robot model file."""
+class ModelFileSpec:
+    """The fields a robot file (:class:`RobotSpec`) and a URDF's sidecar (:class:`SidecarSpec`) share:
+    the measuring setup's overrides, the drives, and what a calibration writes (every field optional;
+    mm, deg). :func:`shared_fields` checks them, the same for both kinds of file."""
 
     name: str = ""
     description: str = ""
-    sources: str = ""
-    joints: list[JointSpec] = dataclasses.field(default_factory=list)
-    links: list[LinkSpec] = dataclasses.field(default_factory=list)
     self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
+    """Link pairs checked against each other (link indices 0..n)."""
     beam_links: list[int] = dataclasses.field(default_factory=list)
-    q_work_deg: list[float] = dataclasses.field(default_factory=list)
+    """Links the laser beam must not touch."""
     car_shift_x_mm: float = 0.0
-    notes: str = ""
+    """Moves the car obstacles along x [mm]."""
     reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
     """Optional: the reflector (target) offset in the flange frame; overrides the cell's."""
     targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
@@ -188,7 +188,8 @@ class RobotSpec:
     tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
     """Optional, with ``tracker_position_mm``: the tracker orientation (roll, pitch, yaw)."""
     joint_map: JointMapSpec | None = None
-    """Optional: controller angles to model angles (:mod:`kpioed_drake.robot.jointmap`)."""
+    """Optional: controller angles to model angles (:mod:`kpioed_drake.robot.jointmap`; a URDF's
+    default: its ``<mimic>`` joints')."""
     extra_gauge: list[str] = dataclasses.field(default_factory=list)
     """Optional: parameters held at nominal besides SPEC's gauge (e.g. ``theta5, alpha5`` when the
     reflector lies on joint 6's axis and joint 6 cannot move it)."""
@@ -220,6 +221,17 @@ class RobotSpec:
     contact_environment: ContactEnvironmentSpec | None = None
     """Written by a calibration with plane contacts or distances: its estimated planes, pivots and
     bars (:class:`ContactEnvironmentSpec`)."""
+    notes: str = ""
+
+
+@dataclasses.dataclass
+class RobotSpec(ModelFileSpec):
+    """A robot model file."""
+
+    sources: str = ""
+    joints: list[JointSpec] = dataclasses.field(default_factory=list)
+    links: list[LinkSpec] = dataclasses.field(default_factory=list)
+    q_work_deg: list[float] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass
@@ -282,24 +294,16 @@ class LinkMassSpec:
 
 
 @dataclasses.dataclass
-class SidecarSpec:
+class SidecarSpec(ModelFileSpec):
     """The sidecar YAML of a URDF robot (every field optional; mm, deg)."""
 
-    name: str = ""
-    description: str = ""
     tip_link: str = ""
     """The measured link: the robot is the chain from the URDF's root to it (other branches
     ignored); empty: the URDF must be a serial chain."""
-    reflector_position_mm: list[float] = dataclasses.field(default_factory=list)
-    targets_mm: list[list[float]] = dataclasses.field(default_factory=list)
     targets: list[LinkTargetSpec] = dataclasses.field(default_factory=list)
     """Targets on several links (``{link: NAME, position_mm: [x, y, z]}``, target 1 first, in the
     named link's frame): the robot is the union of the chains from the root to their links (a tree:
     two arms on one torso), each joint estimated once; instead of ``tip_link``/``targets_mm``."""
-    tracker_position_mm: list[float] = dataclasses.field(default_factory=list)
-    """The tracker position in W [mm] (a calibrated model's estimate; overrides the cell's)."""
-    tracker_rpy_deg: list[float] = dataclasses.field(default_factory=list)
-    """The tracker orientation (roll, pitch, yaw) [deg], with ``tracker_position_mm``."""
     base_xyz_mm: list[float] = dataclasses.field(default_factory=list)
     """The root link's position in W when the URDF does not weld it to ``world`` [mm]."""
     base_rpy_deg: list[float] = dataclasses.field(default_factory=list)
@@ -310,39 +314,11 @@ class SidecarSpec:
     """Collision capsules replacing the URDF's collision geometry."""
     masses: list[LinkMassSpec] = dataclasses.field(default_factory=list)
     """Link masses (and centres of mass) replacing the URDF's."""
-    self_collision_pairs: list[list[int]] = dataclasses.field(default_factory=list)
-    """Link pairs checked against each other (link indices 0..n)."""
-    beam_links: list[int] = dataclasses.field(default_factory=list)
-    """Links the laser beam must not touch."""
     q_work: list[float] = dataclasses.field(default_factory=list)
     """The working pose, one value per joint [deg; prismatic mm]."""
-    car_shift_x_mm: float = 0.0
-    """Moves the car obstacles along x [mm]."""
-    extra_gauge: list[str] = dataclasses.field(default_factory=list)
-    joint_map: JointMapSpec | None = None
-    """Controller angles to model angles, as in the YAML files (default: the ``<mimic>`` joints')."""
     gauge: list[str] = dataclasses.field(default_factory=list)
     """The parameters held at nominal instead of the automatic choice (a calibrated model keeps its
     nominal robot's: its small errors make the exact dependencies only nearly exact)."""
-    compliant_base: bool = False
-    """The base or floor is compliant: ``base_compliance`` is a diagnosis candidate."""
-    rated_payload_kg: float = 0.0
-    """The payload the robot may carry [kg] (0: not given)."""
-    drive: str = ""
-    """How every joint is driven (``gear``, ``harmonic``, ``cable``, ``belt``), as in the YAML files."""
-    drives: dict[str, str] = dataclasses.field(default_factory=dict)
-    """The drive type per joint (URDF joint name or 1-based number), overriding ``drive``."""
-    effects: list[EffectSpec] = dataclasses.field(default_factory=list)
-    """The non-geometric effects of an extended model, as in the YAML files."""
-    payload_point_mm: list[float] = dataclasses.field(default_factory=list)
-    """As in the YAML files: where a payload acts in the flange frame [mm] (default: the reflector)."""
-    probe_rpy_deg: list[float] = dataclasses.field(default_factory=list)
-    """As in the YAML files: a 6-DoF probe's orientation on the flange (roll, pitch, yaw) [deg]."""
-    estimated_errors: list[list[float]] = dataclasses.field(default_factory=list)
-    """As in the YAML files (:class:`RobotSpec`): a calibration's errors of the URDF's joints."""
-    contact_environment: ContactEnvironmentSpec | None = None
-    """As in the YAML files: a contact calibration's planes, pivots and bars."""
-    notes: str = ""
 
 
 def rated_payload(value: float, where: str) -> float | None:
