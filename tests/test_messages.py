@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kpioed_drake import api
+from kpioed_drake import api, cli
 from kpioed_drake.calibration import CalibrationOptions, calibrate
 from kpioed_drake.cli import COMMANDS, build_parser, main, option_names
 from kpioed_drake.diagnosis import DiagnosisOptions, diagnose
@@ -99,9 +99,9 @@ def test_option_names_of_a_command():
 
 @pytest.mark.parametrize("command", COMMANDS)
 def test_api_names_are_parameters_of_the_api_function(command):
-    """A command's ``api_names`` maps parameters its API function has, or fields of the options
-    record it takes (to dests ``option_names`` found, else building the parser fails)."""
-    api_names = _commands()[command].get_default("api_names") or {}
+    """A command's ``api_names`` (the shared table for the dests it has, and its own) maps parameters
+    its API function has, or fields of the options record it takes."""
+    api_names = cli.api_names(_commands()[command])
     function = getattr(api, command)
     names = set(inspect.signature(function).parameters)
     record = typing.get_type_hints(function).get("options")

@@ -59,6 +59,17 @@ COMMANDS = (
 
 # The arguments the commands share.
 
+API_NAMES = {
+    "q_work_deg": "q_work",
+    "target_var_mm2": "target_var",
+    "json_path": "json",
+    "plots_dir": "plots",
+    "data_format": "format",
+    "effects": "effect",
+}
+"""API parameter -> option dest where they differ, alike in every command (those whose dest a command
+has apply to it; the messages name API parameters, :func:`option_names` turns them into options)."""
+
 
 def command(
     sub: argparse._SubParsersAction,
@@ -68,11 +79,14 @@ def command(
     description: str | None = None,
     data: str | None = None,
     data_help: str | None = None,
+    api_names: dict[str, str] | None = None,
 ) -> argparse.ArgumentParser:
     """The parser of command ``name`` with ``--robot`` and, by ``data``, its measurement file:
     ``"required"``, ``"optional"`` (optional beside the contact files ``--planes``/``--distances``,
-    which it adds) or None (no data argument)."""
+    which it adds) or None (no data argument). ``api_names``: the command's own API parameter -> dest
+    pairs beside :data:`API_NAMES`."""
     p = sub.add_parser(name, help=help, description=description)
+    p.set_defaults(api_names=api_names or {})
     add_robot(p)
     if data is not None:
         add_data(p, help=data_help or DATA_HELP, optional=data == "optional")
@@ -300,11 +314,18 @@ def _long_option(option_strings: list[str]) -> str:
 
 def option_names(parser: argparse.ArgumentParser) -> dict[str, str]:
     """API parameter -> option string of a command's parser (``{"sigma_mm": "--sigma-mm"}``): each
-    option's dest, and the command's ``api_names`` default (API parameter -> dest where they differ,
-    e.g. ``{"target_var_mm2": "target_var"}``)."""
+    option's dest, and :func:`api_names` (API parameter -> dest where they differ, e.g.
+    ``{"target_var_mm2": "target_var"}``)."""
     names = {a.dest: _long_option(a.option_strings) for a in parser._actions if a.option_strings}
-    api_names = parser.get_default("api_names") or {}
-    return names | {api: names[dest] for api, dest in api_names.items()}
+    return names | {api: names[dest] for api, dest in api_names(parser).items()}
+
+
+def api_names(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """API parameter -> dest of a command's parser where they differ: :data:`API_NAMES` for the dests
+    it has, and its own (``command(..., api_names=)``)."""
+    dests = {a.dest for a in parser._actions}
+    pairs = API_NAMES | (parser.get_default("api_names") or {})
+    return {api: dest for api, dest in pairs.items() if dest in dests}
 
 
 def _os_error_text(exc: OSError) -> str:

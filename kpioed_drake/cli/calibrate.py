@@ -6,9 +6,6 @@ import argparse
 
 from kpioed_drake import api, cli
 
-API_NAMES = {"q_work_deg": "q_work", "json_path": "json", "plots_dir": "plots", "data_format": "format"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -45,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="refuse poses that do not determine every parameter (default: hold those at nominal, warn)",
     )
     cli.add_extend(p)
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,9 +7,6 @@ import argparse
 from kpioed_drake import api, cli
 from kpioed_drake.compensation.workflow import ANGLES
 
-API_NAMES = {"effects": "effect"}
-"""API parameter -> this command's option dest where they differ (messages name the option)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -45,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="write rows that cannot be reached (reachable=0) instead of failing",
     )
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -26,9 +26,6 @@ from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
 from kpioed_drake.estimation.criteria import TABLE
 from kpioed_drake.tracker.kpi import KPI_AGGREGATES, MEASURES, SIGMA_ROT_DEG
 
-API_NAMES = {"q_work_deg": "q_work", "target_var_mm2": "target_var", "json_path": "json"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -64,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_html(p)
     cli.add_extend(p)
     _add_discriminate_options(p)
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def _add_solve_options(p: argparse.ArgumentParser) -> None:

@@ -6,9 +6,6 @@ import argparse
 
 from kpioed_drake import api, cli
 
-API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -28,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "for a URDF robot NAME.urdf with its sidecar",
     )
     cli.add_data_outputs(p, plots_help="write residual plots (PNG) into DIR")
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,9 +8,6 @@ import argparse
 from kpioed_drake import api, cli
 from kpioed_drake.design import certificate_line
 
-API_NAMES = {"q_work_deg": "q_work", "json_path": "json"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(sub, "evaluate", help="evaluate a design CSV (a column per joint: q1_deg, ...)")
@@ -28,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_extend(p)
     cli.add_json_out(p)
     cli.add_html(p)
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,13 +9,13 @@ from kpioed_drake import api, cli
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(sub, "info", help="robot parameters, identifiable count, reach, q_work")
-    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--json", dest="as_json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     d = api.info(args.robot)
-    if args.json:
+    if args.as_json:
         cli.print_json(d)
         return 0
     print(f"robot        {d['robot']}")

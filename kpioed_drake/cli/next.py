@@ -7,9 +7,6 @@ import argparse
 
 from kpioed_drake import api, cli
 
-API_NAMES = {"target_var_mm2": "target_var", "json_path": "json", "data_format": "format"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -40,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_json_out(p)
     cli.add_format(p)
     cli.add_force(p)
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,9 +7,6 @@ import argparse
 from kpioed_drake import api, cli
 from kpioed_drake.files.designs import OFFSET_COLUMNS
 
-API_NAMES = {"effects": "effect", "n_targets": "targets", "truth_path": "truth"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -51,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--truth", default=None, metavar="FILE.json", help="also write the true parameters as JSON"
     )
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run, api_names={"n_targets": "targets", "truth_path": "truth"})
 
 
 def run(args: argparse.Namespace) -> int:

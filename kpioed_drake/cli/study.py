@@ -8,9 +8,6 @@ from kpioed_drake import api, cli
 from kpioed_drake.errors import EXIT_SOLVER
 from kpioed_drake.study import DEFAULT, VARIANTS, regenerate_tables
 
-API_NAMES = {"out_dir": "out"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="run (or resume) the paper's study: Tables 6-8, Figures 7-8")
@@ -41,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "bounds, about 4-13 s per robot; makes no design)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run, api_names={"out_dir": "out"})
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,9 +6,6 @@ import argparse
 
 from kpioed_drake import api, cli
 
-API_NAMES = {"json_path": "json", "plots_dir": "plots", "data_format": "format"}
-"""API parameter -> this parser's dest, where they differ (the messages name API parameters)."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = cli.command(
@@ -33,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     cli.add_json_out(p)
     p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
-    p.set_defaults(func=run, api_names=API_NAMES)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
