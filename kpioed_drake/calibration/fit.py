@@ -98,7 +98,7 @@ def hold_undetermined(
     lay = nominal.layout
     if 3 * data.n < lay.n_free:
         return nominal
-    registered = registered_model(nominal, data.q, data.eta, data.target, data.R_TP)
+    registered = registered_model(nominal, data.q, data.eta, target=data.target, R_TP=data.R_TP)
     found = undetermined_parameters(_test_rows(registered, data, sigma_deg), lay.free_names)
     loose = [c for c in found.correlated if c.held in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it

@@ -97,7 +97,7 @@ def command(
 
 def add_model_out(p: argparse.ArgumentParser, *, help: str) -> None:
     """``--out``: the model file a command writes (YAML, or a URDF with its sidecar)."""
-    p.add_argument("--out", default=None, metavar=MODEL_OUT_METAVAR, help=help)
+    add_optional(p, "--out", metavar=MODEL_OUT_METAVAR, help=help)
 
 
 def add_robot(p: argparse.ArgumentParser, *, required: bool = True) -> None:
@@ -128,11 +128,16 @@ def add_force(p: argparse.ArgumentParser) -> None:
     )
 
 
-def add_optional_number(
-    p: argparse.ArgumentParser, option: str, *, type: type[int] | type[float], metavar: str, help: str
+def add_optional(
+    p: argparse.ArgumentParser,
+    option: str,
+    *,
+    metavar: str,
+    help: str,
+    type: type[int] | type[float] | type[str] = str,
 ) -> None:
-    """An optional number ``option`` of ``type`` (int or float), None when not given (``help`` says
-    what that means)."""
+    """An optional ``option``: a file path, or a number of ``type`` (int or float); None when not
+    given (``help`` says what that means)."""
     p.add_argument(option, type=type, default=None, metavar=metavar, help=help)
 
 
@@ -157,15 +162,11 @@ def add_data(p: argparse.ArgumentParser, *, help: str = DATA_HELP, optional: boo
 
 def add_contacts(p: argparse.ArgumentParser) -> None:
     """``--planes`` and ``--distances``: contact files (docs/contacts.md)."""
-    p.add_argument(
-        "--planes",
-        default=None,
-        metavar="PLANES.csv",
-        help="plane-contact CSV (joint columns, plane 1..P, optional target, distance_mm, sigma_mm)",
-    )
-    p.add_argument(
+    planes = "plane-contact CSV (joint columns, plane 1..P, optional target, distance_mm, sigma_mm)"
+    add_optional(p, "--planes", metavar="PLANES.csv", help=planes)
+    add_optional(
+        p,
         "--distances",
-        default=None,
         metavar="DIST.csv",
         help="distance CSV (a_q1_deg.. and b_q1_deg.., or q1_deg.. and pivot; length_mm, optional bar, "
         "target, sigma_mm)",
@@ -218,26 +219,20 @@ def add_json_out(p: argparse.ArgumentParser) -> None:
 
 def add_html(p: argparse.ArgumentParser) -> None:
     """``--html FILE``: a self-contained 3-D page (Drake Meshcat) of the result."""
-    p.add_argument(
-        "--html", default=None, metavar="FILE.html", help="write a 3-D page (Meshcat) of the result"
-    )
+    add_optional(p, "--html", metavar="FILE.html", help="write a 3-D page (Meshcat) of the result")
 
 
 def add_format(p: argparse.ArgumentParser) -> None:
     """``--format F.yaml``: the format file of a measurement file of another layout."""
-    p.add_argument(
-        "--format",
-        default=None,
-        metavar="F.yaml",
-        help="format file of a measurement file of another layout (docs/data-formats.md)",
-    )
+    help = "format file of a measurement file of another layout (docs/data-formats.md)"
+    add_optional(p, "--format", metavar="F.yaml", help=help)
 
 
 def add_data_outputs(p: argparse.ArgumentParser, *, plots_help: str) -> None:
     """The outputs of a command on measured data: ``--json``, ``--plots``, ``--html``, and its
     ``--force`` and ``--format`` options."""
     add_json_out(p)
-    p.add_argument("--plots", default=None, metavar="DIR", help=plots_help)
+    add_optional(p, "--plots", metavar="DIR", help=plots_help)
     add_html(p)
     add_force(p)
     add_format(p)

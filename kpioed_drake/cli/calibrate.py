@@ -8,12 +8,8 @@ from kpioed_drake import api, cli
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = cli.command(
-        sub,
-        "calibrate",
-        help="calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)",
-        data="optional",
-    )
+    help = "calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)"
+    p = cli.command(sub, "calibrate", help=help, data="optional")
     cli.add_sigma(p, default=0.02)
     p.add_argument(
         "--sigma-deg",

@@ -14,15 +14,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "compensate",
         help="compensate a program (nominal joint values) or reach target points with a calibrated model",
     )
-    p.add_argument("--program", default=None, metavar="P.csv", help="nominal joint values (q1_deg, ...)")
-    p.add_argument("--targets", default=None, metavar="T.csv", help="points in W (x_mm, y_mm, z_mm)")
+    cli.add_optional(p, "--program", metavar="P.csv", help="nominal joint values (q1_deg, ...)")
+    cli.add_optional(p, "--targets", metavar="T.csv", help="points in W (x_mm, y_mm, z_mm)")
     p.add_argument("--out", required=True, metavar="Q.csv", help="compensated joint values to write")
-    p.add_argument(
-        "--nominal",
-        default=None,
-        metavar="ROBOT",
-        help="the controller's nominal model (default: the name before '-calibrated' of --robot)",
-    )
+    nominal = "the controller's nominal model (default: the name before '-calibrated' of --robot)"
+    cli.add_optional(p, "--nominal", metavar="ROBOT", help=nominal)
     p.add_argument("--target", type=int, default=1, metavar="K", help="target (1-based) to compensate")
     p.add_argument(
         "--angles",

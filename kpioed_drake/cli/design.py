@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="design CSV of poses already measured: their information is held fixed and --n new poses "
         "are optimised (--out gets the new poses; the values are those of the combined design)",
     )
-    cli.add_optional_number(
+    cli.add_optional(
         p,
         "--target-var",
         type=float,
@@ -108,14 +108,14 @@ def _add_measure_options(p: argparse.ArgumentParser) -> None:
         help="what a pose measures: point = the reflector's position (3 rows); pose = a 6-DoF probe's "
         "position and orientation (6 rows, the probe's rotation on the flange estimated) (default point)",
     )
-    cli.add_optional_number(
+    cli.add_optional(
         p,
         "--sigma-deg",
         type=float,
         metavar="S",
         help=f"with --measure pose: the orientation noise per tracker axis [deg] (default {SIGMA_ROT_DEG:g})",
     )
-    cli.add_optional_number(
+    cli.add_optional(
         p,
         "--kpi-orientation-mm",
         type=float,

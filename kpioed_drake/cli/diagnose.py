@@ -6,18 +6,18 @@ import argparse
 
 from kpioed_drake import api, cli
 
+DESCRIPTION = (
+    "Geometric calibration, goodness-of-fit test against the known noise, and a stepwise search over "
+    "joint_elasticity, gear_cyclic, joint_scale, joint_coupling, backlash, thermal_expansion, "
+    "tracker_scale and tracker_drift; each cause with its competing explanations and plausibility, and "
+    "the structure of what stays unexplained (docs/diagnosis.md)."
+)
+"""The command's description in its ``--help``."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = cli.command(
-        sub,
-        "diagnose",
-        help="test measured data against the geometric model and name the missing effect",
-        description="Geometric calibration, goodness-of-fit test against the known noise, and a stepwise "
-        "search over joint_elasticity, gear_cyclic, joint_scale, joint_coupling, backlash, "
-        "thermal_expansion, tracker_scale and tracker_drift; each cause with its competing explanations "
-        "and plausibility, and the structure of what stays unexplained (docs/diagnosis.md).",
-        data="required",
-    )
+    help = "test measured data against the geometric model and name the missing effect"
+    p = cli.command(sub, "diagnose", help=help, description=DESCRIPTION, data="required")
     cli.add_sigma(p)  # None: measured on repeated poses or checked against the residuals
     cli.add_model_out(
         p,

@@ -27,13 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--max-plan", type=int, default=60, metavar="H", help="most poses planned ahead to the target (60)"
     )
-    p.add_argument("--out", default=None, metavar="NEXT.csv", help="the next poses (not written when done)")
-    p.add_argument(
-        "--plan",
-        default=None,
-        metavar="PLAN.csv",
-        help="the plan carried from step to step: read if it exists, then replaced (removed when done)",
-    )
+    cli.add_optional(p, "--out", metavar="NEXT.csv", help="the next poses (not written when done)")
+    plan = "the plan carried from step to step: read if it exists, then replaced (removed when done)"
+    cli.add_optional(p, "--plan", metavar="PLAN.csv", help=plan)
     cli.add_json_out(p)
     cli.add_format(p)
     cli.add_force(p)

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--payload-kg", type=float, default=0.0, help="payload at the reflector [kg] (0)")
     p.add_argument("--no-geometric-errors", action="store_true", help="the true robot is the nominal one")
-    cli.add_optional_number(
+    cli.add_optional(
         p,
         "--targets",
         type=int,
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="targets (SMRs) measured at every pose: the first N of the model file's targets_mm "
         "(default: all); one row per pose and target, with a target column",
     )
-    cli.add_optional_number(
+    cli.add_optional(
         p,
         "--orientation-sigma-deg",
         type=float,

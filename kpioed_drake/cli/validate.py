@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--force", action="store_true", help="go on with implausible data (a warning instead of a refusal)"
     )
     cli.add_json_out(p)
-    p.add_argument("--plots", default=None, metavar="DIR", help="write the error plot (PNG) to DIR")
+    cli.add_optional(p, "--plots", metavar="DIR", help="write the error plot (PNG) to DIR")
     p.set_defaults(func=run)
 
 

@@ -15,6 +15,26 @@ import numpy as np
 from kpioed_drake.robot.models import Robot
 
 
+@dataclasses.dataclass(frozen=True)
+class ReducedBasis:
+    """One joint's identifiable basis of scaled moments (gravity's or a lateral compliance's).
+
+    Attributes:
+        joint: 1-based joint.
+        D: (p,) RMS of each column over the reference poses' rows.
+        V: (p, r) the identifiable directions of the scaled moments (orthonormal).
+    """
+
+    joint: int
+    D: np.ndarray
+    V: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        """r, the identifiable directions' count."""
+        return self.V.shape[1]
+
+
 def own_basis(robot: Robot, name: str) -> tuple[np.ndarray, np.ndarray] | None:
     """``(D, V)`` of the basis ``robot`` carries for the effect ``name`` (e.g.
     ``joint_elasticity_basis:3``): its ``gravity_bases`` (sized on data), then its model file's

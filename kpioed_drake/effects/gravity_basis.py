@@ -43,7 +43,7 @@ from collections.abc import Iterable
 import numpy as np
 import scipy.special
 
-from kpioed_drake.effects.basis_store import own_basis, with_basis
+from kpioed_drake.effects.basis_store import ReducedBasis, own_basis, with_basis
 from kpioed_drake.effects.gravity import gravity_model, memoized, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.kinematics import cross, subtree_links
@@ -150,26 +150,17 @@ def link_moments(robot: Robot, joint: int) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True)
-class JointBasis:
-    """The minimal identifiable gravity basis of one joint.
+class JointBasis(ReducedBasis):
+    """The minimal identifiable gravity basis of one joint (:class:`ReducedBasis`; ``D`` over the full
+    regressor's columns).
 
     Attributes:
-        joint: 1-based joint.
-        D: (p,) RMS of each full regressor column over the reference poses.
-        V: (p, r) the identifiable directions of the scaled moments (orthonormal).
         beta_file: (r,) the model file's moments in this basis [N m].
         g: (3,) the gravity vector used [m/s^2].
     """
 
-    joint: int
-    D: np.ndarray
-    V: np.ndarray
     beta_file: np.ndarray
     g: np.ndarray
-
-    @property
-    def rank(self) -> int:
-        return self.V.shape[1]
 
     def regressor(
         self, robot: Robot, q: np.ndarray, *, with_dq: bool = False

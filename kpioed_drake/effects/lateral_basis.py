@@ -31,7 +31,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from kpioed_drake.effects.basis_store import own_basis, with_basis
+from kpioed_drake.effects.basis_store import ReducedBasis, own_basis, with_basis
 from kpioed_drake.effects.compliance import Rotation
 from kpioed_drake.effects.gravity import gravity_model, memoized, nominal_frames, reference_poses, robot_key
 from kpioed_drake.errors import InputError
@@ -105,22 +105,8 @@ def _moment_regressor(robot: Robot, q, joint: int, *, with_dq: bool = False):
 
 
 @dataclasses.dataclass(frozen=True)
-class LateralBasis:
-    """The identifiable moment basis of one joint's lateral compliance.
-
-    Attributes:
-        joint: 1-based joint.
-        D: (p,) RMS of each column over the reference poses' rows.
-        V: (p, r) the identifiable directions of the scaled moments (orthonormal).
-    """
-
-    joint: int
-    D: np.ndarray
-    V: np.ndarray
-
-    @property
-    def rank(self) -> int:
-        return self.V.shape[1]
+class LateralBasis(ReducedBasis):
+    """The identifiable moment basis of one joint's lateral compliance (:class:`ReducedBasis`)."""
 
     def rotations(
         self, robot: Robot, q: np.ndarray, *, with_dq: bool = False, on: np.ndarray | None = None

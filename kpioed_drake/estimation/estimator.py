@@ -435,7 +435,7 @@ def estimate(
     if R_TP is not None:
         prob = dataclasses.replace(prob, R_TP=R_TP[mask], w_rot=prob.sw[:, None] / sigma_rot[mask])
     if register and m:
-        model = registered_model(model, prob.q, prob.eta, prob.conditions.target, prob.R_TP)
+        model = registered_model(model, prob.q, prob.eta, target=prob.conditions.target, R_TP=prob.R_TP)
 
     model, effects, J, cost, converged, message, it = _levenberg_marquardt(
         prob, model, effects, free, max_iter=max_iter, tol=tol

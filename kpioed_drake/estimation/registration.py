@@ -56,6 +56,7 @@ def registered_model(
     model: TrackerModel,
     q: np.ndarray,
     eta: np.ndarray,
+    *,
     target: np.ndarray | None = None,
     R_TP: np.ndarray | None = None,
 ) -> TrackerModel:
