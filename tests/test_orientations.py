@@ -141,7 +141,10 @@ def test_equal_sigmas_of_an_intrinsic_xyz_at_zero_are_the_tracker_axes_sigmas():
         (lambda: O.euler_to_matrix(np.zeros((2, 3)), "XYZ", "intrinsic", "grad"), "angle_unit: 'grad'"),
         (
             lambda: O.euler_to_matrix(
-                [[0, 0, 0], [0, np.nan, 0]], "XYZ", "intrinsic", rows=[2, 3], columns=("a", "b", "c")
+                [[0, 0, 0], [0, np.nan, 0]],
+                "XYZ",
+                "intrinsic",
+                cells=O.Cells("euler angles", [2, 3], ("a", "b", "c")),
             ),
             "row 3, columns 'a', 'b', 'c': Euler angles [0.0, nan, 0.0] is not finite",
         ),

@@ -30,6 +30,7 @@ Messages name ``where`` (a file, or a label), the row (``rows``: the numbers to 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -54,6 +55,16 @@ MATRIX_TOLERANCE = 1e-3
 """A matrix's largest ``|R^T R - I|`` entry: a larger one is no rotation written with six or more
 digits; a smaller one is rounded to the nearest rotation."""
 _AXES = {"X": 0, "Y": 1, "Z": 2}
+
+
+@dataclasses.dataclass(frozen=True)
+class Cells:
+    """Where a block of values stands, for messages: ``where`` the file or label they begin with,
+    ``rows`` the numbers to name the rows by (default 1..n), ``columns`` the columns' names."""
+
+    where: str
+    rows: ArrayLike | None = None
+    columns: Sequence[str] = ()
 
 
 def _label(where: str, rows: np.ndarray, k: int, columns: Sequence[str]) -> str:
@@ -151,20 +162,20 @@ def euler_to_matrix(
     kind: str,
     unit: str = "rad",
     *,
-    where: str = "euler angles",
-    rows: ArrayLike | None = None,
-    columns: Sequence[str] = (),
+    cells: Cells | None = None,
 ) -> np.ndarray:
     """(n, 3, 3) rotation matrices of Euler angles (module docstring for the conventions).
 
     Args:
         angles: (n, 3) or (3,) the angles of the sequence's first, second, third axis, in ``unit``.
         sequence: one of :data:`SEQUENCES`; kind: ``intrinsic`` or ``extrinsic``; unit: deg or rad.
-        where, rows, columns: for messages (default rows 1..n).
+        cells: where the values stand, for messages (:class:`Cells`).
 
     Raises:
         InputError: an unknown sequence, kind or unit; a non-finite angle (row and columns named).
     """
+    c = cells or Cells("euler angles")
+    where, rows, columns = c.where, c.rows, c.columns
     check_euler(sequence, kind, unit, where)
     a, _ = _values(angles, 3, "Euler angles", where, rows, columns)
     f = _factors(a * ANGLE_UNITS[unit], sequence, kind)
@@ -199,9 +210,7 @@ def euler_sigma_to_rotation_sigma(
     kind: str,
     unit: str = "rad",
     *,
-    where: str = "euler angle sigmas",
-    rows: ArrayLike | None = None,
-    columns: Sequence[str] = (),
+    cells: Cells | None = None,
 ) -> np.ndarray:
     """(n, 3) standard deviations [rad] of the small rotation about the tracker's x, y, z axes, from
     the standard deviations of the three Euler angles (independent, per row).
@@ -220,6 +229,8 @@ def euler_sigma_to_rotation_sigma(
         InputError: a non-finite or negative sigma, or sigmas that give no rotation noise (row and
             columns named).
     """
+    c = cells or Cells("euler angle sigmas")
+    where, rows, columns = c.where, c.rows, c.columns
     a, rows = _values(angles, 3, "Euler angles", where, rows, ())
     s = np.broadcast_to(np.asarray(sigma, dtype=float), a.shape)
     s, _ = _values(s, 3, "sigmas", where, rows, columns)
@@ -243,20 +254,20 @@ def quaternion_to_matrix(
     quaternions: ArrayLike,
     scalar: str,
     *,
-    where: str = "quaternions",
-    rows: ArrayLike | None = None,
-    columns: Sequence[str] = (),
+    cells: Cells | None = None,
 ) -> np.ndarray:
     """(n, 3, 3) rotation matrices of Hamilton quaternions (normalised).
 
     Args:
         quaternions: (n, 4) or (4,); scalar: ``first`` (w x y z) or ``last`` (x y z w).
-        where, rows, columns: for messages.
+        cells: where the values stand, for messages (:class:`Cells`).
 
     Raises:
         InputError: an unknown scalar position; a non-finite entry or a norm off 1 by more than
             :data:`QUATERNION_TOLERANCE` (row and columns named).
     """
+    c = cells or Cells("quaternions")
+    where, rows, columns = c.where, c.rows, c.columns
     if scalar not in SCALAR_POSITIONS:
         raise InputError(
             f"{where}: scalar: {missing_or(scalar, SCALAR_POSITIONS)}; say where the scalar part is "
@@ -319,9 +330,7 @@ def matrix_from_columns(
     values: ArrayLike,
     order: str,
     *,
-    where: str = "matrices",
-    rows: ArrayLike | None = None,
-    columns: Sequence[str] = (),
+    cells: Cells | None = None,
 ) -> np.ndarray:
     """(n, 3, 3) rotation matrices from nine numbers per row in ``order`` (:data:`MATRIX_ORDERS`).
 
@@ -331,6 +340,8 @@ def matrix_from_columns(
     Raises:
         InputError: an unknown order; a non-finite entry; a row that is no rotation (row named).
     """
+    c = cells or Cells("matrices")
+    where, rows, columns = c.where, c.rows, c.columns
     if order not in MATRIX_ORDERS:
         raise InputError(
             f"{where}: order: {missing_or(order, MATRIX_ORDERS)}; say how the nine numbers are "
