@@ -144,7 +144,7 @@ def test_equal_sigmas_of_an_intrinsic_xyz_at_zero_are_the_tracker_axes_sigmas():
                 [[0, 0, 0], [0, np.nan, 0]],
                 "XYZ",
                 "intrinsic",
-                cells=O.Cells("euler angles", [2, 3], ("a", "b", "c")),
+                at=O.Cells("euler angles", [2, 3], ("a", "b", "c")),
             ),
             "row 3, columns 'a', 'b', 'c': Euler angles [0.0, nan, 0.0] is not finite",
         ),

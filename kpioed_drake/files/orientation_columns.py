@@ -90,7 +90,7 @@ def native_orientation(
     if QUATERNION_COLUMNS[0] not in header:
         return {}
     quat = np.stack([values[c] for c in QUATERNION_COLUMNS], axis=1)
-    R = quaternion_to_matrix(quat, "first", cells=Cells(str(path), rows, QUATERNION_COLUMNS))
+    R = quaternion_to_matrix(quat, "first", at=Cells(str(path), rows, QUATERNION_COLUMNS))
     if SIGMA_COLUMNS[0] not in header:
         return {"R_TP": R}
     sigma = np.stack([values[c] for c in SIGMA_COLUMNS], axis=1)
@@ -131,11 +131,11 @@ def format_orientation(
     v = np.stack([values[c] for c in cols], axis=1)
     args = (spec.sequence, spec.kind, spec.angle_unit)
     if spec.representation == "euler":
-        R = euler_to_matrix(v, *args, cells=Cells(where, rows, cols))
+        R = euler_to_matrix(v, *args, at=Cells(where, rows, cols))
     elif spec.representation == "quaternion":
-        R = quaternion_to_matrix(v, spec.scalar, cells=Cells(where, rows, cols))
+        R = quaternion_to_matrix(v, spec.scalar, at=Cells(where, rows, cols))
     else:
-        R = matrix_from_columns(v, spec.order, cells=Cells(where, rows, cols))
+        R = matrix_from_columns(v, spec.order, at=Cells(where, rows, cols))
     n = len(rows)
     sigma = None
     if spec.sigma_columns:
@@ -143,7 +143,7 @@ def format_orientation(
         s = np.stack([values[c] for c in names], axis=1)
         _positive(path, s, rows, names)
         if spec.sigma_of == "euler_angles":
-            sigma = euler_sigma_to_rotation_sigma(v, s, *args, cells=Cells(where, rows, names))
+            sigma = euler_sigma_to_rotation_sigma(v, s, *args, at=Cells(where, rows, names))
         else:
             sigma = s * ANGLE_UNITS[spec.angle_unit]
     elif spec.sigma_deg is not None:

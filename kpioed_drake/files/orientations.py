@@ -67,30 +67,39 @@ class Cells:
     columns: Sequence[str] = ()
 
 
-def _label(where: str, rows: np.ndarray, k: int, columns: Sequence[str]) -> str:
+def _label(cells: Cells, rows: np.ndarray, k: int) -> str:
+    """``where: row r, columns 'a', 'b'`` of row ``k`` (0-based) of the block ``cells``."""
+    columns = cells.columns
     cols = f", column{'s' if len(columns) > 1 else ''} {', '.join(map(repr, columns))}" if columns else ""
-    return f"{where}: row {rows[k]}{cols}"
+    return f"{cells.where}: row {rows[k]}{cols}"
 
 
 def _rows(rows: ArrayLike | None, n: int) -> np.ndarray:
     return np.arange(1, n + 1) if rows is None else np.asarray(rows)
 
 
-def _values(
-    values: ArrayLike, width: int, what: str, where: str, rows: ArrayLike | None, columns: Sequence[str]
-) -> tuple[np.ndarray, np.ndarray]:
-    """``values`` as an (n, width) float array (one row given as (width,)), every entry finite."""
+def _values(values: ArrayLike, width: int, what: str, cells: Cells) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` as an (n, width) float array (one row given as (width,)), every entry finite, and
+    the (n,) numbers naming its rows."""
+    where = cells.where
     arr = np.asarray(values, dtype=float)
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != width:
         raise InputError(f"{where}: expected {what} as (n, {width}) numbers, got shape {np.shape(values)}")
-    rows = _rows(rows, arr.shape[0])
+    rows = _rows(cells.rows, arr.shape[0])
     bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
     if bad.size:
         k = int(bad[0])
-        raise InputError(f"{_label(where, rows, k, columns)}: {what} {arr[k].tolist()} is not finite")
+        raise InputError(f"{_label(cells, rows, k)}: {what} {arr[k].tolist()} is not finite")
     return arr, rows
+
+
+def _check_named(value: str, allowed: Iterable[str], where: str, field: str, say: str) -> None:
+    """A convention field ``value`` among ``allowed``, else an error naming ``where``, the field and
+    what to ``say``."""
+    if value not in allowed:
+        raise InputError(f"{where}: {field}: {missing_or(value, allowed)}; {say}")
 
 
 def missing_or(value: str, allowed: Iterable[str]) -> str:
@@ -157,27 +166,21 @@ def _factors(angles: np.ndarray, sequence: str, kind: str) -> list[np.ndarray]:
 
 
 def euler_to_matrix(
-    angles: ArrayLike,
-    sequence: str,
-    kind: str,
-    unit: str = "rad",
-    *,
-    cells: Cells | None = None,
+    angles: ArrayLike, sequence: str, kind: str, unit: str = "rad", *, at: Cells | None = None
 ) -> np.ndarray:
     """(n, 3, 3) rotation matrices of Euler angles (module docstring for the conventions).
 
     Args:
         angles: (n, 3) or (3,) the angles of the sequence's first, second, third axis, in ``unit``.
         sequence: one of :data:`SEQUENCES`; kind: ``intrinsic`` or ``extrinsic``; unit: deg or rad.
-        cells: where the values stand, for messages (:class:`Cells`).
+        at: where the values stand, for messages (:class:`Cells`).
 
     Raises:
         InputError: an unknown sequence, kind or unit; a non-finite angle (row and columns named).
     """
-    c = cells or Cells("euler angles")
-    where, rows, columns = c.where, c.rows, c.columns
-    check_euler(sequence, kind, unit, where)
-    a, _ = _values(angles, 3, "Euler angles", where, rows, columns)
+    c = at or Cells("euler angles")
+    check_euler(sequence, kind, unit, c.where)
+    a, _ = _values(angles, 3, "Euler angles", c)
     f = _factors(a * ANGLE_UNITS[unit], sequence, kind)
     return f[0] @ f[1] @ f[2]
 
@@ -191,7 +194,7 @@ def euler_rate_jacobian(angles: ArrayLike, sequence: str, kind: str, unit: str =
     ``C B e_A, C e_B, e_C``.
     """
     check_euler(sequence, kind, unit)
-    a, _ = _values(angles, 3, "Euler angles", "euler angles", None, ())
+    a, _ = _values(angles, 3, "Euler angles", Cells("euler angles"))
     a = a * ANGLE_UNITS[unit]
     n = a.shape[0]
     e = [np.broadcast_to(np.eye(3)[_AXES[c]], (n, 3)) for c in sequence]
@@ -210,7 +213,7 @@ def euler_sigma_to_rotation_sigma(
     kind: str,
     unit: str = "rad",
     *,
-    cells: Cells | None = None,
+    at: Cells | None = None,
 ) -> np.ndarray:
     """(n, 3) standard deviations [rad] of the small rotation about the tracker's x, y, z axes, from
     the standard deviations of the three Euler angles (independent, per row).
@@ -229,57 +232,45 @@ def euler_sigma_to_rotation_sigma(
         InputError: a non-finite or negative sigma, or sigmas that give no rotation noise (row and
             columns named).
     """
-    c = cells or Cells("euler angle sigmas")
-    where, rows, columns = c.where, c.rows, c.columns
-    a, rows = _values(angles, 3, "Euler angles", where, rows, ())
+    c = at or Cells("euler angle sigmas")
+    a, rows = _values(angles, 3, "Euler angles", Cells(c.where, c.rows))
     s = np.broadcast_to(np.asarray(sigma, dtype=float), a.shape)
-    s, _ = _values(s, 3, "sigmas", where, rows, columns)
+    s, _ = _values(s, 3, "sigmas", c)
     bad = np.flatnonzero(np.any(s < 0, axis=1))
     if bad.size:
         k = int(bad[0])
-        raise InputError(f"{_label(where, rows, k, columns)}: sigmas {s[k].tolist()} must be >= 0")
+        raise InputError(f"{_label(c, rows, k)}: sigmas {s[k].tolist()} must be >= 0")
     J = euler_rate_jacobian(a, sequence, kind, unit)
     s = s * ANGLE_UNITS[unit]
     out = np.sqrt(np.einsum("nij,nj->ni", J**2, s**2))
     bad = np.flatnonzero(np.any(out <= 0, axis=1))
     if bad.size:
         k = int(bad[0])
-        raise InputError(
-            f"{_label(where, rows, k, columns)}: sigmas {s[k].tolist()} leave an axis without noise"
-        )
+        raise InputError(f"{_label(c, rows, k)}: sigmas {s[k].tolist()} leave an axis without noise")
     return out
 
 
-def quaternion_to_matrix(
-    quaternions: ArrayLike,
-    scalar: str,
-    *,
-    cells: Cells | None = None,
-) -> np.ndarray:
+def quaternion_to_matrix(quaternions: ArrayLike, scalar: str, *, at: Cells | None = None) -> np.ndarray:
     """(n, 3, 3) rotation matrices of Hamilton quaternions (normalised).
 
     Args:
         quaternions: (n, 4) or (4,); scalar: ``first`` (w x y z) or ``last`` (x y z w).
-        cells: where the values stand, for messages (:class:`Cells`).
+        at: where the values stand, for messages (:class:`Cells`).
 
     Raises:
         InputError: an unknown scalar position; a non-finite entry or a norm off 1 by more than
             :data:`QUATERNION_TOLERANCE` (row and columns named).
     """
-    c = cells or Cells("quaternions")
-    where, rows, columns = c.where, c.rows, c.columns
-    if scalar not in SCALAR_POSITIONS:
-        raise InputError(
-            f"{where}: scalar: {missing_or(scalar, SCALAR_POSITIONS)}; say where the scalar part is "
-            "(first: w x y z; last: x y z w)"
-        )
-    q, rows = _values(quaternions, 4, "quaternion", where, rows, columns)
+    c = at or Cells("quaternions")
+    say = "say where the scalar part is (first: w x y z; last: x y z w)"
+    _check_named(scalar, SCALAR_POSITIONS, c.where, "scalar", say)
+    q, rows = _values(quaternions, 4, "quaternion", c)
     norm = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
     if bad.size:
         k = int(bad[0])
         raise InputError(
-            f"{_label(where, rows, k, columns)}: quaternion {q[k].tolist()} has norm {norm[k]:.6g}, "
+            f"{_label(c, rows, k)}: quaternion {q[k].tolist()} has norm {norm[k]:.6g}, "
             f"not 1 (tolerance {QUATERNION_TOLERANCE:g}): a wrong column or a missing digit?"
         )
     q = q / norm[:, None]
@@ -326,12 +317,7 @@ def matrix_to_quaternion(R: ArrayLike, scalar: str = "first") -> np.ndarray:
     return q if scalar == "first" else q[:, [1, 2, 3, 0]]
 
 
-def matrix_from_columns(
-    values: ArrayLike,
-    order: str,
-    *,
-    cells: Cells | None = None,
-) -> np.ndarray:
+def matrix_from_columns(values: ArrayLike, order: str, *, at: Cells | None = None) -> np.ndarray:
     """(n, 3, 3) rotation matrices from nine numbers per row in ``order`` (:data:`MATRIX_ORDERS`).
 
     A row within :data:`MATRIX_TOLERANCE` of orthonormal is replaced by its nearest rotation (the
@@ -340,14 +326,13 @@ def matrix_from_columns(
     Raises:
         InputError: an unknown order; a non-finite entry; a row that is no rotation (row named).
     """
-    c = cells or Cells("matrices")
-    where, rows, columns = c.where, c.rows, c.columns
-    if order not in MATRIX_ORDERS:
-        raise InputError(
-            f"{where}: order: {missing_or(order, MATRIX_ORDERS)}; say how the nine numbers are "
-            "ordered (row_major: r11 r12 r13 r21 ... r33; column_major: r11 r21 r31 r12 ... r33)"
-        )
-    v, rows = _values(values, 9, "matrix", where, rows, columns)
+    c = at or Cells("matrices")
+    say = (
+        "say how the nine numbers are ordered (row_major: r11 r12 r13 r21 ... r33; column_major: r11 r21 "
+        "r31 r12 ... r33)"
+    )
+    _check_named(order, MATRIX_ORDERS, c.where, "order", say)
+    v, rows = _values(values, 9, "matrix", c)
     M = v.reshape(-1, 3, 3)
     if order == "column_major":
         M = M.transpose(0, 2, 1)
@@ -358,7 +343,7 @@ def matrix_from_columns(
         k = int(bad[0])
         what = "a reflection (determinant < 0)" if det[k] < 0 else f"R^T R - I reaches {err[k]:.3g}"
         raise InputError(
-            f"{_label(where, rows, k, columns)}: the matrix is not a rotation: {what} "
+            f"{_label(c, rows, k)}: the matrix is not a rotation: {what} "
             f"(tolerance {MATRIX_TOLERANCE:g}; order {order})"
         )
     U, _, Vt = np.linalg.svd(M)
