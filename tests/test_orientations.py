@@ -117,14 +117,14 @@ def test_euler_sigmas_map_through_the_jacobian_of_the_euler_map(sequence, kind):
     np.testing.assert_allclose(J, _fd_rotation(a, sequence, kind), atol=1e-8)
     sigma = np.random.default_rng(8).uniform(0.5, 2.0, size=(15, 3)) * 1e-4
     expected = np.sqrt(np.einsum("nij,nj->ni", _fd_rotation(a, sequence, kind) ** 2, sigma**2))
-    got = O.euler_sigma_to_rotation_sigma(a, sigma, sequence, kind)
+    got = O.euler_sigma_to_rotation_sigma(a, sigma, sequence, kind, "rad")
     np.testing.assert_allclose(got, expected, rtol=1e-7)
     got_deg = O.euler_sigma_to_rotation_sigma(np.rad2deg(a), np.rad2deg(sigma), sequence, kind, "deg")
     np.testing.assert_allclose(got_deg, got, rtol=1e-12)
 
 
 def test_equal_sigmas_of_an_intrinsic_xyz_at_zero_are_the_tracker_axes_sigmas():
-    got = O.euler_sigma_to_rotation_sigma(np.zeros(3), [1e-3, 2e-3, 3e-3], "XYZ", "intrinsic")
+    got = O.euler_sigma_to_rotation_sigma(np.zeros(3), [1e-3, 2e-3, 3e-3], "XYZ", "intrinsic", "rad")
     np.testing.assert_allclose(got, [[1e-3, 2e-3, 3e-3]], rtol=1e-12)
 
 
@@ -165,7 +165,7 @@ def test_equal_sigmas_of_an_intrinsic_xyz_at_zero_are_the_tracker_axes_sigmas():
             "order: missing (one of row_major, column_major)",
         ),
         (
-            lambda: O.euler_sigma_to_rotation_sigma(np.zeros(3), [1, -1, 1], "XYZ", "intrinsic"),
+            lambda: O.euler_sigma_to_rotation_sigma(np.zeros(3), [1, -1, 1], "XYZ", "intrinsic", "rad"),
             "must be >= 0",
         ),
     ],

@@ -207,13 +207,7 @@ def euler_rate_jacobian(angles: ArrayLike, sequence: str, kind: str, unit: str =
 
 
 def euler_sigma_to_rotation_sigma(
-    angles: ArrayLike,
-    sigma: ArrayLike,
-    sequence: str,
-    kind: str,
-    unit: str = "rad",
-    *,
-    at: Cells | None = None,
+    angles: ArrayLike, sigma: ArrayLike, sequence: str, kind: str, unit: str, *, at: Cells | None = None
 ) -> np.ndarray:
     """(n, 3) standard deviations [rad] of the small rotation about the tracker's x, y, z axes, from
     the standard deviations of the three Euler angles (independent, per row).

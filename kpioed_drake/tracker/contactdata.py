@@ -71,6 +71,20 @@ def _check_rows(
         raise InputError(f"{source}: row {rows[k]}, sigma_mm: {sigma[k]:g} mm; expected a number > 0")
 
 
+def _checked(
+    q, sigma_mm: ArrayLike, target, n_joints: int | None, source: str, rows
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """What every contact row has, checked: the poses (n, n_joints), the row numbers (n,) (default
+    1, 2, ...), the sigmas (n,) [mm] and the 0-based targets (n,) or None."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[0]
+    rows_ = np.arange(1, n + 1) if rows is None else np.asarray(rows)
+    sigma = _per_row(sigma_mm, n, "sigma_mm", source)
+    _check_rows(source, rows_, q, sigma, n_joints)
+    target_ = None if target is None else _indices(target, n, "target", source, rows_, minimum=0)
+    return q, rows_, sigma, target_
+
+
 def _unused(idx: np.ndarray, count: int) -> list[int]:
     """The 0-based indices below ``count`` no row uses."""
     return sorted(set(range(count)) - set(idx.tolist()))
@@ -153,17 +167,13 @@ class DistanceData:
                 row without its second pose, a pivot or bar index that no row uses below the
                 largest, a sigma <= 0.
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
+        q, rows_, sigma, target_ = _checked(q, sigma_mm, target, n_joints, source, rows)
         n = q.shape[0]
-        rows_ = np.arange(1, n + 1) if rows is None else np.asarray(rows)
         length = _per_row(length_mm, n, "length_mm", source)
-        sigma = _per_row(sigma_mm, n, "sigma_mm", source)
-        _check_rows(source, rows_, q, sigma, n_joints)
         pivot_ = np.full(n, -1) if pivot is None else _indices(pivot, n, "pivot", source, rows_, minimum=-1)
         if pivot is None and q_other is None:
             raise InputError(f"{source}: give q_other (pairs of poses), pivot (distances to pivots) or both")
         bar_ = np.full(n, -1) if bar is None else _indices(bar, n, "bar", source, rows_, minimum=-1)
-        target_ = None if target is None else _indices(target, n, "target", source, rows_, minimum=0)
         other = np.full_like(q, np.nan) if q_other is None else np.asarray(q_other, dtype=float)
         if other.shape != q.shape:
             raise InputError(f"{source}: q_other: expected shape {q.shape} like q, got {other.shape}")
@@ -244,14 +254,9 @@ class PlaneData:
             InputError: naming the row and field: shapes, non-finite values, a sigma <= 0, a plane
                 index that no row uses below the largest, a plane with fewer than 3 rows.
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        n = q.shape[0]
-        rows_ = np.arange(1, n + 1) if rows is None else np.asarray(rows)
-        distance = _per_row(distance_mm, n, "distance_mm", source)
-        sigma = _per_row(sigma_mm, n, "sigma_mm", source)
-        _check_rows(source, rows_, q, sigma, n_joints)
-        plane_ = _indices(plane, n, "plane", source, rows_, minimum=0)
-        target_ = None if target is None else _indices(target, n, "target", source, rows_, minimum=0)
+        q, rows_, sigma, target_ = _checked(q, sigma_mm, target, n_joints, source, rows)
+        distance = _per_row(distance_mm, q.shape[0], "distance_mm", source)
+        plane_ = _indices(plane, q.shape[0], "plane", source, rows_, minimum=0)
         for k in np.flatnonzero(~np.isfinite(distance))[:1]:
             raise InputError(f"{source}: row {rows_[k]}, distance_mm: not a finite number")
         data = cls(q, plane_, distance, sigma, target_, str(source), rows_)
