@@ -258,8 +258,7 @@ def calibrate(
             ``effects:``); without it, the effects of an extended model file are re-estimated.
         outlier_alpha: family-wise false-alarm level of the outlier test, in [0, 1) (0: no test).
         out: calibrated robot model file (YAML; a URDF robot's ``.urdf`` plus sidecar) to write.
-        json_path: JSON report to write; plots_dir: folder for the residual plots (PNG).
-        html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
+        json_path, plots_dir, html: the JSON report, the residual plots' folder, a 3-D page (Meshcat).
         cell_path: cell file (default ``models/cell.yaml``); force: go on with implausible data (warned).
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
         strict: refuse poses that do not determine every parameter instead of holding the
@@ -414,17 +413,18 @@ def validate(
     force: bool = False,
     planes: MaybePath = None,
     distances: MaybePath = None,
+    html: str | Path | None = None,
 ) -> ValidationReport | contacts.ContactValidationReport:
     """A model's prediction errors on measurements (``kpioed validate``), nothing fitted to the poses
-    scored unless ``tracker_frame="in-sample"`` says so (``kept``: the model's tracker frame;
-    ``cross``: registered on one half of the poses, scored on the other):
+    scored unless ``tracker_frame="in-sample"`` says so (``kept``: the model's tracker frame; ``cross``:
+    registered on one half of the poses, scored on the other; ``html``: a 3-D page):
     :func:`kpioed_drake.calibration.validate.validate_file`, whose docstring details the arguments;
     with ``planes`` or ``distances`` (held-out contacts, docs/contacts.md) and ``data_path`` optional:
     :func:`kpioed_drake.calibration.contacts.validate_contacts_file`."""
     if planes is not None or distances is not None or data_path is None:
         return contacts.contact_validation(robot, data_path, planes, distances, locals())
     kw = dict(data_format=data_format, tracker_frame=tracker_frame, keep_tracker=keep_tracker, force=force)
-    files = dict(json_path=json_path, plots_dir=plots_dir, cell_path=cell_path)
+    files = dict(json_path=json_path, plots_dir=plots_dir, cell_path=cell_path, html=html)
     return validate_file(robot, data_path, **kw, **files)  # type: ignore[arg-type]
 
 

@@ -3,7 +3,9 @@
 - ``residuals_per_pose.png``: x, y, z residuals (in W, mm) against the file row, with the +-3 sigma
   band and the removed outliers marked;
 - ``residuals_vs_joints.png``: residual components against each joint angle (deg), which shows
-  effects that depend on one joint (gear errors, elasticity).
+  effects that depend on one joint (gear errors, elasticity);
+- ``validation_errors.png`` (:func:`plot_validation`): a validation's 3-D error per row and their
+  histogram.
 
 Residuals are ``measured - model`` rotated from the tracker frame into W (``R_WT r``), so that z is
 up and the components mean the same for every tracker orientation.
@@ -86,3 +88,21 @@ def plot_calibration(report: CalibrationReport, outdir: str | Path) -> list[Path
     plt.close(fig)
     files.append(path)
     return files
+
+
+def plot_validation(errors_mm: np.ndarray, rows: np.ndarray, title: str, folder: Path) -> list[Path]:
+    """``validation_errors.png``: the 3-D errors ``errors_mm`` (n,) [mm] per file row ``rows`` (n,)
+    and their histogram, under ``title``."""
+    plt, (fig, (ax1, ax2)) = _figure(1, 2, figsize=(10, 3.6))
+    e = np.asarray(errors_mm, dtype=float)
+    ax1.plot(rows, e, ".", ms=4)
+    ax1.axhline(np.mean(e), color="k", lw=0.8, label=f"mean {np.mean(e):.3f} mm")
+    ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=title)
+    ax1.legend()
+    ax2.hist(e, bins=min(30, max(5, len(e) // 5)))
+    ax2.set(xlabel="3-D error [mm]", ylabel="rows")
+    fig.tight_layout()
+    path = Path(folder) / "validation_errors.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]

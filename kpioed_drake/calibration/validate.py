@@ -49,6 +49,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from kpioed_drake import effects as fx
 from kpioed_drake.arguments import require
 from kpioed_drake.calibration.inputs import read_inputs
+from kpioed_drake.calibration.plots import plot_validation
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.errors import InputError, param
@@ -56,8 +57,9 @@ from kpioed_drake.estimation.accuracy import Figures, OrientationFigures, accura
 from kpioed_drake.estimation.estimator import register_tracker
 from kpioed_drake.estimation.plausibility import check_data
 from kpioed_drake.files.tables import ROW_CONVENTION
-from kpioed_drake.outputs import Outputs, pyplot
+from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import Cell, Robot, load_cell
+from kpioed_drake.scene3d import probe_frames, validation_page
 from kpioed_drake.tracker.data import Measurements, counted, n_poses
 from kpioed_drake.tracker.measurement import TrackerModel, nominal_model, reflector_world
 from kpioed_drake.tracker.orientation import world_orientation_errors
@@ -436,26 +438,6 @@ def predicted_world(model: TrackerModel, data: Measurements, effects: Sequence[E
     return h @ model.R_WT.T + model.p_WT
 
 
-def plot_validation(result: ValidationReport, folder: Path) -> list[Path]:
-    """``validation_errors.png``: the 3-D error per pose (file row) and their histogram."""
-    plt = pyplot()
-
-    e = result.errors_mm
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6))
-    ax1.plot(result.data.rows, e, ".", ms=4)
-    ax1.axhline(np.mean(e), color="k", lw=0.8, label=f"mean {np.mean(e):.3f} mm")
-    title = f"{result.robot}: prediction error, tracker frame {METHODS[result.method]}"
-    ax1.set(xlabel="row in the data file", ylabel="3-D error [mm]", title=title)
-    ax1.legend()
-    ax2.hist(e, bins=min(30, max(5, len(e) // 5)))
-    ax2.set(xlabel="3-D error [mm]", ylabel="rows")
-    fig.tight_layout()
-    path = folder / "validation_errors.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
-
-
 def validate_file(
     robot: str,
     data_path: str | Path,
@@ -467,6 +449,7 @@ def validate_file(
     plots_dir: str | Path | None = None,
     cell_path: str | os.PathLike | None = None,
     force: bool = False,
+    html: str | Path | None = None,
 ) -> ValidationReport:
     """Validate a model on fresh measurements (``kpioed validate``); outputs written after all succeeded.
 
@@ -482,12 +465,13 @@ def validate_file(
         json_path: JSON report; plots_dir: folder for ``validation_errors.png``.
         cell_path: cell file (default ``models/cell.yaml``).
         force: go on with implausible data (a warning in the report).
+        html: 3-D page (Meshcat) of the predicted points and the prediction errors (with a 6-DoF
+            probe's orientations, its measured and predicted frames).
     """
     require(isinstance(force, bool), f"force: expected True or False, got {force!r}", fields=("force",))
     _method(tracker_frame, keep_tracker)
-    rob, cell, data = read_inputs(
-        robot, data_path, data_format, cell_path=cell_path, outputs=[json_path], folders=[plots_dir]
-    )
+    files = dict(outputs=[json_path], folders=[plots_dir], html=html)
+    rob, cell, data = read_inputs(robot, data_path, data_format, cell_path=cell_path, **files)
     result = validate(
         rob, data, tracker_frame=tracker_frame, keep_tracker=keep_tracker, cell=cell, force=force
     )
@@ -495,6 +479,19 @@ def validate_file(
         if json_path:
             staged.add_json(json_path, result.to_dict())
         if plots_dir:
-            plot_validation(result, staged.folder(plots_dir))
+            title = f"{result.robot}: prediction error, tracker frame {METHODS[result.method]}"
+            plot_validation(result.errors_mm, result.data.rows, title, staged.folder(plots_dir))
+        if html:
+            staged.add_text(html, validation_html(result, rob, cell))
         staged.commit()
     return result
+
+
+def validation_html(result: ValidationReport, robot: Robot, cell: Cell) -> str:
+    """The 3-D page of ``result`` (:func:`~kpioed_drake.scene3d.validation_page`): the predicted
+    points and the prediction errors, and a 6-DoF probe's measured and predicted frames."""
+    model, data, rot = nominal_model(robot, cell), result.data, result.rot_residuals_W
+    p_W = predicted_world(model, data, fx.model_effects(robot))
+    probe = None if rot is None else probe_frames(model, data.q, rot, data.target)
+    shown = dict(q=data.q, predicted_W=p_W, residuals_W=result.residuals_W, label=result.method)
+    return validation_page(robot, cell, **shown, probe=probe)

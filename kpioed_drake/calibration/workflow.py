@@ -20,8 +20,9 @@ from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.effects import model_effects
 from kpioed_drake.files.designs import parse_q_work
 from kpioed_drake.outputs import Outputs
+from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.robot.urdf.write import sidecar_of
-from kpioed_drake.scene3d import calibration_page
+from kpioed_drake.scene3d import calibration_page, probe_frames
 
 
 def calibrate_file(
@@ -50,7 +51,8 @@ def calibrate_file(
             with the estimated ``effects:`` of an extended model.
         json_path: JSON report to write.
         plots_dir: folder for the residual plots (PNG).
-        html: 3-D page (Meshcat) of measured vs predicted points and the outliers.
+        html: 3-D page (Meshcat) of measured vs predicted points and the outliers (with a 6-DoF
+            probe's orientations, its measured and predicted frames).
         cell_path: cell file (default ``models/cell.yaml``).
         data_format: format file of a measurement file of another layout (docs/data-formats.md).
 
@@ -80,19 +82,20 @@ def calibrate_file(
         if plots_dir:
             plot_calibration(report, staged.folder(plots_dir))
         if html:
-            res = report.result
-            page = calibration_page(
-                rob,
-                cell,
-                report.model,
-                data.q,
-                data.eta,
-                data.eta - res.residuals,
-                outliers=report.outliers,
-            )
-            staged.add_text(html, page)
+            staged.add_text(html, calibration_html(report, rob, cell))
         staged.commit()
     return report
+
+
+def calibration_html(report: CalibrationReport, robot: Robot, cell: Cell) -> str:
+    """The 3-D page of ``report`` (:func:`~kpioed_drake.scene3d.calibration_page`): measured vs
+    predicted points, and with a 6-DoF probe's orientations its measured and predicted frames."""
+    res, data, model = report.result, report.data, report.model
+    probe = None
+    if res.rot_residuals is not None and model.R_FP is not None:
+        probe = probe_frames(model, data.q, res.rot_residuals @ model.R_WT.T, data.target)
+    h = data.eta - res.residuals
+    return calibration_page(robot, cell, model, data.q, data.eta, h, outliers=report.outliers, probe=probe)
 
 
 def stage_model(staged: Outputs, report: CalibrationReport, out: str | Path) -> None:

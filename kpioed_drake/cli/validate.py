@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     cli.add_json_out(p)
     cli.add_optional(p, "--plots", metavar="DIR", help="write the error plot (PNG) to DIR")
+    cli.add_html(p)
     p.set_defaults(func=run)
 
 
@@ -40,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         args.robot,
         args.data,
         keep_tracker=keep,
-        **cli.passed(args, "tracker_frame", "force", "planes", "distances"),
+        **cli.passed(args, "tracker_frame", "force", "planes", "distances", "html"),
         **outputs,
     )
-    return cli.print_result(args, result.to_dict, result.summary)
+    return cli.print_result(args, result.to_dict, result.summary, ((args.html, "3-D page"),))

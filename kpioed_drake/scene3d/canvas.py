@@ -58,6 +58,8 @@ ELLIPSOID = Rgba(0.0, 0.8, 0.9, 0.75)
 """The TCP's confidence ellipsoid at the working pose."""
 COMPARE = Rgba(0.6, 0.45, 0.85, 0.7)
 """A second design or model drawn for comparison."""
+AXES = (Rgba(0.9, 0.1, 0.1, 1.0), Rgba(0.1, 0.75, 0.1, 1.0), Rgba(0.1, 0.2, 0.9, 1.0))
+"""The colours of a frame's x, y and z axes (red, green, blue)."""
 
 _URL = re.compile(
     r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|wss?:|//)|url\(\s*["']?\s*(?:https?:|//)|@import"""
@@ -172,6 +174,23 @@ class Canvas:
         """Axis-aligned box between corners ``lo`` and ``hi`` (3,) [mm]."""
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
         self.shape(path, Box(*((hi - lo) * MM)), RigidTransform(0.5 * (lo + hi) * MM), rgba)
+
+    def oriented_box(self, path: str, size: ArrayLike, R_WB: np.ndarray, p_WB: ArrayLike, rgba: Rgba) -> None:
+        """Box of edge lengths ``size`` (3,) [mm] along the columns of ``R_WB`` (3, 3), centred at
+        ``p_WB`` (3,) [mm]."""
+        shape = Box(*(np.asarray(size, float) * MM))
+        self.shape(path, shape, RigidTransform(RotationMatrix(R_WB), np.asarray(p_WB, float) * MM), rgba)
+
+    def triad(
+        self, path: str, R_WF: np.ndarray, p_WF: ArrayLike, length: float, radius: float, alpha: float = 1.0
+    ) -> None:
+        """Frame F as three axes (x red, y green, z blue) of ``length`` and ``radius`` [mm] and
+        opacity ``alpha``: the group ``path`` posed at ``R_WF`` (3, 3), ``p_WF`` (3,) [mm], its axes
+        ``path/x``, ``path/y``, ``path/z`` in F."""
+        self.meshcat.SetTransform(path, RigidTransform(RotationMatrix(R_WF), np.asarray(p_WF, float) * MM))
+        for i, c in enumerate(AXES):
+            rgba = Rgba(c.r(), c.g(), c.b(), alpha)
+            self.rod(f"{path}/{'xyz'[i]}", np.zeros(3), length * np.eye(3)[i], radius, rgba)
 
     def hide(self, path: str) -> None:
         self.meshcat.SetProperty(path, "visible", False)

@@ -24,6 +24,7 @@ from kpioed_drake.robot.kinematics import flange_point, forward_kinematics
 from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.robot.plant import MM, Scene
 from kpioed_drake.scene3d.canvas import (
+    AXES,
     BEAM,
     CAR,
     CLEARANCE,
@@ -40,7 +41,6 @@ REFLECTOR_RADIUS = 19.05
 _PANEL = 10.0  # [mm] thickness of the floor and wall panels
 _WALL_HEIGHT = 2500.0  # [mm]
 _MARGIN = 600.0  # [mm] floor beyond the scene's content
-_AXIS = (Rgba(0.9, 0.1, 0.1, 1.0), Rgba(0.1, 0.75, 0.1, 1.0), Rgba(0.1, 0.2, 0.9, 1.0))
 
 
 def extent(robot: Robot, cell: Cell) -> tuple[np.ndarray, np.ndarray]:
@@ -77,7 +77,7 @@ def draw_cell(canvas: Canvas, scene: Scene, robot: Robot, cell: Cell) -> None:
     p = cell.p_WT
     canvas.rod("/cell/tracker/stand", [p[0], p[1], fz], p - [0.0, 0.0, 120.0], 25.0, TRACKER)
     canvas.rod("/cell/tracker/head", p - [0.0, 0.0, 120.0], p + [0.0, 0.0, 120.0], 110.0, TRACKER)
-    for i, colour in enumerate(_AXIS):
+    for i, colour in enumerate(AXES):
         canvas.rod(f"/cell/tracker/axis {'xyz'[i]}", p, p + 350.0 * cell.R_WT[:, i], 10.0, colour)
 
 
@@ -157,6 +157,7 @@ def draw_pose(
     *,
     rgba: Rgba = ROBOT,
     witness: tuple[np.ndarray, np.ndarray] | None = None,
+    reflector: bool = True,
 ) -> np.ndarray:
     """One measurement pose under ``path``: robot, reflector, beam, and the clearance segment.
 
@@ -164,14 +165,17 @@ def draw_pose(
         q: (6,) joint angles [rad].
         rgba: robot colour.
         witness: the smallest clearance's witness points [mm], drawn as a short segment.
+        reflector: draw the reflector and its laser beam (False: a pose without a tracker, e.g.
+            a touch of a plane).
 
     Returns:
         (3,) the reflector position p_WQ [mm].
     """
     draw_robot(canvas, f"{path}/robot", scene, q, rgba)
     p_Q = reflector_point(robot, cell, q)
-    canvas.sphere(f"{path}/reflector", p_Q, REFLECTOR_RADIUS, Rgba(0.85, 0.85, 0.9, 1.0))
-    canvas.rod(f"{path}/beam", p_Q, cell.p_WT, max(cell.beam_radius, 10.0), BEAM)
+    if reflector:
+        canvas.sphere(f"{path}/reflector", p_Q, REFLECTOR_RADIUS, Rgba(0.85, 0.85, 0.9, 1.0))
+        canvas.rod(f"{path}/beam", p_Q, cell.p_WT, max(cell.beam_radius, 10.0), BEAM)
     if witness is not None:
         p_A, p_B = witness
         canvas.rod(f"{path}/clearance/segment", p_A, p_B, 6.0, CLEARANCE)

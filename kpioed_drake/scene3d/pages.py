@@ -5,12 +5,17 @@
   pose and the TCP's 95 % confidence ellipsoid ``x^T Cs^-1 x <= chi2_3(0.95)`` (Cs of eq. 24c),
   optionally next to a second design's.
 - :func:`calibration_page`: measured against predicted reflector positions (eq. 3) with scaled
-  residual arrows, outliers marked.
+  residual arrows, outliers marked; with a 6-DoF probe's orientations its measured and predicted
+  frames as triads (:mod:`kpioed_drake.scene3d.probe`).
+- :func:`validation_page`: the same of a validation's prediction errors (points in W; the
+  calibration page is drawn by it).
 - :func:`diagnosis_page`: the residuals of the baseline model and of the model with a named
   extension, at the same scale.
 
 Poses are steps of an animation (Meshcat's controls: Animations, time k s = pose k + 1). The
 inputs are plain arrays (millimetres, radians), so the pages depend on the core modules only.
+:func:`start_canvas`, :func:`draw_points` and :func:`finish_page` are the steps the pages share
+(with :mod:`kpioed_drake.scene3d.contacts`).
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from kpioed_drake.scene3d.drawing import (
     draw_robot,
     reflector_point,
 )
+from kpioed_drake.scene3d.probe import ProbeFrames, draw_probe_frames
 from kpioed_drake.tracker.feasibility import FeasibilityChecker, PoseReport
 from kpioed_drake.tracker.measurement import TrackerModel, reflector_world
 
@@ -70,11 +76,13 @@ def write_page(path: str | Path, page: str) -> Path:
     return Path(path)
 
 
-def _start(robot: Robot, cell: Cell, title: str, q, colours, *, pairs=None, shown: int = 0):
+def start_canvas(
+    robot: Robot, cell: Cell, title: str, q, colours, *, pairs=None, shown: int = 0, reflector: bool = True
+):
     """Canvas with the cell and one animated group per pose; returns it, the scene and p_WQ (n, 3).
 
     ``pairs`` (n,) names the clearance pair whose witness segment each pose shows (or "" / None);
-    the page opens showing pose ``shown`` (0-based).
+    the page opens showing pose ``shown`` (0-based); ``reflector`` False draws no reflectors and beams.
     """
     scene = build_scene(robot, cell)
     canvas = Canvas(title)
@@ -84,12 +92,16 @@ def _start(robot: Robot, cell: Cell, title: str, q, colours, *, pairs=None, show
         pair = pairs[k] if pairs is not None else None
         witness = clearance_witness(scene, robot, cell, qk, pair) if pair else None
         path = canvas.group(k)
-        p_Q.append(draw_pose(canvas, path, scene, robot, cell, qk, rgba=colours[k], witness=witness))
+        p_Q.append(
+            draw_pose(
+                canvas, path, scene, robot, cell, qk, rgba=colours[k], witness=witness, reflector=reflector
+            )
+        )
     canvas.animate_groups(shown)
     return canvas, scene, np.array(p_Q)
 
 
-def _finish(
+def finish_page(
     canvas: Canvas, robot: Robot, cell: Cell, points: np.ndarray, note: str, header: list, rows: list
 ) -> str:
     """The page of ``canvas`` with the ``note``, the per-pose table (``header``, ``rows``) and the
@@ -138,7 +150,7 @@ def design_page(
     colours = [ROBOT if r.feasible else INFEASIBLE for r in reports]
     pairs = [r.min_clearance_pair for r in reports]
     shown = int(np.argmin([r.min_clearance_mm for r in reports]))
-    canvas, scene, p_Q = _start(robot, cell, title, q, colours, pairs=pairs, shown=shown)
+    canvas, scene, p_Q = start_canvas(robot, cell, title, q, colours, pairs=pairs, shown=shown)
     with canvas:
         for k, p in enumerate(p_Q):
             canvas.sphere(f"/design/reflectors/{k + 1:03d}", p, 25.0, colours[k])
@@ -170,7 +182,7 @@ def design_page(
             ]
             for k, r in enumerate(reports)
         ]
-        return _finish(canvas, robot, cell, p_Q, note, header, rows)
+        return finish_page(canvas, robot, cell, p_Q, note, header, rows)
 
 
 def _kpi(canvas, scene, robot, cell, q_work, Cs, compare, scale) -> None:
@@ -212,6 +224,7 @@ def calibration_page(
     outliers: Iterable[int] | None = None,
     scale: float | None = None,
     title: str | None = None,
+    probe: ProbeFrames | None = None,
 ) -> str:
     """3-D page of a calibration: measured vs predicted reflector points and residual arrows.
 
@@ -224,36 +237,83 @@ def calibration_page(
         outliers: indices (0-based) of the poses removed as outliers (red).
         scale: magnification of the residual arrows (default: the longest residual of the poses
             kept, not the outliers', drawn at about 200 mm).
+        probe: a 6-DoF probe's predicted frames and orientation errors
+            (:func:`~kpioed_drake.scene3d.probe.probe_frames`): triads at the worst poses.
 
     Returns:
         The HTML text.
     """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    out = set(int(i) for i in (outliers or ()))
     eta, h = np.asarray(measured_xyz_T, float), np.asarray(predicted_xyz_T, float)
     r_W = (eta - h) @ model.R_WT.T
     p_pred = model.p_WT + h @ model.R_WT.T
+    options = dict(probe=probe, title=title, scale=scale, outliers=outliers, kind="calibration")
+    return validation_page(robot, cell, q=q, predicted_W=p_pred, residuals_W=r_W, **options)
+
+
+def validation_page(
+    robot: Robot,
+    cell: Cell,
+    *,
+    q: ArrayLike,
+    predicted_W: ArrayLike,
+    residuals_W: ArrayLike,
+    outliers: Iterable[int] | None = None,
+    probe: ProbeFrames | None = None,
+    kind: str = "validation",
+    label: str = "",
+    title: str | None = None,
+    scale: float | None = None,
+) -> str:
+    """3-D page of a validation (and of a calibration, ``kind``, from points in W): the predicted
+    reflector points and the prediction errors as arrows, under ``/<kind>``; probe frames under
+    ``/probe``.
+
+    Args:
+        q: (n, 6) poses [rad].
+        predicted_W: (n, 3) the model's predicted points in W [mm]; residuals_W: (n, 3) measured
+            minus predicted in W [mm] (the measurements taken to W with the validation's tracker frame).
+        label: the tracker frame used (e.g. ``kept``), for the title.
+        probe, scale, outliers: as :func:`calibration_page`'s.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    out = set(int(i) for i in (outliers or ()))
+    p_pred, r_W = np.asarray(predicted_W, float), np.asarray(residuals_W, float)
     norms = np.linalg.norm(r_W, axis=1)
     keep = np.array([k not in out for k in range(len(q))])
     scale = scale or nice_scale(float(norms[keep if keep.any() else ~keep].max()), ARROW_TARGET_MM)
-    title = title or f"{robot.name}: calibration, {len(q)} poses, {len(out)} outliers, residuals x{scale:g}"
+    frame = f" (tracker frame {label})" if label else ""
+    title = title or f"{robot.name}: {kind}{frame}, {len(q)} poses, {len(out)} outliers, residuals x{scale:g}"
     colours = [INFEASIBLE if k in out else ROBOT for k in range(len(q))]
-    canvas, _, _ = _start(robot, cell, title, q, colours)
+    canvas, _, _ = start_canvas(robot, cell, title, q, colours)
     with canvas:
-        for k, p in enumerate(p_pred):
-            canvas.sphere(f"/calibration/predicted/{k + 1:03d}", p, 15.0, POINT)
-            if k in out:
-                canvas.sphere(f"/calibration/outliers/{k + 1:03d}/halo", p, 45.0, HALO)
-        _arrows(canvas, "/calibration/residuals", p_pred, r_W, scale, RESIDUAL, np.flatnonzero(keep))
-        _arrows(canvas, "/calibration/outliers", p_pred, r_W, scale, INFEASIBLE, np.flatnonzero(~keep))
-        canvas.legend += [
-            (css(POINT), "predicted reflector point h(p, q)"),
-            (css(RESIDUAL), f"residual: arrow from predicted to measured, x{scale:g}"),
-            (css(INFEASIBLE), f"outlier ({len(out)}): arrow, halo and robot in red"),
-            (css(BEAM), "laser beam"),
-        ]
+        draw_points(canvas, f"/{kind}", p_pred, r_W, scale, out)
+        canvas.legend.append((css(BEAM), "laser beam"))
+        header = ["pose", "|residual| [mm]", "outlier"]
         rows = [[str(k + 1), f"{norms[k]:.3f}", "yes" if k in out else ""] for k in range(len(q))]
-        return _finish(canvas, robot, cell, p_pred, STEP_NOTE, ["pose", "|residual| [mm]", "outlier"], rows)
+        if probe is not None:
+            draw_probe_frames(canvas, "/probe", probe, p_pred, r_W, scale)
+            header.append("orientation error [deg]")
+            rows = [[*row, f"{e:.4f}"] for row, e in zip(rows, probe.errors_deg, strict=True)]
+        return finish_page(canvas, robot, cell, p_pred, STEP_NOTE, header, rows)
+
+
+def draw_points(canvas: Canvas, path: str, p_pred: np.ndarray, r_W: np.ndarray, scale: float, out=()) -> None:
+    """Predicted points (spheres) ``p_pred`` (n, 3) and residual arrows ``r_W`` (n, 3) magnified
+    ``scale`` [mm] under ``path/predicted``, ``path/residuals``, the outliers' (0-based ``out``)
+    arrows and halos under ``path/outliers``; and their legend."""
+    keep = np.array([k not in out for k in range(len(p_pred))], dtype=bool)
+    for k, p in enumerate(p_pred):
+        canvas.sphere(f"{path}/predicted/{k + 1:03d}", p, 15.0, POINT)
+        if k in out:
+            canvas.sphere(f"{path}/outliers/{k + 1:03d}/halo", p, 45.0, HALO)
+    _arrows(canvas, f"{path}/residuals", p_pred, r_W, scale, RESIDUAL, np.flatnonzero(keep))
+    _arrows(canvas, f"{path}/outliers", p_pred, r_W, scale, INFEASIBLE, np.flatnonzero(~keep))
+    canvas.legend += [
+        (css(POINT), "predicted reflector point h(p, q)"),
+        (css(RESIDUAL), f"residual: arrow from predicted to measured, x{scale:g}"),
+    ]
+    if out:
+        canvas.legend.append((css(INFEASIBLE), f"outlier ({len(out)}): arrow, halo and robot in red"))
 
 
 def diagnosis_page(
@@ -288,7 +348,7 @@ def diagnosis_page(
     scale = scale or nice_scale(float(max(nb.max(), na.max())), ARROW_TARGET_MM)
     rms_b, rms_a = np.sqrt(np.mean(rb**2)), np.sqrt(np.mean(ra**2))
     title = title or f"{robot.name}: diagnosis, residuals before / after {label}, x{scale:g}"
-    canvas, _, _ = _start(robot, cell, title, q, [ROBOT] * len(q))
+    canvas, _, _ = start_canvas(robot, cell, title, q, [ROBOT] * len(q))
     with canvas:
         p_pred = reflector_world(model, q)
         _arrows(canvas, "/diagnosis/before", p_pred, rb, scale, BEFORE)
@@ -299,4 +359,6 @@ def diagnosis_page(
             (css(BEAM), "laser beam"),
         ]
         rows = [[str(k + 1), f"{nb[k]:.3f}", f"{na[k]:.3f}"] for k in range(len(q))]
-        return _finish(canvas, robot, cell, p_pred, STEP_NOTE, ["pose", "before [mm]", "after [mm]"], rows)
+        return finish_page(
+            canvas, robot, cell, p_pred, STEP_NOTE, ["pose", "before [mm]", "after [mm]"], rows
+        )

@@ -22,9 +22,11 @@ from kpioed_drake.calibration.contacts.environment import (
     residual_figures,
     spec_model,
 )
-from kpioed_drake.calibration.validate import ValidationReport, validate
+from kpioed_drake.calibration.validate import ValidationReport, predicted_world, validate
+from kpioed_drake.effects import model_effects
 from kpioed_drake.outputs import Outputs
 from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.scene3d import contact_page
 from kpioed_drake.tracker.contactdata import read_distances, read_planes
 from kpioed_drake.tracker.contacts import ContactRows
 from kpioed_drake.tracker.data import read_data
@@ -104,16 +106,21 @@ def validate_contacts_file(
     tracker_frame: str | None = None,
     keep_tracker: bool | None = None,
     force: bool = False,
+    html: str | Path | None = None,
 ) -> ContactValidationReport:
     """Score held-out plane contacts and distances (module docstring), and a measurement file's
     points if given (:func:`kpioed_drake.calibration.validate.validate`, with ``data_format``,
-    ``tracker_frame``, ``keep_tracker``, ``force``).
+    ``tracker_frame``, ``keep_tracker``, ``force``); ``html``: a 3-D page of the rows scored, the
+    model's (or the fitted) planes, pivots and bars and the residuals
+    (:func:`~kpioed_drake.scene3d.contact_page`).
 
     Raises:
         InputError: a bad path or file (naming the file, row and column: a plane, pivot or bar id
             beyond the model file's), or rows that do not determine a fitted plane or pivot.
     """
-    check_paths(robot=robot, inputs=[data_path, data_format, planes, distances], outputs=[json_path])
+    check_paths(
+        robot=robot, inputs=[data_path, data_format, planes, distances], outputs=[json_path], html=html
+    )
     rob = load_robot(robot)
     cell = load_cell(cell_path, robot=rob)
     env = model_environment(rob)
@@ -153,8 +160,20 @@ def validate_contacts_file(
     with Outputs() as staged:
         if json_path:
             staged.add_json(json_path, report.to_dict())
+        if html:
+            rows = dict(planes=(p_rows, p_res), distances=(d_rows, d_res), points=_points(points, rob, cell))
+            page = contact_page(rob, cell, model, **rows, kind="validation")
+            staged.add_text(html, page)
         staged.commit()
     return report
+
+
+def _points(points: ValidationReport | None, robot, cell) -> tuple | None:
+    """(q, predicted (n, 3), residuals (n, 3)) in W [mm] of a validation's tracker points, or None."""
+    if points is None:
+        return None
+    model = nominal_model(robot, cell)
+    return points.data.q, predicted_world(model, points.data, model_effects(robot)), points.residuals_W
 
 
 def contact_validation(
@@ -168,7 +187,7 @@ def contact_validation(
         fields=("data_path",),
     )
     require(not arguments.get("plots_dir"), "plots_dir: no plots of contacts", fields=("plots_dir",))
-    names = ("json_path", "cell_path", "data_format", "tracker_frame", "keep_tracker", "force")
+    names = ("json_path", "cell_path", "data_format", "tracker_frame", "keep_tracker", "force", "html")
     return validate_contacts_file(
         robot, data_path, planes=planes, distances=distances, **{n: arguments[n] for n in names}
     )

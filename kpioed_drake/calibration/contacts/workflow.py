@@ -1,7 +1,7 @@
 """``kpioed calibrate`` with plane contacts or distances: read the robot, cell and files once,
 :func:`~kpioed_drake.calibration.contacts.fit.calibrate_contacts`, write the model file (the
-estimated planes, pivots and bars in its ``contact_environment`` block) and the JSON report after
-all succeeded."""
+estimated planes, pivots and bars in its ``contact_environment`` block), the JSON report and the
+3-D page (:func:`calibration_page`) after all succeeded."""
 
 from __future__ import annotations
 
@@ -13,11 +13,13 @@ from kpioed_drake.calibration.contacts.environment import environment_of
 from kpioed_drake.calibration.contacts.fit import ContactCalibrationReport, calibrate_contacts
 from kpioed_drake.calibration.modelfile import model_sidecar, robot_yaml
 from kpioed_drake.outputs import Outputs
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import Cell, load_cell, load_robot
 from kpioed_drake.robot.reference import file_rows
 from kpioed_drake.robot.urdf.write import calibrated_urdf, check_out_path, sidecar_of
+from kpioed_drake.scene3d import contact_page
 from kpioed_drake.tracker.contactdata import read_distances, read_planes
 from kpioed_drake.tracker.data import read_data
+from kpioed_drake.tracker.measurement import reflector_world
 
 
 def calibrate_contacts_file(
@@ -32,6 +34,7 @@ def calibrate_contacts_file(
     cell_path: str | Path | None = None,
     data_format: str | Path | None = None,
     max_iter: int = 100,
+    html: str | Path | None = None,
 ) -> ContactCalibrationReport:
     """Calibrate from a plane-contact file, a distance file, or both, with an optional measurement
     file of tracker points (docs/contacts.md).
@@ -42,13 +45,18 @@ def calibrate_contacts_file(
         sigma_mm: the tracker points' noise per coordinate [mm].
         out: the calibrated model file (YAML; a URDF robot's ``.urdf`` and sidecar).
         json_path: the JSON report; cell_path: the cell file; data_format: the points' format file.
+        html: a 3-D page (Meshcat) of the estimated planes, pivots and bars, the touch points and
+            the distance rows coloured by their residuals (:func:`~kpioed_drake.scene3d.contact_page`).
 
     Raises:
         InputError: a bad path or file (naming the file, row and column), or data the fit refuses.
     """
     side = sidecar_of(out) if out is not None and Path(str(out)).suffix == ".urdf" else None
     check_paths(
-        robot=robot, inputs=[data_path, data_format, planes, distances], outputs=[out, side, json_path]
+        robot=robot,
+        inputs=[data_path, data_format, planes, distances],
+        outputs=[out, side, json_path],
+        html=html,
     )
     rob = load_robot(robot)
     check_out_path(rob, out)
@@ -73,8 +81,22 @@ def calibrate_contacts_file(
                 staged.add_text(path, text)
         if json_path:
             staged.add_json(json_path, report.to_dict())
+        if html:
+            staged.add_text(html, calibration_page(report, cell))
         staged.commit()
     return report
+
+
+def calibration_page(report: ContactCalibrationReport, cell: Cell) -> str:
+    """The 3-D page of a contact calibration: the fitted rows and the estimated environment, and the
+    tracker points with their residuals (in W) if any."""
+    c, model, data = report.result.contacts, report.model, report.data
+    points = None
+    if data is not None:
+        p_pred = reflector_world(model, data.q, data.target)
+        points = (data.q, p_pred, report.result.residuals @ model.R_WT.T)
+    rows = dict(planes=(c.planes, c.plane_residuals), distances=(c.distances, c.distance_residuals))
+    return contact_page(report.robot, cell, model, **rows, points=points)
 
 
 def model_files(report: ContactCalibrationReport, out: str | Path) -> list[tuple[str | Path, str]]:
@@ -94,7 +116,7 @@ def model_files(report: ContactCalibrationReport, out: str | Path) -> list[tuple
     return [(out, calibrated_urdf(rob, model.geometry, note.replace("--", "-"))), (sidecar_of(out), side)]
 
 
-UNSUPPORTED = ("extend", "html", "plots_dir", "q_work_deg")
+UNSUPPORTED = ("extend", "plots_dir", "q_work_deg")
 """:func:`kpioed_drake.api.calibrate` arguments a contact calibration does not take."""
 
 
@@ -121,4 +143,5 @@ def contact_calibration(
         json_path=arguments["json_path"],
         cell_path=arguments["cell_path"],
         data_format=arguments["data_format"],
+        html=arguments["html"],
     )
