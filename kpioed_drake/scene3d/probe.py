@@ -113,7 +113,7 @@ def draw_probe_frames(
         tip = p_pred[k] + scale * r_W[k]
         canvas.triad(f"{path}/measured/{k + 1:03d}", R_meas[i], tip, AXIS_MM, 5.0, alpha=0.45)
     n_origin = int(np.count_nonzero(frames.origin))
-    which = f"the {rows.size} of the largest orientation errors" if rows.size < n_origin else "every row"
+    which = f"the {rows.size} of the largest orientation errors" if rows.size < n_origin else "every pose"
     canvas.legend += [
         (
             css(_FRAME),
