@@ -8,8 +8,9 @@ covariance ``Js Cp Js^T`` (paper eq. 19, 24e). The same steps run with and witho
 
 Outlier test (normalised residuals): for every used pose i the studentised statistic
 ``t_i = r_i^T (sigma^2 (I - H_ii))^-1 r_i`` (``H_ii`` the 3x3 block of the hat matrix) is chi^2(3)
-distributed if the model is right. The largest ``t_i`` is compared with the chi^2(3) quantile at
-level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01),
+distributed if the model is right (with a 6-DoF probe's orientations a second one of its
+orientation rows, both tested at ``alpha / 2n``). The largest ``t_i`` is compared with the chi^2(3)
+quantile at level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01),
 at the effective noise ``max(sigma, robust scale of the residuals)`` so that the non-geometric rest
 of a real robot is not taken for gross errors (:mod:`kpioed_drake.calibration.robust`); if it
 exceeds it, that pose is removed and the fit repeated, until no pose exceeds the threshold, at
@@ -56,7 +57,7 @@ from kpioed_drake.estimation.estimator import (
 )
 from kpioed_drake.estimation.identifiability import undetermined_parameters
 from kpioed_drake.estimation.plausibility import check_data, check_fitted
-from kpioed_drake.estimation.residuals import normalized_residuals
+from kpioed_drake.estimation.residuals import pose_statistics
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.data import Measurements, counted_rows
@@ -246,7 +247,7 @@ def calibrate(
     nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
     fit = _fitter(data, options, effects, cond)
-    res, screen, normalized, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
+    res, screen, statistics, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
     check_fitted(res, nominal, data, force=options.force, warnings=warnings)
     if not res.converged:
         warnings.append(f"the least-squares iteration did not converge ({res.message})")
@@ -261,7 +262,8 @@ def calibrate(
         data=data,
         q_work=q_work,
         outlier_threshold=screen.threshold,
-        normalized=normalized,
+        normalized=statistics[0],
+        normalized_rot=statistics[1] if len(statistics) > 1 else None,
         outlier_alpha=screen.alpha,
         kpi=s,
         kpi_cov=kpi_cov,
@@ -329,7 +331,7 @@ def _fit_and_screen(
 ) -> tuple[EstimationResult, Screening, np.ndarray, tuple[str, ...], list[str]]:
     """The fit of every pose, what the solution does not determine held or dropped, the outliers
     screened (and the final solution tested again): (result, screening, the final studentised
-    residuals, names held at the solution, effects dropped)."""
+    statistics (parts, n), names held at the solution, effects dropped)."""
     strict = options.strict
     res = fit(nominal, np.ones(data.n, dtype=bool), register=True, singular_ok=True)
     dropped: list[str] = []
@@ -343,13 +345,13 @@ def _fit_and_screen(
         force=options.force,
         warnings=warnings,
     )
-    res, normalized = screen.result, screen.normalized
+    res, statistics = screen.result, screen.statistics
     if screen.outliers:  # the final solution is tested too
         res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
         if more:
             at_solution += more
-            normalized = normalized_residuals(res)
-    return res, screen, normalized, at_solution, dropped
+            statistics = pose_statistics(res)
+    return res, screen, statistics, at_solution, dropped
 
 
 def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float, warnings: list[str]) -> None:
