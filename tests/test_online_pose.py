@@ -23,7 +23,7 @@ from kpioed_drake.cli import main
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.files.designs import read_design, write_design
 from kpioed_drake.online import NextOptions, next_poses
-from kpioed_drake.robot.models import load_cell, load_robot
+from kpioed_drake.robot.models import load_cell
 from kpioed_drake.simulation import SimulationOptions, simulate, table_csv_text
 from kpioed_drake.tracker.data import Measurements
 from kpioed_drake.tracker.feasibility import FeasibilityChecker
@@ -31,11 +31,6 @@ from kpioed_drake.tracker.feasibility import FeasibilityChecker
 SIGMA_MM = 0.02
 SIGMA_DEG = 0.005
 N_START = 20
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return load_robot("kr16")
 
 
 def _simulate(kr16, q, work, *, seed=8, noise=True):

@@ -14,23 +14,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
+from test_calibration import kpi_distance2
 
 from kpioed_drake import calibration, simulation
 from kpioed_drake.calibration.robust import effective_statistics
 from kpioed_drake.files.orientation_columns import QUATERNION_COLUMNS
-from kpioed_drake.robot import models
 from kpioed_drake.tracker.data import Measurements
-from kpioed_drake.tracker.measurement import kpi_jacobian
 
 SIGMA_MM = 0.02
 SIGMA_DEG = 0.005
 N_POSES = 60
 TURN_DEG = 2.0
-
-
-@pytest.fixture(scope="module")
-def kr16():
-    return models.load_robot("kr16")
 
 
 @pytest.fixture(scope="module")
@@ -58,11 +52,6 @@ def _calibrate(kr16, table):
     return calibration.calibrate(kr16, Measurements.from_table(table, kr16), options)
 
 
-def _tcp_mahalanobis2(rep, truth) -> float:
-    e = np.asarray(rep.kpi) - kpi_jacobian(truth["model"], rep.q_work)[0]
-    return float(e @ np.linalg.solve(rep.kpi_cov, e))
-
-
 def test_turned_orientations_are_removed_and_named(kr16, clean):
     table, truth = clean
     turned, bad = _turned(table, seed=43)
@@ -74,7 +63,7 @@ def test_turned_orientations_are_removed_and_named(kr16, clean):
     assert all(r["residual_angle_deg"] > 1.5 for r in robust["reasons"])
     assert "(orientation)" in rep.summary() and "robust scale of the orientation residuals" in rep.summary()
     # the fit without them: the true TCP within 3 sigma (the 99.7 % ellipsoid), a noise-level fit
-    assert _tcp_mahalanobis2(rep, truth) <= chi2.ppf(0.9973, 3)
+    assert kpi_distance2(rep, truth["model"]) <= chi2.ppf(0.9973, 3)
     assert 0.8 < rep.chi2_per_dof < 1.2
     poses = rep.to_dict()["poses"]
     assert all("normalized_chi2_orientation" in p for p in poses)
@@ -85,7 +74,7 @@ def test_clean_pose_data_keep_every_pose(kr16, clean):
     table, truth = clean
     rep = _calibrate(kr16, table)
     assert rep.outliers == [] and rep.outlier_alpha == 0.01
-    assert _tcp_mahalanobis2(rep, truth) <= chi2.ppf(0.9973, 3)
+    assert kpi_distance2(rep, truth["model"]) <= chi2.ppf(0.9973, 3)
     t_rot = rep.normalized_rot[rep.used]
     assert t_rot.mean() == pytest.approx(3.0, abs=3 * np.sqrt(6.0 / t_rot.size))  # chi^2(3): mean 3, var 6
     now = effective_statistics(rep.result, rep.used)
