@@ -6,7 +6,7 @@ step is ``design --measure pose --given``); the stopping rule reads the KPI with
 (``v_pos + L^2 v_rot``, with ``target_deg`` ``L = sqrt(V) / target_deg``: done exactly when
 ``v_pos / V + (std / target_deg)^2 <= 1``) and the summary names the orientation's precision; two
 simulated steps on the kr16 give feasible poses and a better orientation; orientation options for
-point data or both weights at once exit 2 with one line.
+point data or both weights at once exit 2 with one line, and so does ``diagnose`` on pose data.
 """
 
 from __future__ import annotations
@@ -164,3 +164,11 @@ def test_both_orientation_weights_exit_2(measured, tmp_path, capsys):
                  "--target-deg", "0.01", "--kpi-orientation-mm", "200"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "--target-deg" in err and "not both" in err and len(err.strip().splitlines()) == 1
+
+
+def test_diagnose_refuses_pose_data_naming_what_it_takes(measured, capsys):
+    """Not the loop, the same data: ``diagnose`` refuses orientations in one line naming what it takes."""
+    code = main(["diagnose", "--robot", "kr16", str(measured / "data.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "data.csv" in err
+    assert "takes positions" in err and "without the orientation columns" in err and "format file" in err
