@@ -5,7 +5,8 @@ by 2 deg are removed, exactly those, each named with the part that failed (orien
 fit then puts the true TCP within its 99.7 % ellipsoid; without them nothing is removed at the
 default family-wise level 0.01; a 5 mm position error on a pose data set is still named a position
 outlier. The orientation statistic is chi^2(3) on clean data (mean 3) and at a unit noise its robust
-scale is the orientation noise.
+scale is the orientation noise. The identifiability test before the fit weighs the orientation rows
+beside the positions as the fit does.
 """
 
 from __future__ import annotations
@@ -16,10 +17,14 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 from test_calibration import kpi_distance2
 
-from kpioed_drake import calibration, simulation
+from kpioed_drake import api, calibration, simulation
+from kpioed_drake.calibration.fit import hold_undetermined
 from kpioed_drake.calibration.robust import effective_statistics
 from kpioed_drake.files.orientation_columns import QUATERNION_COLUMNS
+from kpioed_drake.robot.models import load_cell
 from kpioed_drake.tracker.data import Measurements
+from kpioed_drake.tracker.measurement import nominal_model
+from kpioed_drake.tracker.orientation import with_probe
 
 SIGMA_MM = 0.02
 SIGMA_DEG = 0.005
@@ -100,3 +105,23 @@ def test_the_orientation_scale_follows_a_noise_larger_than_given(kr16, clean):
     o = rep.to_dict()["robust"]["orientation"]
     assert o["scale_deg"] == pytest.approx(SIGMA_DEG, rel=0.2)
     assert o["sigma_effective_deg_median"] == pytest.approx(o["scale_deg"])
+
+
+def test_the_nominal_identifiability_test_weighs_orientations_as_the_fit(kr16):
+    """20 heuristic poses measured with a probe: weighted as the fit weighs them (sigma_mm 0.02 mm,
+    0.005 deg) they determine every parameter and the fit explains the noise; weighted as if the
+    positions had 1 mm of noise (50 times too little beside the orientations) theta2 and theta3
+    look tied (correlation beyond 0.999) and holding one biases the fit."""
+    q = api.design("kr16", criterion="heuristic", n=20, seed=3, certify=False).q
+    options = simulation.SimulationOptions(sigma_mm=SIGMA_MM, seed=1, orientation_sigma_deg=SIGMA_DEG)
+    data = Measurements.from_table(simulation.simulate(kr16, q, options)[0], kr16)
+    start = with_probe(nominal_model(kr16, load_cell(robot=kr16)))
+    held = {}
+    for sigma_mm in (SIGMA_MM, 1.0):
+        model = hold_undetermined(start, data, False, [], SIGMA_DEG, sigma_mm)
+        held[sigma_mm] = set(start.layout.free_names) - set(model.layout.free_names)
+    assert held[SIGMA_MM] == set() and held[1.0] & {"theta2", "theta3"}
+    rep = calibration.calibrate(
+        kr16, data, calibration.CalibrationOptions(sigma_mm=SIGMA_MM, sigma_deg=SIGMA_DEG)
+    )
+    assert rep.identifiability["at_nominal"] == [] and not rep.rejects

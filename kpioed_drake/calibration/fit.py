@@ -79,15 +79,20 @@ few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving
 
 
 def hold_undetermined(
-    nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str], sigma_deg: float = 0.01
+    nominal: TrackerModel,
+    data: Measurements,
+    strict: bool,
+    warnings: list[str],
+    sigma_deg: float = 0.01,
+    sigma_mm: float = 1.0,
 ) -> TrackerModel:
     """``nominal`` with the parameters the poses do not determine held at nominal (not estimated).
 
     Tested on the Jacobian of the registered nominal model over every pose (with fewer coordinates
     than parameters the estimator refuses anyway); with a probe's orientations on the whitened
     stack of its position and orientation rows (:func:`_test_rows`, ``sigma_deg`` the orientation
-    noise of rows without their own, relative to ``1 mm``: the column-scaled test sees only the
-    ratio). Raises InputError with ``strict`` or when more
+    noise of rows without their own, relative to the positions' ``sigma_mm`` as in the fit: the
+    column-scaled test sees only the ratio). Raises InputError with ``strict`` or when more
     than ``MAX_HELD_SHARE`` of the free parameters are undetermined.
 
     A tracker-pose parameter found only through its correlation with another (not rank deficient)
@@ -100,7 +105,7 @@ def hold_undetermined(
     if 3 * data.n < lay.n_free:
         return nominal
     registered = registered_model(nominal, data.q, data.eta, target=data.target, R_TP=data.R_TP)
-    found = undetermined_parameters(_test_rows(registered, data, sigma_deg), lay.free_names)
+    found = undetermined_parameters(_test_rows(registered, data, sigma_deg, sigma_mm), lay.free_names)
     loose = [c for c in found.correlated if c.held in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
@@ -113,16 +118,17 @@ def hold_undetermined(
     return _hold(nominal, found, f"these {counted_rows(data.q)} do not determine", data, strict, warnings)
 
 
-def _test_rows(model: TrackerModel, data: Measurements, sigma_deg: float) -> np.ndarray:
+def _test_rows(model: TrackerModel, data: Measurements, sigma_deg: float, sigma_mm: float) -> np.ndarray:
     """(3 n [+ 3 n], n_free) the rows the identifiability test sees: the positions' Jacobian, and
-    with orientations their Jacobian whitened by their noise relative to the positions' (1 mm)."""
+    with orientations their Jacobian whitened by their noise relative to the positions'
+    (``sigma_mm``), the weights of the fit up to one factor."""
     lay = model.layout
     _, H = measurement_jacobian(model, data.q, target=data.target)
     A = H[:, :, lay.free].reshape(3 * data.n, -1)
     if data.R_TP is None:
         return A
     _, Hr = orientation_jacobian(model, data.q, data.R_TP)
-    w = 1.0 / orientation_sigma(data, sigma_deg)
+    w = sigma_mm / orientation_sigma(data, sigma_deg)
     return np.concatenate([A, (Hr[:, :, lay.free] * w[:, :, None]).reshape(3 * data.n, -1)])
 
 
@@ -244,7 +250,7 @@ def calibrate(
         check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=options.force) + work_note
     )
     before = nominal.layout.free_names
-    nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg)
+    nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg, options.sigma_mm)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
     fit = _fitter(data, options, effects, cond)
     res, screen, statistics, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
