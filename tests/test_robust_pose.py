@@ -66,6 +66,9 @@ def test_turned_orientations_are_removed_and_named(kr16, clean):
     assert [r["part"] for r in robust["reasons"]] == ["orientation"] * bad.size
     assert all(r["statistic"] > r["threshold"] for r in robust["reasons"])
     assert all(r["residual_angle_deg"] > 1.5 for r in robust["reasons"])
+    # removed, they are predicted by the fit without them: a prediction error far beyond the noise
+    assert np.all(rep.normalized_rot[bad] > 100 * robust["reasons"][0]["threshold"])
+    assert np.all(rep.normalized_rot[rep.used] < robust["reasons"][-1]["threshold"])
     assert "(orientation)" in rep.summary() and "robust scale of the orientation residuals" in rep.summary()
     # the fit without them: the true TCP within 3 sigma (the 99.7 % ellipsoid), a noise-level fit
     assert kpi_distance2(rep, truth["model"]) <= chi2.ppf(0.9973, 3)
