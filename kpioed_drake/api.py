@@ -179,6 +179,7 @@ def next(  # noqa: A001 (the command's name)
     data_format: MaybePath = None,
     plan: str | Path | None = None,
     force: bool = False,
+    **orientation: Any,
 ) -> dict:
     """Online calibration, one step (``kpioed next``): :func:`kpioed_drake.online.workflow.next_file`.
 
@@ -202,13 +203,16 @@ def next(  # noqa: A001 (the command's name)
             this step's plan; removed when done): a re-plan then never ends worse than the rest
             of the previous plan.
         force: go on with data that fails the plausibility checks, with a warning.
+        **orientation: data with a 6-DoF probe's orientations: ``sigma_deg``, ``kpi_orientation_mm``,
+            ``target_deg`` (:class:`~kpioed_drake.online.NextOptions`).
 
     Returns:
         The JSON record (``done``, ``n_measured``, ``kpi_avg_var_mm2``,
         ``predicted_kpi_avg_var_mm2``, ``n_planned``, ``min_more_poses``, ``bound_mm2``, ``efficiency``,
         ``next_q_deg``, ...) and ``summary``.
     """
-    options = NextOptions(
+    options = options_from(
+        NextOptions,
         target_var_mm2=target_var_mm2,
         n=n,
         sigma_mm=sigma_mm,
@@ -216,6 +220,7 @@ def next(  # noqa: A001 (the command's name)
         certify=certify,
         max_plan=max_plan,
         force=force,
+        **orientation,
     )
     result, rob = next_file(
         robot, data_path, options, out=out, json_path=json_path, data_format=data_format, plan_path=plan

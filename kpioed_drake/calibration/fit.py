@@ -8,8 +8,9 @@ covariance ``Js Cp Js^T`` (paper eq. 19, 24e). The same steps run with and witho
 
 Outlier test (normalised residuals): for every used pose i the studentised statistic
 ``t_i = r_i^T (sigma^2 (I - H_ii))^-1 r_i`` (``H_ii`` the 3x3 block of the hat matrix) is chi^2(3)
-distributed if the model is right. The largest ``t_i`` is compared with the chi^2(3) quantile at
-level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01),
+distributed if the model is right (with a 6-DoF probe's orientations a second one of its
+orientation rows, both tested at ``alpha / 2n``). The largest ``t_i`` is compared with the chi^2(3)
+quantile at level ``alpha / n`` (Bonferroni; ``alpha`` = family-wise false-alarm probability, default 0.01),
 at the effective noise ``max(sigma, robust scale of the residuals)`` so that the non-geometric rest
 of a real robot is not taken for gross errors (:mod:`kpioed_drake.calibration.robust`); if it
 exceeds it, that pose is removed and the fit repeated, until no pose exceeds the threshold, at
@@ -56,7 +57,7 @@ from kpioed_drake.estimation.estimator import (
 )
 from kpioed_drake.estimation.identifiability import undetermined_parameters
 from kpioed_drake.estimation.plausibility import check_data, check_fitted
-from kpioed_drake.estimation.residuals import normalized_residuals
+from kpioed_drake.estimation.residuals import pose_statistics
 from kpioed_drake.robot.models import Cell, Robot, load_cell
 from kpioed_drake.robot.parameters import parameter_layout
 from kpioed_drake.tracker.data import Measurements, counted_rows
@@ -78,15 +79,20 @@ few (a reflector on joint 6's axis: 2) is a gauge; holding more (60 poses moving
 
 
 def hold_undetermined(
-    nominal: TrackerModel, data: Measurements, strict: bool, warnings: list[str], sigma_deg: float = 0.01
+    nominal: TrackerModel,
+    data: Measurements,
+    strict: bool,
+    warnings: list[str],
+    sigma_deg: float = 0.01,
+    sigma_mm: float = 1.0,
 ) -> TrackerModel:
     """``nominal`` with the parameters the poses do not determine held at nominal (not estimated).
 
     Tested on the Jacobian of the registered nominal model over every pose (with fewer coordinates
     than parameters the estimator refuses anyway); with a probe's orientations on the whitened
     stack of its position and orientation rows (:func:`_test_rows`, ``sigma_deg`` the orientation
-    noise of rows without their own, relative to ``1 mm``: the column-scaled test sees only the
-    ratio). Raises InputError with ``strict`` or when more
+    noise of rows without their own, relative to the positions' ``sigma_mm`` as in the fit: the
+    column-scaled test sees only the ratio). Raises InputError with ``strict`` or when more
     than ``MAX_HELD_SHARE`` of the free parameters are undetermined.
 
     A tracker-pose parameter found only through its correlation with another (not rank deficient)
@@ -99,7 +105,7 @@ def hold_undetermined(
     if 3 * data.n < lay.n_free:
         return nominal
     registered = registered_model(nominal, data.q, data.eta, target=data.target, R_TP=data.R_TP)
-    found = undetermined_parameters(_test_rows(registered, data, sigma_deg), lay.free_names)
+    found = undetermined_parameters(_test_rows(registered, data, sigma_deg, sigma_mm), lay.free_names)
     loose = [c for c in found.correlated if c.held in lay.tracker_names]
     if loose and not strict:  # the registration is biased by the robot's errors: estimate it
         found = dataclasses.replace(found, correlated=tuple(c for c in found.correlated if c not in loose))
@@ -112,16 +118,17 @@ def hold_undetermined(
     return _hold(nominal, found, f"these {counted_rows(data.q)} do not determine", data, strict, warnings)
 
 
-def _test_rows(model: TrackerModel, data: Measurements, sigma_deg: float) -> np.ndarray:
+def _test_rows(model: TrackerModel, data: Measurements, sigma_deg: float, sigma_mm: float) -> np.ndarray:
     """(3 n [+ 3 n], n_free) the rows the identifiability test sees: the positions' Jacobian, and
-    with orientations their Jacobian whitened by their noise relative to the positions' (1 mm)."""
+    with orientations their Jacobian whitened by their noise relative to the positions'
+    (``sigma_mm``), the weights of the fit up to one factor."""
     lay = model.layout
     _, H = measurement_jacobian(model, data.q, target=data.target)
     A = H[:, :, lay.free].reshape(3 * data.n, -1)
     if data.R_TP is None:
         return A
     _, Hr = orientation_jacobian(model, data.q, data.R_TP)
-    w = 1.0 / orientation_sigma(data, sigma_deg)
+    w = sigma_mm / orientation_sigma(data, sigma_deg)
     return np.concatenate([A, (Hr[:, :, lay.free] * w[:, :, None]).reshape(3 * data.n, -1)])
 
 
@@ -243,10 +250,10 @@ def calibrate(
         check_data(nominal, data, n_params=nominal.layout.n_free + n_effect, force=options.force) + work_note
     )
     before = nominal.layout.free_names
-    nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg)
+    nominal = hold_undetermined(nominal, data, options.strict, warnings, options.sigma_deg, options.sigma_mm)
     at_nominal = [name for name in before if name not in nominal.layout.free_names]
     fit = _fitter(data, options, effects, cond)
-    res, screen, normalized, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
+    res, screen, statistics, at_solution, dropped = _fit_and_screen(fit, nominal, data, options, warnings)
     check_fitted(res, nominal, data, force=options.force, warnings=warnings)
     if not res.converged:
         warnings.append(f"the least-squares iteration did not converge ({res.message})")
@@ -261,7 +268,8 @@ def calibrate(
         data=data,
         q_work=q_work,
         outlier_threshold=screen.threshold,
-        normalized=normalized,
+        normalized=statistics[0],
+        normalized_rot=statistics[1] if len(statistics) > 1 else None,
         outlier_alpha=screen.alpha,
         kpi=s,
         kpi_cov=kpi_cov,
@@ -329,7 +337,7 @@ def _fit_and_screen(
 ) -> tuple[EstimationResult, Screening, np.ndarray, tuple[str, ...], list[str]]:
     """The fit of every pose, what the solution does not determine held or dropped, the outliers
     screened (and the final solution tested again): (result, screening, the final studentised
-    residuals, names held at the solution, effects dropped)."""
+    statistics (parts, n), names held at the solution, effects dropped)."""
     strict = options.strict
     res = fit(nominal, np.ones(data.n, dtype=bool), register=True, singular_ok=True)
     dropped: list[str] = []
@@ -343,13 +351,13 @@ def _fit_and_screen(
         force=options.force,
         warnings=warnings,
     )
-    res, normalized = screen.result, screen.normalized
+    res, statistics = screen.result, screen.statistics
     if screen.outliers:  # the final solution is tested too
         res, more = _determined_at_solution(res, nominal, data, strict, warnings, fit, dropped)
         if more:
             at_solution += more
-            normalized = normalized_residuals(res)
-    return res, screen, normalized, at_solution, dropped
+            statistics = pose_statistics(res)
+    return res, screen, statistics, at_solution, dropped
 
 
 def _fit_warnings(report: CalibrationReport, screen: Screening, sigma_mm: float, warnings: list[str]) -> None:

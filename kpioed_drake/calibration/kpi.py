@@ -3,7 +3,9 @@
 The KPI is the TCP (reflector point) at the working pose ``q_work`` in W under KPI conditions (no
 payload, reference temperature) with its covariance ``Cs = Js Cp Js^T`` (paper eq. 24e), ``Js``
 the derivative of the TCP w.r.t. the estimated parameters: the free geometric ones and, for an
-extended model, the effects' (:func:`kpioed_drake.effects.effect_kpi_columns`).
+extended model, the effects' (:func:`kpioed_drake.effects.effect_kpi_columns`). With a 6-DoF probe's
+orientations the TCP's orientation has a covariance too, ``Js_rot Cp Js_rot^T``
+(:func:`orientation_covariance`, ``Js_rot`` the tool frame's angular Jacobian).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.robot.models import Robot
 from kpioed_drake.tracker.measurement import kpi_jacobian
+from kpioed_drake.tracker.orientation import tcp_angular_jacobian
 
 
 def working_pose(
@@ -63,3 +66,17 @@ def kpi_and_covariance(result: EstimationResult, q_work: np.ndarray) -> tuple[np
     s = s + fx.effect_tcp_shift(model, q_work, effects)
     Je = np.concatenate([Js[:, result.free], fx.effect_kpi_columns(model, q_work, effects)], axis=1)
     return s, Je @ result.Cp @ Je.T
+
+
+def orientation_covariance(result: EstimationResult, q_work: np.ndarray) -> np.ndarray:
+    """(3, 3) the covariance of the TCP frame's orientation at ``q_work`` (small rotations in W)
+    [rad^2], a priori from the given noise: ``Js_rot Cp Js_rot^T``
+    (:func:`~kpioed_drake.tracker.orientation.tcp_angular_jacobian` over the estimated parameters).
+
+    Raises:
+        InputError: an extended fit (the effects' turning of the tool is not modelled).
+    """
+    if result.effects:
+        raise InputError("the TCP's orientation with model extensions is not modelled", fields=("effects",))
+    J = tcp_angular_jacobian(result.model, q_work)[:, result.free]
+    return J @ result.Cp @ J.T

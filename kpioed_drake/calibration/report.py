@@ -14,6 +14,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from scipy.stats import chi2 as chi2_dist
 
+from kpioed_drake.calibration.robust import orientation_scale_line, removed_text
 from kpioed_drake.estimation.accuracy import Figures, OrientationFigures, accuracy, orientation_accuracy
 from kpioed_drake.estimation.estimator import EstimationResult
 from kpioed_drake.files.tables import ROW_CONVENTION
@@ -40,6 +41,7 @@ class CalibrationReport:
         q_work: (6,) working pose of the KPI [rad].
         outliers: indices (0-based into the data) of the removed poses, in removal order.
         normalized: (n,) studentised residual statistics of the final fit (chi^2(3) under H0).
+        normalized_rot: (n,) their orientation part with a 6-DoF probe's orientations, else None.
         outlier_threshold: the chi^2(3) threshold of the last test (or None if not tested).
         outlier_alpha: family-wise level of the outlier test (None: no test).
         kpi: (3,) TCP at q_work in W [mm].
@@ -67,6 +69,7 @@ class CalibrationReport:
     warnings: list[str]
     robust: dict = dataclasses.field(default_factory=dict)
     identifiability: dict = dataclasses.field(default_factory=dict)
+    normalized_rot: np.ndarray | None = None
 
     # --- derived numbers ---------------------------------------------------------------------
     @property
@@ -302,9 +305,15 @@ class CalibrationReport:
                     "residual_norm_mm": float(np.linalg.norm(r)),
                     "normalized_chi2": float(self.normalized[i]),
                     "p_value": float(chi2_dist.sf(self.normalized[i], 3)),
+                    **self._orientation_statistic(i),
                 }
             )
         return poses
+
+    def _orientation_statistic(self, i: int) -> dict:
+        """Row ``i``'s orientation statistic (``normalized_chi2_orientation``) of a pose fit, else nothing."""
+        t = self.normalized_rot
+        return {} if t is None else {"normalized_chi2_orientation": float(t[i])}
 
     def _fit_dict(self) -> dict:
         """The JSON report's head: the data, the iteration, the goodness of fit and the outlier test."""
@@ -334,7 +343,8 @@ class CalibrationReport:
             "outlier_rows": self.outlier_rows,
             "row_convention": ROW_CONVENTION,
             "outlier_test": {
-                "statistic": "studentised residual r^T (sigma^2 (I - H_ii))^-1 r ~ chi2(3)",
+                "statistic": "studentised residual r^T (sigma^2 (I - H_ii))^-1 r ~ chi2(3) (with "
+                "orientations also their own, normalized_chi2_orientation; robust.orientation)",
                 "alpha_familywise": self.outlier_alpha,
                 "threshold": self.outlier_threshold,
             },
@@ -414,7 +424,7 @@ class CalibrationReport:
             lines.append(f"  chi2/dof = {d.chi2_per_dof:.3f} (dof {d.dof}), p-value {d.p_value:.3g}")
         if d.outliers:
             lines.append(
-                f"  outliers removed: {len(d.outliers)} (rows {', '.join(map(str, d.outlier_rows))})"
+                f"  outliers removed: {len(d.outliers)} ({removed_text(self.robust, d.outlier_rows)})"
             )
         else:
             lines.append("  outliers removed: none")
@@ -430,6 +440,8 @@ class CalibrationReport:
                     else "no outlier test"
                 )
             )
+        if (line := orientation_scale_line(self.robust, self.outlier_alpha is not None)) is not None:
+            lines.append(line)
         sd = np.sqrt(np.diag(d.kpi_cov))
         lines.append(
             "  KPI (TCP at q_work in W): "

@@ -33,11 +33,40 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_json_out(p)
     cli.add_format(p)
     cli.add_force(p)
+    _add_orientation(p)
     p.set_defaults(func=run)
+
+
+def _add_orientation(p: argparse.ArgumentParser) -> None:
+    """``--sigma-deg``, ``--kpi-orientation-mm``, ``--target-deg``: data with a probe's orientations."""
+    p.add_argument(
+        "--sigma-deg",
+        type=float,
+        default=0.01,
+        help="data with orientations (a 6-DoF probe): their noise per tracker axis [deg] where the rows "
+        "give none (0.01); the next poses are designed as pose measurements",
+    )
+    p.add_argument(
+        "--kpi-orientation-mm",
+        type=float,
+        default=0.0,
+        metavar="L",
+        help="data with orientations: the TCP's orientation counts in the KPI as L x angle: tr(Cs)/3 = "
+        "position variance + L^2 x orientation variance [rad^2] (0: the position alone)",
+    )
+    cli.add_optional(
+        p,
+        "--target-deg",
+        type=float,
+        metavar="D",
+        help="data with orientations: also reach the TCP orientation's precision D [deg, RMS per axis]: "
+        "done when position variance / target-var + (orientation / D)^2 <= 1 (not with --kpi-orientation-mm)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     same = cli.passed(args, "n", "sigma_mm", "seed", "certify", "max_plan", "out", "plan", "force")
+    same |= cli.passed(args, "sigma_deg", "kpi_orientation_mm", "target_deg")
     result = api.next(
         args.robot,
         args.data,

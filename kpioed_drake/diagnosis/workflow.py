@@ -208,7 +208,9 @@ def diagnose(
     if data.R_TP is not None:
         raise InputError(
             f"{data.path}: the data hold a 6-DoF probe's orientations, which the diagnosis's effects do not "
-            "model yet; diagnose the positions only (a file without the orientation columns)"
+            "model yet; the diagnosis takes positions (x, y, z per row, one or several targets per pose): "
+            "diagnose the same poses without the orientation columns (qw, qx, qy, qz and their sigmas), "
+            "or read by a format file without its orientation block"
         )
     repeats = ns.repeat_scatter(data.q, data.eta, data.target)
     stated = ns.stated(opts.sigma_mm, repeats, DEFAULT_SIGMA_MM)

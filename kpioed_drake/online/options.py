@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from kpioed_drake.arguments import check_count, check_positive, check_seed
 from kpioed_drake.errors import InputError, check_sigma
@@ -31,6 +32,21 @@ class NextOptions:
     exceed it."""
     force: bool = False
     """Go on with data that fails the plausibility checks (warned in the summary)."""
+    sigma_deg: float = 0.01
+    """Data with a 6-DoF probe's orientations: their noise per tracker axis [deg] where the rows
+    give none (as ``kpioed calibrate``'s); the next poses are designed at the median of the noise
+    the fit weighted the orientations with."""
+    kpi_orientation_mm: float = 0.0
+    """Data with orientations: L [mm] >= 0, the TCP's orientation counts in the KPI as the
+    displacement ``L * angle`` (tr(Cs)/3 = position variance + L^2 orientation variance [rad^2],
+    as ``design --kpi-orientation-mm``); 0: the position alone (unless ``target_deg``)."""
+    target_deg: float | None = None
+    """Data with orientations: the TCP orientation's precision to reach with the position's, the
+    RMS standard deviation per axis [deg]. The KPI is then the position's variance plus ``L^2``
+    times the orientation's with ``L = sqrt(target_var_mm2) / target_deg [rad]``, so that it is at
+    most ``target_var_mm2`` exactly when ``v_pos / V + v_rot / target_deg^2 <= 1``: both
+    precisions reached (each at most its target) and the design, its bound and the plan all on one
+    criterion. Not with ``kpi_orientation_mm``."""
 
     def __post_init__(self):
         check_positive("target_var_mm2", self.target_var_mm2)
@@ -43,3 +59,24 @@ class NextOptions:
             )
         check_sigma(self.sigma_mm)
         check_seed(self.seed)
+        check_positive("sigma_deg", self.sigma_deg)
+        check_positive("kpi_orientation_mm", self.kpi_orientation_mm, zero_ok=True)
+        check_positive("target_deg", self.target_deg, allow_none=True)
+        if self.target_deg is not None and self.kpi_orientation_mm > 0:
+            raise InputError(
+                "target_deg sets the orientation's weight L in the KPI itself: give it or "
+                "kpi_orientation_mm, not both",
+                fields=("target_deg", "kpi_orientation_mm"),
+            )
+
+    @property
+    def orientation_weight_mm(self) -> float:
+        """L [mm]: ``kpi_orientation_mm``, or ``sqrt(target_var_mm2) / target_deg [rad]``, or 0."""
+        if self.target_deg is not None:
+            return math.sqrt(self.target_var_mm2) / math.radians(self.target_deg)
+        return float(self.kpi_orientation_mm)
+
+    @property
+    def with_orientation(self) -> bool:
+        """An orientation target or weight was given (data with orientations needed)."""
+        return self.target_deg is not None or self.kpi_orientation_mm > 0

@@ -34,6 +34,16 @@ class NextReport:
             ``max_plan + 1`` when not even ``max_plan`` can.
         certificate: the certificate of the combined design (None when done or not asked).
         report: the calibration on the data so far.
+        position_var_mm2: data with a 6-DoF probe's orientations: the TCP position's tr(C)/3 now
+            [mm^2] (``kpi_avg_var_mm2`` adds ``L^2`` times the orientation's); None for points.
+        orientation_std_deg: the TCP orientation's RMS standard deviation per axis now [deg]
+            (a-posteriori when the fit rejects); None for points.
+        kpi_orientation_mm: L [mm], the orientation's weight in the KPI (0: not in it).
+        target_deg: the orientation's precision asked for [deg], or None.
+        sigma_deg_used: the orientation noise the design uses [deg]; None for points.
+        predicted_orientation_std_deg: the orientation's RMS standard deviation of the measured
+            and the next poses together [deg] (nominal kinematics, the noise used); None for points
+            or when done.
     """
 
     done: bool
@@ -49,6 +59,17 @@ class NextReport:
     min_more_poses: int
     certificate: dict | None
     report: CalibrationReport
+    position_var_mm2: float | None = None
+    orientation_std_deg: float | None = None
+    kpi_orientation_mm: float = 0.0
+    target_deg: float | None = None
+    sigma_deg_used: float | None = None
+    predicted_orientation_std_deg: float | None = None
+
+    @property
+    def with_orientation(self) -> bool:
+        """The data hold a 6-DoF probe's orientations."""
+        return self.orientation_std_deg is not None
 
     def to_dict(self, robot: Robot) -> dict:
         """The JSON record (mm, deg)."""
@@ -72,7 +93,44 @@ class NextReport:
             "n_planned": self.n_planned,
             "min_more_poses": self.min_more_poses,
             "next_q_deg": q_to_file(robot, self.q_next).tolist() if len(self.q_next) else [],
+            **self._orientation_dict(),
         }
+
+    def _orientation_dict(self) -> dict:
+        """The record's ``orientation`` block (data with orientations; nothing for points)."""
+        if not self.with_orientation:
+            return {}
+        return {
+            "orientation": {
+                "position_var_mm2": self.position_var_mm2,
+                "orientation_std_deg": self.orientation_std_deg,
+                "kpi_orientation_mm": self.kpi_orientation_mm,
+                "target_deg": self.target_deg,
+                "sigma_deg_used": self.sigma_deg_used,
+                "predicted_orientation_std_deg": self.predicted_orientation_std_deg,
+                "note": "kpi_avg_var_mm2 = position_var_mm2 + kpi_orientation_mm^2 x orientation variance "
+                "[rad^2]; with target_deg, kpi_orientation_mm = sqrt(target_var_mm2) / target_deg [rad], "
+                "so that done means position_var_mm2 / target_var_mm2 + (orientation_std_deg / "
+                "target_deg)^2 <= 1",
+            }
+        }
+
+    def _orientation_lines(self) -> list[str]:
+        """The summary's line on the TCP's orientation (data with orientations; none for points)."""
+        if not self.with_orientation:
+            return []
+        L = self.kpi_orientation_mm
+        if self.target_deg is not None:
+            weight = (
+                f"target {self.target_deg:g} deg; in the KPI as {L:.4g} mm x angle, so done means "
+                f"position / {self.target_var_mm2:g} mm^2 + (orientation / {self.target_deg:g} deg)^2 <= 1"
+            )
+        else:
+            weight = f"in the KPI as {L:g} mm x angle" if L > 0 else "not in the KPI: the position alone"
+        return [
+            f"  position tr(C)/3 = {self.position_var_mm2:.4g} mm^2; orientation precision "
+            f"{self.orientation_std_deg:.4g} deg RMS per axis ({weight})"
+        ]
 
     def summary(self) -> str:
         """A short human-readable summary."""
@@ -82,12 +140,14 @@ class NextReport:
             f"target {self.target_var_mm2:g} mm^2"
         )
         forced = [f"  warning: {w}" for w in self.report.warnings if w.startswith("forced:")]
+        top = [head, *self._orientation_lines(), *forced]
         if self.done:
-            return "\n".join([head, *forced, "  done: the precision is reached; nothing to measure"])
+            return "\n".join([*top, "  done: the precision is reached; nothing to measure"])
+        p = self.predicted_orientation_std_deg
         lines = [
-            head,
-            *forced,
-            f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2",
+            *top,
+            f"  next {len(self.q_next)} poses: combined tr(Cs)/3 = {self.predicted_kpi_avg_var_mm2:.4g} mm^2"
+            + ("" if p is None else f", orientation {p:.4g} deg RMS per axis"),
             f"  planned {self.n_planned} more; at least {self.min_more_poses} more are needed "
             "(with fewer, the certified bound exceeds the target)",
         ]

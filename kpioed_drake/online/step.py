@@ -11,6 +11,11 @@ lower tr(Cs)/3 most are measured next (a batch designed alone would be greedy: t
 could not make up for it); the previous step's plan, when given, is continued if that is better.
 The certificate (a lower bound on tr(Cs)/3 of any combined design of as many poses) says how far
 from the best they are.
+
+Data with a 6-DoF probe's orientations (:func:`tcp_precision`): the fit uses them, the KPI is
+``v_pos + L^2 v_rot`` (the TCP orientation's variance per axis [rad^2] weighted by L [mm],
+``NextOptions.orientation_weight_mm``) and the next poses are pose measurements in the problem of
+``design --measure pose`` (:func:`design_problem`) at the median of the fit's orientation noise.
 """
 
 from __future__ import annotations
@@ -20,7 +25,9 @@ import dataclasses
 import numpy as np
 
 from kpioed_drake.calibration.fit import calibrate
+from kpioed_drake.calibration.kpi import orientation_covariance
 from kpioed_drake.calibration.options import CalibrationOptions
+from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.robust import pose_groups
 from kpioed_drake.design.approximate import certificate
 from kpioed_drake.design.approximate.design import kpi_factor
@@ -37,17 +44,60 @@ from kpioed_drake.robot.models import Cell, Robot
 from kpioed_drake.tracker.data import Measurements
 
 
-def design_problem(robot: Robot, sigma_mm: float, cell: Cell | None) -> Problem:
+def design_problem(
+    robot: Robot,
+    sigma_mm: float,
+    cell: Cell | None,
+    *,
+    sigma_deg: float | None = None,
+    kpi_orientation_mm: float = 0.0,
+) -> Problem:
     """The problem the next poses are designed in: the robot's model file (its kinematics place the
-    collision and beam constraints, as the feasibility check does) with the noise the data show.
+    collision and beam constraints, as the feasibility check does) with the noise the data show;
+    with ``sigma_deg`` (data with a 6-DoF probe's orientations) pose measurements at that
+    orientation noise [deg] and the KPI's orientation weight ``kpi_orientation_mm`` [mm]
+    (``design --measure pose``'s problem).
 
     The estimate enters through the measured poses' information and the noise; the design's own
     kinematics stay nominal because the constraints are planned on them: a design optimised on a
     first estimate's kinematics (from ten poses, some parameters tens of millimetres off) sits on
     constraint boundaries the nominal check then finds violated.
     """
-    problem = make_problem(robot, sigma_mm=sigma_mm)
+    pose = {} if sigma_deg is None else dict(measure="pose", sigma_deg=sigma_deg)
+    problem = make_problem(robot, sigma_mm=sigma_mm, kpi_orientation_mm=kpi_orientation_mm, **pose)
     return problem if cell is None else dataclasses.replace(problem, cell=cell)
+
+
+def tcp_precision(report: CalibrationReport, opts: NextOptions, scale: float) -> dict:
+    """The step's precision at the estimate, each variance times ``scale`` (chi2/dof when the fit
+    rejects, else 1): ``kpi_avg_var_mm2``, the KPI (tr(Cs)/3 of the position, with orientations
+    plus ``L^2`` times the orientation's, ``L = opts.orientation_weight_mm``); with orientations
+    also ``position_var_mm2``, ``orientation_std_deg`` (RMS per axis), ``kpi_orientation_mm`` (L),
+    ``target_deg`` and ``sigma_deg_used`` (the orientation noise of the next poses' design [deg]).
+
+    Raises:
+        InputError: an orientation target or weight for data without orientations.
+    """
+    v_pos = float(np.trace(report.kpi_cov) / 3.0 * scale)
+    sigma_rot = report.result.sigma_rot
+    if sigma_rot is None:
+        if opts.with_orientation:
+            raise InputError(
+                f"{report.data.path}: the data hold no orientations (a 6-DoF probe's): an orientation "
+                "target or weight needs them",
+                fields=("target_deg", "kpi_orientation_mm"),
+            )
+        return {"kpi_avg_var_mm2": v_pos}
+    v_rot = float(np.trace(orientation_covariance(report.result, report.q_work)) / 3.0 * scale)
+    L = opts.orientation_weight_mm
+    return {
+        "kpi_avg_var_mm2": v_pos + L**2 * v_rot,
+        "position_var_mm2": v_pos,
+        "orientation_std_deg": float(np.rad2deg(np.sqrt(v_rot))),
+        "kpi_orientation_mm": L,
+        "target_deg": opts.target_deg,
+        "sigma_deg_used": float(np.rad2deg(np.median(sigma_rot)) * np.sqrt(scale)),
+    }
 
 
 def measured_poses(data: Measurements) -> np.ndarray:
@@ -84,21 +134,25 @@ def next_poses(
     if data.n == 0:
         raise InputError(f"{data.source}: no poses measured yet: start with a design (kpioed design)")
     cal_opts = CalibrationOptions(
-        sigma_mm=opts.sigma_mm, effects=tuple(model_effects(robot)), force=opts.force
+        sigma_mm=opts.sigma_mm,
+        effects=tuple(model_effects(robot)),
+        force=opts.force,
+        sigma_deg=opts.sigma_deg,
     )
     report = calibrate(robot, data, cal_opts, cell=cell)
     scale = report.chi2_per_dof if report.rejects else 1.0
-    var_now = float(np.trace(report.kpi_cov) / 3.0 * scale)
+    precision = tcp_precision(report, opts, scale)
+    var_now = precision["kpi_avg_var_mm2"]
     sigma_used = opts.sigma_mm * float(np.sqrt(scale))
     q_given = measured_poses(data)
     base = dict(
         done=var_now <= opts.target_var_mm2,
         n_measured=len(q_given),
-        kpi_avg_var_mm2=var_now,
         aposteriori=bool(report.rejects),
         sigma_used_mm=sigma_used,
         target_var_mm2=opts.target_var_mm2,
         report=report,
+        **precision,
     )
     if base["done"]:
         return NextReport(
@@ -110,7 +164,10 @@ def next_poses(
             certificate=None,
             **base,
         )
-    problem = design_problem(robot, sigma_used, cell)
+    orientation = {k: precision[k] for k in ("kpi_orientation_mm",) if k in precision}
+    problem = design_problem(
+        robot, sigma_used, cell, sigma_deg=precision.get("sigma_deg_used"), **orientation
+    )
     q_next, predicted, q_plan, fewest = _design(problem, opts, q_given, plan)
     cert = None
     if opts.certify:
@@ -122,8 +179,17 @@ def next_poses(
         q_plan=q_plan,
         min_more_poses=max(1, fewest),  # not done yet: the measured poses alone do not reach it
         certificate=cert,
+        predicted_orientation_std_deg=_predicted_orientation(problem, q_given, q_next),
         **base,
     )
+
+
+def _predicted_orientation(problem: Problem, q_given: np.ndarray, q_next: np.ndarray) -> float | None:
+    """The TCP orientation's RMS standard deviation per axis [deg] of the measured and the next
+    poses together (pose measurements; None for points)."""
+    if problem.measure != "pose":
+        return None
+    return float(np.sqrt(problem.tcp_variances(np.concatenate([q_given, q_next]))[1][0]))
 
 
 RETRY_SEEDS = 3
