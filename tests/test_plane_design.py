@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from contact_helpers import drake_tool_points
 from fd import central_fd
 from numpy.testing import assert_allclose
 
@@ -34,16 +35,6 @@ def touches(problem):
     return contact_poses(problem, problem.surfaces, n=40, seed=3)
 
 
-def _drake_tool_points(problem, q):
-    """(n, 3) the tool point in W [mm] by Drake's forward kinematics (the plant, not the numpy model)."""
-    scene = build_scene(problem.robot)
-    out = []
-    for qi in q:
-        scene.set_q(qi)
-        out.append(scene.X_WB(problem.robot.n_joints) @ (problem.model.p_FQ * MM) / MM)
-    return np.array(out)
-
-
 def test_the_problem_has_the_contact_gauge_and_one_row_per_pose(problem):
     names = problem.param_names
     assert problem.rows_per_pose == 1
@@ -71,7 +62,7 @@ def test_rows_are_the_fits_plane_rows_and_their_joint_derivatives_match_differen
 
 def test_touches_are_on_their_planes_by_drakes_kinematics(problem, touches):
     q, plane = touches
-    p = _drake_tool_points(problem, q)
+    p = drake_tool_points(problem, q)
     assert_allclose(np.sum(NORMALS[plane] * p, axis=1), OFFSETS[plane], atol=1e-5)
     assert np.all((q >= problem.robot.lower) & (q <= problem.robot.upper))
 
@@ -83,7 +74,7 @@ def test_the_search_raises_g_and_keeps_each_pose_on_its_plane(problem, touches):
     g0 = dual_values(pose_rows(problem, q[:8]), sol.Y)
     assert np.all(g >= g0) and np.any(g > g0 * 1.01)
     assert_allclose(g, dual_values(pose_rows(problem, q_max), sol.Y), rtol=1e-10)
-    p = _drake_tool_points(problem, q_max)
+    p = drake_tool_points(problem, q_max)
     assert_allclose(np.sum(NORMALS[plane[:8]] * p, axis=1), OFFSETS[plane[:8]], atol=1e-5)
     assert_allclose(problem.surface_of(q_max), plane[:8])
 
@@ -93,7 +84,7 @@ def test_a_small_design_is_certified_and_every_pose_touches_its_plane(problem):
     assert des.q.shape == (36, 6)
     assert 0 < des.bound <= des.value and 0 < des.efficiency <= 1.0
     assert_allclose(des.value, problem.criteria(des.q)["kpi_avg_var_mm2"], rtol=1e-12)
-    p = _drake_tool_points(problem, des.q)
+    p = drake_tool_points(problem, des.q)
     assert_allclose(np.sum(NORMALS[des.plane] * p, axis=1), OFFSETS[des.plane], atol=1e-5)
     scene = build_scene(problem.robot)  # the flange on the plane's free side
     for qi, k in zip(des.q, des.plane, strict=True):
@@ -126,7 +117,7 @@ def test_the_exact_criterion_gradient_matches_differences_and_the_polish_lowers_
     assert_allclose(grad[:4], fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())
     q_p = plane_opt.polish_on_surfaces(problem, q, plane, collision=True, steps=20)
     assert problem.criteria(q_p)["kpi_avg_var_mm2"] < phi
-    p = _drake_tool_points(problem, q_p)
+    p = drake_tool_points(problem, q_p)
     assert_allclose(np.sum(NORMALS[plane] * p, axis=1), OFFSETS[plane], atol=1e-5)
 
 

@@ -364,6 +364,17 @@ def _bound(
     return max(bound, dual / (g_best * n))
 
 
+def _check_size(problem: ContactProblem, n: int) -> None:
+    """InputError unless ``n`` rows (one per pose) can determine the robot's parameters and one surface's."""
+    fewest = problem.n_params - 3 * (len(problem.surfaces) - 1)
+    if n < fewest:
+        raise InputError(
+            f"n: {n} poses cannot determine the {fewest} parameters of the robot and a "
+            f"{problem.surfaces.kind} (one row per pose)",
+            fields=("n",),
+        )
+
+
 def contact_design(
     problem: ContactProblem,
     n: int,
@@ -386,9 +397,10 @@ def contact_design(
         verify: fresh poses on which ``g`` is evaluated at the end (0: none).
 
     Raises:
-        InputError: too few feasible poses, a cone program that fails or candidates that do not
-            determine the parameters.
+        InputError: fewer poses than parameters, too few feasible poses, a cone program that fails
+            or candidates that do not determine the parameters.
     """
+    _check_size(problem, n)
     K = kpi_factor(problem)
     gen = _Generation.begin(
         problem, seed=seed, pool=pool, verify=verify, collision=collision, starts=starts, tol=tol

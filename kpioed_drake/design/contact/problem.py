@@ -132,7 +132,7 @@ class ContactProblem(Problem):
         return F, dH[:, :, None, self.free] / self.sigma
 
 
-def _contact_problem(base: Problem, S: Surfaces, *, collision: bool, seed: int) -> ContactProblem:
+def contact_problem(base: Problem, S: Surfaces, *, collision: bool, seed: int) -> ContactProblem:
     """The :class:`ContactProblem` of ``base`` (a point problem) on surfaces ``S``: the fit's
     parameters and gauge (:func:`contact_model` on :data:`GAUGE_POSES` seeded poses on them), the
     surfaces' parameters at their given values (planes: tilts 0 about their own normals).
@@ -186,7 +186,7 @@ def make_plane_problem(
     base = make_problem(
         robot, cell_path=cell_path, q_work=q_work, sigma_mm=sigma_mm, tool_offset_mm=tool_offset_mm
     )
-    return _contact_problem(base, planes(normals, offsets), collision=collision, seed=seed)
+    return contact_problem(base, planes(normals, offsets), collision=collision, seed=seed)
 
 
 def make_ballbar_problem(
@@ -225,4 +225,4 @@ def make_ballbar_problem(
     if pivot_mm is None:
         frames = base.model.frames(base.q_works[:1])
         pivot_mm = point_jacobian(frames, base.model.p_FQ + base.tool_offset)[0][0]
-    return _contact_problem(base, pivots(pivot_mm, bar_length_mm), collision=collision, seed=seed)
+    return contact_problem(base, pivots(pivot_mm, bar_length_mm), collision=collision, seed=seed)
