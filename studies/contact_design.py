@@ -7,7 +7,7 @@ certificate, against 10 heuristic designs of as many random feasible poses (seed
 an equal share per plane). Prints tr(Cs)/3 [mm^2], the bound, the efficiency and the heuristics'
 median, best and worst; writes studies/results/contact_design-SYSTEM-ROBOT.json and the design CSV.
 
-    python studies/contact_design.py --system plane --robot kr16 [--n 40]
+    python studies/contact_design.py --system plane --robot kr16 [--n 40] [--rounds 40]
 """
 
 from __future__ import annotations
@@ -43,10 +43,13 @@ def main() -> None:
     ap.add_argument("--system", choices=("plane", "ballbar"), required=True)
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--n", type=int, default=40)
+    ap.add_argument("--rounds", type=int, default=None, help="most column-generation rounds (default 40)")
     args = ap.parse_args()
     stem = RESULTS / f"contact_design-{args.system}-{args.robot}"
     t0 = time.perf_counter()
-    rep = contact_design_file(args.robot, args.system, n=args.n, out=stem.with_suffix(".csv"))
+    rep = contact_design_file(
+        args.robot, args.system, n=args.n, rounds=args.rounds, out=stem.with_suffix(".csv")
+    )
     seconds = time.perf_counter() - t0
     des, problem = rep.design, rep.problem
     # the plane study's seeds (100 + 10 s + k per plane); the ballbar's 100 + s

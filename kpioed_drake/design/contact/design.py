@@ -36,6 +36,7 @@ Units: millimetres and radians; variances in mm^2.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -241,13 +242,21 @@ def _rounded(
     D = np.diag(np.where(live, 1.0 / np.sqrt(np.where(live, diag, 1.0)), 0.0))
     K_aug = np.concatenate([K, np.sqrt(A_WEIGHT * phi / K.shape[0]) * D], axis=1)
     ridge = np.diag(np.where(live, 1e-12 * diag, 1e-12 * diag.max()))
-    counts = exchange_counts(F, K_aug, efficient_rounding(w, n), M0=ridge)
-    try:
-        tries = [exchange_counts(F, K, counts, M0=ridge), counts]
-    except np.linalg.LinAlgError:
-        tries = [counts]
+    rounded = efficient_rounding(w, n)
+    counts = _exchanged(F, K_aug, rounded, ridge)
+    counts = rounded if counts is None else counts
+    tries = [c for c in (_exchanged(F, K, counts, ridge), counts) if c is not None]
     tries += [_without_lone_surfaces(c, surface) for c in tries]
     return next((c for c in tries if _regular(np.einsum("i,ikl->kl", c, G))), tries[-1])
+
+
+def _exchanged(F: np.ndarray, K: np.ndarray, counts: np.ndarray, M0: np.ndarray) -> np.ndarray | None:
+    """:func:`exchange_counts` from ``counts``, or None when an exchange's information is singular (the
+    ridge ``M0`` cancels in floating point once the one pose informing a parameter is removed)."""
+    try:
+        return exchange_counts(F, K, counts, M0=M0)
+    except np.linalg.LinAlgError:
+        return None
 
 
 def _without_lone_surfaces(counts: np.ndarray, surface: np.ndarray) -> np.ndarray:
@@ -444,14 +453,14 @@ def _of_kind(problem: ContactProblem, kind: str, what: str) -> None:
         raise InputError(f"{what}: the problem's surfaces are {problem.surfaces.kind}s, not {kind}s")
 
 
-def plane_design(problem: ContactProblem, n: int, **settings) -> ContactDesign:
+def plane_design(problem: ContactProblem, n: int, **settings: Any) -> ContactDesign:
     """The ``n``-touch KPI design of a plane problem
     (:func:`~kpioed_drake.design.contact.problem.make_plane_problem`): :func:`contact_design`."""
     _of_kind(problem, "plane", "plane_design")
     return contact_design(problem, n, **settings)
 
 
-def ballbar_design(problem: ContactProblem, n: int, **settings) -> ContactDesign:
+def ballbar_design(problem: ContactProblem, n: int, **settings: Any) -> ContactDesign:
     """The ``n``-pose KPI design of a ballbar problem
     (:func:`~kpioed_drake.design.contact.problem.make_ballbar_problem`): :func:`contact_design`."""
     _of_kind(problem, "pivot", "ballbar_design")

@@ -104,7 +104,8 @@ def robot_planes(robot: Robot, path: str | Path | None) -> Planes:
     default = default_planes_path(robot)
     if not default.is_file():
         raise InputError(
-            f"{robot.name}: no default plane set ({default} does not exist); give planes (a YAML or CSV file)",
+            f"{robot.name}: no default plane set ({default} does not exist); give planes (a YAML or "
+            "CSV file)",
             fields=("planes",),
         )
     return read_planes(default)

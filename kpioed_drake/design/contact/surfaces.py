@@ -29,6 +29,7 @@ Units: millimetres and radians.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import ClassVar
 
 import numpy as np
@@ -69,7 +70,7 @@ class Planes:
     def __len__(self) -> int:
         return len(self.offsets)
 
-    def subset(self, idx) -> Planes:
+    def subset(self, idx: Sequence[int] | np.ndarray) -> Planes:
         """The planes ``idx`` alone (renumbered 0, 1, ...)."""
         return Planes(self.normals[idx], self.offsets[idx])
 
@@ -140,7 +141,7 @@ class Pivots:
     def __len__(self) -> int:
         return len(self.lengths)
 
-    def subset(self, idx) -> Pivots:
+    def subset(self, idx: Sequence[int] | np.ndarray) -> Pivots:
         """The pivots ``idx`` alone (renumbered 0, 1, ...)."""
         return Pivots(self.centres[idx], self.lengths[idx])
 
@@ -215,7 +216,7 @@ Surfaces = Planes | Pivots
 """A contact system's surfaces."""
 
 
-def planes(normals, offsets) -> Planes:
+def planes(normals: Sequence[Sequence[float]] | np.ndarray, offsets: Sequence[float] | np.ndarray) -> Planes:
     """Checked :class:`Planes` from normals (K, 3) (normalised here) and offsets (K,) [mm].
 
     Raises:
@@ -233,7 +234,10 @@ def planes(normals, offsets) -> Planes:
     return Planes(N / norm[:, None], d)
 
 
-def pivots(centres, lengths) -> Pivots:
+def pivots(
+    centres: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+    lengths: float | Sequence[float] | np.ndarray,
+) -> Pivots:
     """Checked :class:`Pivots` from centres (K, 3) [mm] and bar lengths (K,) or one [mm].
 
     Raises:
