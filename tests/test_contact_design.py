@@ -15,7 +15,7 @@ from kpioed_drake.cli import main
 from kpioed_drake.design.contact import design as contact_opt
 from kpioed_drake.design.contact.poses import ON_SURFACE_TOL_MM, contact_poses, surface_rows
 from kpioed_drake.design.contact.problem import make_ballbar_problem
-from kpioed_drake.design.contact.surfaces import PIVOT_DIP_DEG, TOOL_CUP_ANGLE_DEG
+from kpioed_drake.design.contact.surfaces import BALLBAR
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.plant import MM, build_scene
 from kpioed_drake.tracker.contactdata import DistanceData, read_distances, read_planes
@@ -26,13 +26,11 @@ L_MM = 150.0
 
 
 @pytest.fixture(scope="module")
-def problem():
-    return make_ballbar_problem("kr16", bar_length_mm=L_MM)
-
-
-@pytest.fixture(scope="module")
-def poses(problem):
-    return contact_poses(problem, problem.surfaces, n=40, seed=3)
+def ballbar():
+    """The kr16's ballbar problem (the pivot at its working TCP, the default; the bar L_MM long), 40
+    feasible poses on its sphere and their pivot (0)."""
+    problem = make_ballbar_problem("kr16", bar_length_mm=L_MM)
+    return problem, *contact_poses(problem, problem.surfaces, n=40, seed=3)
 
 
 def _on_the_sphere_and_in_the_cups(problem, q):
@@ -45,11 +43,12 @@ def _on_the_sphere_and_in_the_cups(problem, q):
         scene.set_q(qi)
         tool = pi - scene.X_WB(problem.robot.n_joints).translation() / MM
         bar = c - pi
-        assert np.degrees(np.arccos(tool @ bar / np.linalg.norm(tool) / L_MM)) <= TOOL_CUP_ANGLE_DEG + 1e-6
-        assert np.degrees(np.arcsin(-bar[2] / L_MM)) >= -PIVOT_DIP_DEG - 1e-6
+        assert np.degrees(np.arccos(tool @ bar / np.linalg.norm(tool) / L_MM)) <= BALLBAR.cup_deg + 1e-6
+        assert np.degrees(np.arcsin(-bar[2] / L_MM)) >= -BALLBAR.dip_deg - 1e-6
 
 
-def test_the_ballbar_problem_estimates_the_pivot_and_its_known_length_fixes_the_scale(problem):
+def test_the_ballbar_problem_estimates_the_pivot_and_its_known_length_fixes_the_scale(ballbar):
+    problem = ballbar[0]
     names = problem.param_names
     assert problem.rows_per_pose == 1 and problem.measure == "ballbar"
     assert {"pivot1_x", "pivot1_y", "pivot1_z"} <= set(names)
@@ -61,8 +60,8 @@ def test_the_ballbar_problem_estimates_the_pivot_and_its_known_length_fixes_the_
     assert_allclose(problem.surfaces.centres[0], tcp, atol=1e-9)
 
 
-def test_rows_are_the_fits_pivot_rows_and_their_joint_derivatives_match_differences(problem, poses):
-    q, pivot = poses
+def test_rows_are_the_fits_pivot_rows_and_their_joint_derivatives_match_differences(ballbar):
+    problem, q, pivot = ballbar
     assert_allclose(problem.surface_of(q), 0)
     F, dF = problem.F1(q, with_dq=True)
     data = DistanceData.from_arrays(q, np.full(len(q), L_MM), pivot=pivot)
@@ -78,26 +77,27 @@ def test_rows_are_the_fits_pivot_rows_and_their_joint_derivatives_match_differen
     assert np.abs(dF[:6, :, 0][..., cols]).max() > 0  # the bar's direction turns with the pose
 
 
-def test_the_sphere_constraints_gradient_matches_differences(problem, poses):
-    q, pivot = poses[0][:5], poses[1][:5]
+def test_the_sphere_constraints_gradient_matches_differences(ballbar):
+    problem, q, pivot = ballbar[0], ballbar[1][:5], ballbar[2][:5]
     _, g, rules = surface_rows(problem, q, pivot, problem.surfaces)
     fd = central_fd(lambda x: surface_rows(problem, x, pivot, problem.surfaces)[0], q, 1e-6)
     assert_allclose(g, np.einsum("aaj->aj", fd), rtol=1e-6, atol=1e-6)
     assert rules.all()
 
 
-def test_poses_on_the_sphere_by_drakes_kinematics_within_the_limits_and_the_cups(problem, poses):
-    q, _ = poses
+def test_poses_on_the_sphere_by_drakes_kinematics_within_the_limits_and_the_cups(ballbar):
+    problem, q, _ = ballbar
     _on_the_sphere_and_in_the_cups(problem, q)
     assert np.all((q >= problem.robot.lower) & (q <= problem.robot.upper))
 
 
-def test_a_small_ballbar_design_is_certified_on_the_sphere_and_collision_free(problem, poses):
+def test_a_small_ballbar_design_is_certified_on_the_sphere_and_collision_free(ballbar):
+    problem, q_random, _ = ballbar
     des = contact_opt.ballbar_design(problem, 30, pool=200, starts=8, rounds=3, verify=200, seed=0)
     assert des.q.shape == (30, 6) and np.all(des.pivot == 0)
     assert 0 < des.bound <= des.value and 0 < des.efficiency <= 1.0
     assert_allclose(des.value, problem.criteria(des.q)["kpi_avg_var_mm2"], rtol=1e-12)
-    assert des.value < problem.criteria(poses[0][:30])["kpi_avg_var_mm2"]  # better than random poses
+    assert des.value < problem.criteria(q_random[:30])["kpi_avg_var_mm2"]  # better than random poses
     _on_the_sphere_and_in_the_cups(problem, des.q)
     (cell,) = problem.surfaces.cells(problem.cell)  # Drake's signed distances; the bar as the beam
     checker = FeasibilityChecker(problem.robot, cell)
@@ -106,7 +106,8 @@ def test_a_small_ballbar_design_is_certified_on_the_sphere_and_collision_free(pr
     assert min(min(c.values()) for c in clear) >= -TOL_MM
 
 
-def test_too_few_poses_and_another_system_are_refused(problem):
+def test_too_few_poses_and_another_system_are_refused(ballbar):
+    problem = ballbar[0]
     with pytest.raises(InputError, match="10 poses cannot determine the 24 parameters"):
         contact_opt.ballbar_design(problem, 10)
     with pytest.raises(InputError, match="surfaces are pivots, not planes"):

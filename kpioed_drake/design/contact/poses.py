@@ -147,7 +147,7 @@ def contact_poses(
     robot = problem.robot
     if robot.joint_map is not None and robot.joint_map.coupling_equations()[0].size:
         raise InputError(
-            f"{robot.name}: {surfaces.label} designs of robots with coupled joints are not supported"
+            f"{robot.name}: {surfaces.words.label} designs of robots with coupled joints are not supported"
         )
     rng = np.random.default_rng(seed)
     cm = contact_clearance(problem, surfaces, collision)
@@ -165,7 +165,7 @@ def contact_poses(
     q, k = np.concatenate(kept_q)[:n], np.concatenate(kept_k)[:n]
     if len(q) < n:
         raise InputError(
-            f"{robot.name}: only {len(q)} of {n} feasible {surfaces.noun} {surfaces.on} in {draws} draws; "
-            f"check the {surfaces.hint}"
+            f"{robot.name}: only {len(q)} of {n} feasible {surfaces.words.noun} {surfaces.words.on} in "
+            f"{draws} draws; check the {surfaces.words.hint}"
         )
     return q, k

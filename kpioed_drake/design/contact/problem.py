@@ -91,10 +91,10 @@ class ContactProblem(Problem):
         try:
             Cp_used, Cs = covariance.kpi_covariance(self.F1(q)[:, use], self.Js()[:, use])
         except np.linalg.LinAlgError:
-            S = self.surfaces
+            kind, noun = self.surfaces.kind, self.surfaces.words.noun
             raise InputError(
-                f"the {len(np.atleast_2d(q))} {S.noun} do not determine the {int(use.sum())} parameters of "
-                f"the {S.kind}s they use (information matrix singular): 3 {S.noun} per {S.kind} at least, "
+                f"the {len(np.atleast_2d(q))} {noun} do not determine the {int(use.sum())} parameters of "
+                f"the {kind}s they use (information matrix singular): 3 {noun} per {kind} at least, "
                 "varied poses"
             ) from None
         Cp = np.zeros((self.n_params, self.n_params))

@@ -16,13 +16,13 @@ enters dF1/dq), the environment columns of a row and their joint derivatives, wh
 pose is on (the nearest), the rules a pose must keep besides the equality (:meth:`admissible`) and
 the cells its poses are checked in (:meth:`cells`; with the bar as the beam for a ballbar).
 
-The ballbar's rules (choices, documented in docs/contacts.md): the tool cup holds the tool ball
-from the flange's side, so the bar leaves the ball within :data:`TOOL_CUP_ANGLE_DEG` of the tool's
-axis (flange origin to ball); the pivot's cup sits on a stand, so the bar points at most
-:data:`PIVOT_DIP_DEG` below the horizontal (a centre pivot admits 220 degree arcs in a vertical
-plane). With collision avoidance the bar (a capsule of :data:`BAR_RADIUS_MM` from the tool ball to
-the pivot) is checked as the laser beam is (the robot's ``beam_links`` and the car), and the stand
-(a capsule of :data:`STAND_RADIUS_MM` from the pivot down to the floor) is an obstacle of the robot.
+The ballbar's rules (:data:`BALLBAR`, choices documented in docs/contacts.md): the tool cup holds
+the tool ball from the flange's side, so the bar leaves the ball within 70 degrees of the tool's
+axis (flange origin to ball); the pivot's cup sits on a stand, so the bar points at most 20 degrees
+below the horizontal (a centre pivot admits 220 degree arcs in a vertical plane). With collision
+avoidance the bar (a capsule of 10 mm radius from the tool ball to the pivot) is checked as the
+laser beam is (the robot's ``beam_links`` and the car), and the stand (a capsule of 25 mm radius
+from the pivot down to the floor) is an obstacle of the robot.
 Units: millimetres and radians.
 """
 
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import ClassVar, Self
 
 import numpy as np
 
@@ -42,37 +42,67 @@ from kpioed_drake.tracker.plane import tangent_basis
 
 FLANGE_CLEARANCE_MM = 20.0
 """A touch's flange origin stays at least this far on the plane's free side [mm]."""
-TOOL_CUP_ANGLE_DEG = 70.0
-"""The bar leaves the tool ball within this angle of the tool's axis (flange origin to ball) [deg]."""
-PIVOT_DIP_DEG = 20.0
-"""The bar points at most this far below the horizontal from the pivot [deg]."""
-BAR_RADIUS_MM = 10.0
-"""Radius of the bar's capsule (the bar and its cups) [mm]."""
-STAND_RADIUS_MM = 25.0
-"""Radius of the pivot's stand, a capsule from the pivot down to the floor [mm]."""
 
 
 @dataclasses.dataclass(frozen=True)
-class Planes:
+class Ballbar:
+    """A pivot ballbar's hardware as the design models it (choices, docs/contacts.md).
+
+    Attributes:
+        cup_deg: the bar leaves the tool ball within this angle of the tool's axis (flange origin to
+            ball) [deg].
+        dip_deg: the bar points at most this far below the horizontal from the pivot [deg].
+        bar_radius_mm: radius of the bar's capsule (the bar and its cups) [mm].
+        stand_radius_mm: radius of the pivot's stand, a capsule from the pivot down to the floor [mm].
+    """
+
+    cup_deg: float = 70.0
+    dip_deg: float = 20.0
+    bar_radius_mm: float = 10.0
+    stand_radius_mm: float = 25.0
+
+
+BALLBAR = Ballbar()
+"""The hardware of the ballbar designs."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Words:
+    """How messages name a system's designs (``label``), poses (``noun``), where those are (``on``)
+    and what to check when too few are feasible (``hint``)."""
+
+    label: str
+    noun: str
+    on: str
+    hint: str
+
+
+class _Arrays:
+    """Surfaces held as arrays of one entry per surface: their count and a subset."""
+
+    def __len__(self) -> int:
+        return len(getattr(self, dataclasses.fields(self)[0].name))
+
+    def subset(self, idx: Sequence[int] | np.ndarray) -> Self:
+        """The surfaces ``idx`` alone (renumbered 0, 1, ...)."""
+        return dataclasses.replace(
+            self, **{f.name: getattr(self, f.name)[idx] for f in dataclasses.fields(self)}
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Planes(_Arrays):
     """K planes ``n_k . x = d_k`` in W: ``normals`` (K, 3) unit, towards the free side, ``offsets``
     (K,) [mm]."""
 
     normals: np.ndarray
     offsets: np.ndarray
     kind: ClassVar[str] = "plane"
-    label: ClassVar[str] = "plane-contact"
-    noun: ClassVar[str] = "touches"
-    on: ClassVar[str] = "of the planes"
-    hint: ClassVar[str] = "planes (within reach, a free side the flange can be on)"
-    curved: ClassVar[bool] = False
-    beam: ClassVar[bool] = False
-
-    def __len__(self) -> int:
-        return len(self.offsets)
-
-    def subset(self, idx: Sequence[int] | np.ndarray) -> Planes:
-        """The planes ``idx`` alone (renumbered 0, 1, ...)."""
-        return Planes(self.normals[idx], self.offsets[idx])
+    words: ClassVar[Words] = Words(
+        "plane-contact", "touches", "of the planes", "planes (within reach, a free side the flange can be on)"
+    )
+    curved: ClassVar[bool] = False  # the gradient (the normal) does not turn with the pose
+    beam: ClassVar[bool] = False  # no beam is checked
 
     def residual(self, p: np.ndarray, k: np.ndarray) -> np.ndarray:
         """(n,) ``n_k . p - d_k`` [mm] of tool points ``p`` (n, 3) on planes ``k`` (n,)."""
@@ -125,25 +155,20 @@ class Planes:
 
 
 @dataclasses.dataclass(frozen=True)
-class Pivots:
+class Pivots(_Arrays):
     """K ballbar pivots: centres ``centres`` (K, 3) in W [mm] and bar lengths ``lengths`` (K,) [mm]."""
 
     centres: np.ndarray
     lengths: np.ndarray
     kind: ClassVar[str] = "pivot"
-    label: ClassVar[str] = "ballbar"
-    noun: ClassVar[str] = "poses"
-    on: ClassVar[str] = "on the pivots' spheres"
-    hint: ClassVar[str] = "pivots and bar lengths (within reach, room for the bar and its stand)"
-    curved: ClassVar[bool] = True
-    beam: ClassVar[bool] = True
-
-    def __len__(self) -> int:
-        return len(self.lengths)
-
-    def subset(self, idx: Sequence[int] | np.ndarray) -> Pivots:
-        """The pivots ``idx`` alone (renumbered 0, 1, ...)."""
-        return Pivots(self.centres[idx], self.lengths[idx])
+    words: ClassVar[Words] = Words(
+        "ballbar",
+        "poses",
+        "on the pivots' spheres",
+        "pivots and bar lengths (within reach, room for the bar and its stand)",
+    )
+    curved: ClassVar[bool] = True  # the gradient (the bar's direction) turns with the pose
+    beam: ClassVar[bool] = True  # the bar is checked as the beam
 
     def residual(self, p: np.ndarray, k: np.ndarray) -> np.ndarray:
         """(n,) ``|p - c_k| - L_k`` [mm]."""
@@ -168,15 +193,15 @@ class Pivots:
         return np.argmin(np.abs(dist - self.lengths), axis=1)
 
     def admissible(self, p: np.ndarray, o_F: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """(n,) the bar within :data:`TOOL_CUP_ANGLE_DEG` of the tool's axis and at most
-        :data:`PIVOT_DIP_DEG` below the horizontal."""
+        """(n,) the bar within ``BALLBAR.cup_deg`` of the tool's axis and at most
+        ``BALLBAR.dip_deg`` below the horizontal."""
         bar = self.centres[k] - p  # tool ball -> pivot
         L = np.linalg.norm(bar, axis=1)
         tool = p - o_F
         cos_cup = np.sum(bar * tool, axis=1) / (L * np.linalg.norm(tool, axis=1))
         dip = -bar[:, 2] / L  # sine of the bar's elevation seen from the pivot
-        return (cos_cup >= np.cos(np.deg2rad(TOOL_CUP_ANGLE_DEG))) & (
-            dip >= -np.sin(np.deg2rad(PIVOT_DIP_DEG))
+        return (cos_cup >= np.cos(np.deg2rad(BALLBAR.cup_deg))) & (
+            dip >= -np.sin(np.deg2rad(BALLBAR.dip_deg))
         )
 
     def columns(self, layout: ParameterLayout, k: np.ndarray) -> np.ndarray:
@@ -196,10 +221,10 @@ class Pivots:
         out = []
         for k, c in enumerate(self.centres):
             foot = np.array([c[0], c[1], cell.floor_z])
-            stand = Obstacle(f"pivot{k + 1}_stand", STAND_RADIUS_MM, c.copy(), foot)
+            stand = Obstacle(f"pivot{k + 1}_stand", BALLBAR.stand_radius_mm, c.copy(), foot)
             out.append(
                 dataclasses.replace(
-                    cell, p_WT=c.copy(), beam_radius=BAR_RADIUS_MM, obstacles=(*cell.obstacles, stand)
+                    cell, p_WT=c.copy(), beam_radius=BALLBAR.bar_radius_mm, obstacles=(*cell.obstacles, stand)
                 )
             )
         return tuple(out)
