@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from contact_helpers import drake_tool_points
 from fd import central_fd
 from numpy.testing import assert_allclose
 
 from kpioed_drake.design.approximate.design import kpi_factor, solve_pool
 from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.design.contact import design as plane_opt
-from kpioed_drake.design.contact.poses import FLANGE_CLEARANCE_MM, ON_PLANE_TOL_MM, plane_poses
+from kpioed_drake.design.contact.poses import ON_SURFACE_TOL_MM, contact_poses
 from kpioed_drake.design.contact.problem import make_plane_problem
+from kpioed_drake.design.contact.surfaces import FLANGE_CLEARANCE_MM
 from kpioed_drake.errors import InputError
 from kpioed_drake.robot.plant import MM, build_scene
 from kpioed_drake.tracker.contactdata import PlaneData
@@ -30,17 +32,7 @@ def problem():
 
 @pytest.fixture(scope="module")
 def touches(problem):
-    return plane_poses(problem, problem.normals, problem.offsets, n=40, seed=3)
-
-
-def _drake_tool_points(problem, q):
-    """(n, 3) the tool point in W [mm] by Drake's forward kinematics (the plant, not the numpy model)."""
-    scene = build_scene(problem.robot)
-    out = []
-    for qi in q:
-        scene.set_q(qi)
-        out.append(scene.X_WB(problem.robot.n_joints) @ (problem.model.p_FQ * MM) / MM)
-    return np.array(out)
+    return contact_poses(problem, problem.surfaces, n=40, seed=3)
 
 
 def test_the_problem_has_the_contact_gauge_and_one_row_per_pose(problem):
@@ -54,10 +46,10 @@ def test_the_problem_has_the_contact_gauge_and_one_row_per_pose(problem):
 
 def test_rows_are_the_fits_plane_rows_and_their_joint_derivatives_match_differences(problem, touches):
     q, plane = touches
-    assert_allclose(problem.plane_of(q), plane)
+    assert_allclose(problem.surface_of(q), plane)
     F, dF = problem.F1(q, with_dq=True)
     r, H = plane_jacobian(problem.model, PlaneData.from_arrays(q, plane))
-    assert_allclose(r, 0.0, atol=ON_PLANE_TOL_MM)
+    assert_allclose(r, 0.0, atol=ON_SURFACE_TOL_MM)
     assert_allclose(F, H[:, problem.free] / problem.sigma, rtol=1e-12, atol=1e-9)
     assert dF.shape == (len(q), 6, 1, problem.n_params)
     sub = q[:6]
@@ -70,7 +62,7 @@ def test_rows_are_the_fits_plane_rows_and_their_joint_derivatives_match_differen
 
 def test_touches_are_on_their_planes_by_drakes_kinematics(problem, touches):
     q, plane = touches
-    p = _drake_tool_points(problem, q)
+    p = drake_tool_points(problem, q)
     assert_allclose(np.sum(NORMALS[plane] * p, axis=1), OFFSETS[plane], atol=1e-5)
     assert np.all((q >= problem.robot.lower) & (q <= problem.robot.upper))
 
@@ -78,13 +70,13 @@ def test_touches_are_on_their_planes_by_drakes_kinematics(problem, touches):
 def test_the_search_raises_g_and_keeps_each_pose_on_its_plane(problem, touches):
     q, plane = touches
     sol = solve_pool(pose_rows(problem, q), kpi_factor(problem))
-    q_max, g = plane_opt.maximize_on_planes(problem, q[:8], plane[:8], sol.Y, collision=True)
+    q_max, g = plane_opt.maximize_on_surfaces(problem, q[:8], plane[:8], sol.Y, collision=True)
     g0 = dual_values(pose_rows(problem, q[:8]), sol.Y)
     assert np.all(g >= g0) and np.any(g > g0 * 1.01)
     assert_allclose(g, dual_values(pose_rows(problem, q_max), sol.Y), rtol=1e-10)
-    p = _drake_tool_points(problem, q_max)
+    p = drake_tool_points(problem, q_max)
     assert_allclose(np.sum(NORMALS[plane[:8]] * p, axis=1), OFFSETS[plane[:8]], atol=1e-5)
-    assert_allclose(problem.plane_of(q_max), plane[:8])
+    assert_allclose(problem.surface_of(q_max), plane[:8])
 
 
 def test_a_small_design_is_certified_and_every_pose_touches_its_plane(problem):
@@ -92,7 +84,7 @@ def test_a_small_design_is_certified_and_every_pose_touches_its_plane(problem):
     assert des.q.shape == (36, 6)
     assert 0 < des.bound <= des.value and 0 < des.efficiency <= 1.0
     assert_allclose(des.value, problem.criteria(des.q)["kpi_avg_var_mm2"], rtol=1e-12)
-    p = _drake_tool_points(problem, des.q)
+    p = drake_tool_points(problem, des.q)
     assert_allclose(np.sum(NORMALS[des.plane] * p, axis=1), OFFSETS[des.plane], atol=1e-5)
     scene = build_scene(problem.robot)  # the flange on the plane's free side
     for qi, k in zip(des.q, des.plane, strict=True):
@@ -123,16 +115,16 @@ def test_the_exact_criterion_gradient_matches_differences_and_the_polish_lowers_
         lambda x: plane_opt._phi_and_grad(problem, np.concatenate([x, q[4:]]), K, use)[0], q[:4], 1e-6
     )
     assert_allclose(grad[:4], fd, rtol=1e-5, atol=1e-6 * np.abs(grad).max())
-    q_p = plane_opt.polish_on_planes(problem, q, plane, collision=True, steps=20)
+    q_p = plane_opt.polish_on_surfaces(problem, q, plane, collision=True, steps=20)
     assert problem.criteria(q_p)["kpi_avg_var_mm2"] < phi
-    p = _drake_tool_points(problem, q_p)
+    p = drake_tool_points(problem, q_p)
     assert_allclose(np.sum(NORMALS[plane] * p, axis=1), OFFSETS[plane], atol=1e-5)
 
 
 def test_a_plane_touched_once_or_twice_gives_its_touches_to_the_other_planes():
     plane = np.array([0, 0, 1, 1, 2, 2, 3])
     counts = np.array([3, 0, 2, 1, 3, 0, 1])  # plane 3 touched once: undetermined
-    out = plane_opt._without_lone_planes(counts, plane)
+    out = plane_opt._without_lone_surfaces(counts, plane)
     assert out.sum() == counts.sum() and out[6] == 0
     assert_allclose(out[:6] - counts[:6], [1, 0, 0, 0, 0, 0])
-    assert_allclose(plane_opt._without_lone_planes(out, plane), out)
+    assert_allclose(plane_opt._without_lone_surfaces(out, plane), out)

@@ -20,6 +20,7 @@ import sys
 
 from kpioed_drake import api, cli
 from kpioed_drake.design import DesignError, discrimination_lines, format_summary
+from kpioed_drake.design.contact.workflow import CONTACT_PROBLEMS, contact_design_file
 from kpioed_drake.design.discriminate.plan import payload_lines, plan_lines
 from kpioed_drake.design.settings import DEFAULT_START, DESIGN_METHODS, SOLVERS, START_METHODS
 from kpioed_drake.errors import EXIT_SOLVER, InputError, name_fields
@@ -61,6 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cli.add_html(p)
     cli.add_extend(p)
     _add_discriminate_options(p)
+    _add_contact_options(p)
     p.set_defaults(func=run)
 
 
@@ -184,6 +186,8 @@ def _weights(text: str | None) -> list[float] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if (status := _contact_run(args)) is not None:
+        return status
     if args.criterion is None and args.discriminate is None:
         raise InputError("--criterion is required (or --discriminate A|B)")
     q_work = args.q_work[0] if args.q_work and len(args.q_work) == 1 else args.q_work
@@ -219,4 +223,106 @@ def run(args: argparse.Namespace) -> int:
         )
     written = [str(x) for x in (args.out, args.json, args.plot, args.html) if x]
     print(f"  wrote {', '.join(written)}")
+    return 0
+
+
+# Contact designs (``--measure plane|ballbar``): their own options, refusals and run.
+
+CONTACT_OPTIONS = {
+    "planes": "--planes",
+    "pivot_mm": "--pivot",
+    "bar_length_mm": "--bar-length-mm",
+    "rounds": "--rounds",
+}
+"""The options of contact designs alone (dest -> option)."""
+TRACKER_ONLY = {
+    "given": "--given",
+    "target_var": "--target-var",
+    "discriminate": "--discriminate",
+    "condition_span": "--condition-span",
+    "plot": "--plot",
+    "html": "--html",
+    "extend": "--extend",
+    "q_work_file": "--q-work-file",
+    "kpi_weights": "--kpi-weights",
+    "kpi_aggregate": "--kpi-aggregate",
+    "sigma_deg": "--sigma-deg",
+    "kpi_orientation_mm": "--kpi-orientation-mm",
+    "start": "--start",
+    "certify": "--certify",
+    "starts": "--starts",
+    "solver": "--solver",
+    "allow_infeasible": "--allow-infeasible",
+}
+"""The options of tracker designs a contact design does not take (dest -> option)."""
+
+
+def _add_contact_options(p: argparse.ArgumentParser) -> None:
+    """``--measure plane|ballbar`` (added to the choices of ``--measure``) and their ``--planes``,
+    ``--pivot``, ``--bar-length-mm`` and ``--rounds``; records the tracker options' defaults (a
+    contact design refuses them when changed)."""
+    measure = next(a for a in p._actions if a.dest == "measure")
+    measure.choices = (*measure.choices, *CONTACT_PROBLEMS)
+    measure.help += (
+        "; plane = touches of planes by a touch probe (1 row, no tracker; --planes), ballbar = the tool "
+        "ball of a pivot ballbar at its length from the pivot (1 row, no tracker; --pivot, --bar-length-mm): "
+        "the KPI design with its certificate, docs/contacts.md"
+    )
+    p.add_argument(
+        "--planes",
+        default=None,
+        metavar="PLANES.yaml|csv",
+        help="with --measure plane: the planes (YAML 'planes: [{normal: [x, y, z], offset_mm: d}, ...]' or "
+        "CSV nx,ny,nz,offset_mm; normal . x = d in the base frame, the normal towards the flange's side) "
+        "(default models/planes/ROBOT.yaml)",
+    )
+    p.add_argument(
+        "--pivot",
+        dest="pivot_mm",
+        default=None,
+        metavar="x,y,z",
+        help="with --measure ballbar: the pivot in the base frame [mm] (default the TCP at the working pose)",
+    )
+    cli.add_optional(
+        p,
+        "--bar-length-mm",
+        type=float,
+        metavar="L",
+        help="with --measure ballbar: the bar's nominal length [mm] (default 150)",
+    )
+    cli.add_optional(
+        p,
+        "--rounds",
+        type=int,
+        metavar="R",
+        help="with --measure plane|ballbar: most column-generation rounds of the search (default 40)",
+    )
+    p.set_defaults(tracker_defaults={a.dest: a.default for a in p._actions if a.dest in TRACKER_ONLY})
+
+
+def _contact_run(args: argparse.Namespace) -> int | None:
+    """A contact design's run (None for the other measures, which refuse the contact options)."""
+    if args.measure not in CONTACT_PROBLEMS:
+        if given := [o for d, o in CONTACT_OPTIONS.items() if getattr(args, d) is not None]:
+            raise InputError(f"{', '.join(given)}: only with --measure plane or ballbar")
+        return None
+    changed = [o for d, o in TRACKER_ONLY.items() if getattr(args, d) != args.tracker_defaults[d]]
+    if args.criterion not in (None, "kpi"):
+        changed.insert(0, f"--criterion {args.criterion}")
+    if changed:
+        raise InputError(
+            f"--measure {args.measure}: a KPI design without a tracker; not with {', '.join(changed)}"
+        )
+    if args.q_work is not None and len(args.q_work) > 1:
+        raise InputError(f"--measure {args.measure}: one --q-work (a contact design has one working pose)")
+    report = contact_design_file(
+        args.robot,
+        args.measure,
+        q_work_deg=None if args.q_work is None else args.q_work[0],
+        collision=not args.no_collision,
+        json_path=args.json,
+        **cli.passed(args, "planes", "pivot_mm", "bar_length_mm", "n", "sigma_mm", "seed", "rounds", "out"),
+    )
+    print(report.summary())
+    print(f"  wrote {', '.join(str(x) for x in (args.out, args.json) if x)}")
     return 0

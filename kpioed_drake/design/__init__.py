@@ -51,9 +51,10 @@ Modules, in dependency order:
 - :mod:`~kpioed_drake.design.discriminate.design`: designs that tell two explanations (effects) apart,
   T-optimal through the worst case of the KPI machinery (:func:`discrimination_design`,
   ``kpioed design --discriminate "A|B"``);
-- :mod:`~kpioed_drake.design.contact`: the KPI design of plane touches without a tracker (one row
-  per pose; :func:`~kpioed_drake.design.contact.design.plane_design`, a Python API only; the poses
-  stay on the planes by projection, not by constraints of the exact design's program);
+- :mod:`~kpioed_drake.design.contact`: the KPI design of contact systems without a tracker, plane
+  touches or a pivot ballbar (one row per pose; :func:`~kpioed_drake.design.contact.design.contact_design`,
+  ``kpioed design --measure plane|ballbar``; the poses stay on the planes or the pivot's sphere by
+  projection, not by constraints of the exact design's program);
 - :mod:`~kpioed_drake.design.evaluate`: ``kpioed evaluate`` (:func:`evaluate_file`), a given design's
   KPI variance, criteria and feasibility.
 
