@@ -43,7 +43,12 @@ def main() -> None:
     ap.add_argument("--system", choices=("plane", "ballbar"), required=True)
     ap.add_argument("--robot", default="kr16")
     ap.add_argument("--n", type=int, default=40)
-    ap.add_argument("--rounds", type=int, default=None, help="most column-generation rounds (default 40)")
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=None,
+        help="most column-generation rounds (default: the command's, 40 for planes, 120 for a ballbar)",
+    )
     args = ap.parse_args()
     stem = RESULTS / f"contact_design-{args.system}-{args.robot}"
     t0 = time.perf_counter()

@@ -116,6 +116,22 @@ def add_sigma(p: argparse.ArgumentParser, default: float | None = None) -> None:
     )
 
 
+def add_sigma_deg(p: argparse.ArgumentParser, *, default: float | None, use: str) -> None:
+    """``--sigma-deg``: a 6-DoF probe's orientation noise; ``use`` says when and what for."""
+    help = f"a 6-DoF probe's orientation noise about each tracker axis [deg], {use}"
+    p.add_argument("--sigma-deg", type=float, default=default, metavar="S", help=help)
+
+
+def add_kpi_orientation(p: argparse.ArgumentParser, *, default: float | None, use: str) -> None:
+    """``--kpi-orientation-mm L``: the TCP's orientation in the KPI; ``use`` says with which data."""
+    help = (
+        f"{use}: the TCP's orientation counts in the KPI as the displacement L x angle at L mm from the "
+        "TCP: tr(Cs)/3 = position variance + L^2 x orientation variance [rad^2] (default 0: the position "
+        "alone)"
+    )
+    p.add_argument("--kpi-orientation-mm", type=float, default=default, metavar="L", help=help)
+
+
 def add_seed(p: argparse.ArgumentParser, *, of: str) -> None:
     """``--seed`` (default 0): the seed of the command's random draws, ``of`` naming them."""
     p.add_argument("--seed", type=int, default=0, help=f"seed of {of} (0)")

@@ -11,13 +11,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     help = "calibrate from a measurement CSV (q1_deg, ... per joint, x_mm, y_mm, z_mm: the tracker frame)"
     p = cli.command(sub, "calibrate", help=help, data="optional")
     cli.add_sigma(p, default=0.02)
-    p.add_argument(
-        "--sigma-deg",
-        type=float,
-        default=0.01,
-        help="a 6-DoF probe's orientation noise about each tracker axis [deg], for data with orientations "
-        "whose rows give none (0.01: about a T-Mac's stated accuracy)",
-    )
+    use = "for data with orientations whose rows give none (0.01: about a T-Mac's stated accuracy)"
+    cli.add_sigma_deg(p, default=0.01, use=use)
     cli.add_q_work(p)
     cli.add_model_out(
         p,

@@ -101,30 +101,22 @@ def _add_solve_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--starts", type=int, default=1, help="number of starts, the best is kept (default 1)")
 
 
+MEASURE_HELP = (
+    "what a pose measures: point = the reflector's position (3 rows); pose = a 6-DoF probe's position and "
+    "orientation (6 rows, the probe's rotation on the flange estimated) (default point); plane = touches "
+    "of planes by a touch probe (1 row, no tracker; --planes), ballbar = the tool ball of a pivot ballbar "
+    "at its length from the pivot (1 row, no tracker; --pivot, --bar-length-mm): the KPI design with its "
+    "certificate, docs/contacts.md"
+)
+"""The help of ``--measure``: every measurement system a design is made for."""
+
+
 def _add_measure_options(p: argparse.ArgumentParser) -> None:
-    """``--measure point|pose``, ``--sigma-deg`` and ``--kpi-orientation-mm``."""
-    p.add_argument(
-        "--measure",
-        choices=MEASURES,
-        default="point",
-        help="what a pose measures: point = the reflector's position (3 rows); pose = a 6-DoF probe's "
-        "position and orientation (6 rows, the probe's rotation on the flange estimated) (default point)",
-    )
-    cli.add_optional(
-        p,
-        "--sigma-deg",
-        type=float,
-        metavar="S",
-        help=f"with --measure pose: the orientation noise per tracker axis [deg] (default {SIGMA_ROT_DEG:g})",
-    )
-    cli.add_optional(
-        p,
-        "--kpi-orientation-mm",
-        type=float,
-        metavar="L",
-        help="add the TCP's orientation to the KPI as the displacement L x angle at L mm from the TCP: "
-        "tr(Cs)/3 = position variance + L^2 x orientation variance [rad^2] (default 0: the position alone)",
-    )
+    """``--measure point|pose|plane|ballbar``, ``--sigma-deg`` and ``--kpi-orientation-mm``."""
+    measures = (*MEASURES, *CONTACT_PROBLEMS)
+    p.add_argument("--measure", choices=measures, default="point", help=MEASURE_HELP)
+    cli.add_sigma_deg(p, default=None, use=f"with --measure pose (default {SIGMA_ROT_DEG:g})")
+    cli.add_kpi_orientation(p, default=None, use="with --measure pose")
 
 
 def _add_discriminate_options(p: argparse.ArgumentParser) -> None:
@@ -258,16 +250,8 @@ TRACKER_ONLY = {
 
 
 def _add_contact_options(p: argparse.ArgumentParser) -> None:
-    """``--measure plane|ballbar`` (added to the choices of ``--measure``) and their ``--planes``,
-    ``--pivot``, ``--bar-length-mm`` and ``--rounds``; records the tracker options' defaults (a
-    contact design refuses them when changed)."""
-    measure = next(a for a in p._actions if a.dest == "measure")
-    measure.choices = (*measure.choices, *CONTACT_PROBLEMS)
-    measure.help += (
-        "; plane = touches of planes by a touch probe (1 row, no tracker; --planes), ballbar = the tool "
-        "ball of a pivot ballbar at its length from the pivot (1 row, no tracker; --pivot, --bar-length-mm): "
-        "the KPI design with its certificate, docs/contacts.md"
-    )
+    """The options of ``--measure plane|ballbar``: ``--planes``, ``--pivot``, ``--bar-length-mm`` and
+    ``--rounds``; records the tracker options' defaults (a contact design refuses them when changed)."""
     p.add_argument(
         "--planes",
         default=None,
@@ -295,7 +279,8 @@ def _add_contact_options(p: argparse.ArgumentParser) -> None:
         "--rounds",
         type=int,
         metavar="R",
-        help="with --measure plane|ballbar: most column-generation rounds of the search (default 40)",
+        help="with --measure plane|ballbar: most column-generation rounds of the search (default 40 for "
+        "planes, 120 for a ballbar)",
     )
     p.set_defaults(tracker_defaults={a.dest: a.default for a in p._actions if a.dest in TRACKER_ONLY})
 

@@ -39,21 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _add_orientation(p: argparse.ArgumentParser) -> None:
     """``--sigma-deg``, ``--kpi-orientation-mm``, ``--target-deg``: data with a probe's orientations."""
-    p.add_argument(
-        "--sigma-deg",
-        type=float,
-        default=0.01,
-        help="data with orientations (a 6-DoF probe): their noise per tracker axis [deg] where the rows "
-        "give none (0.01); the next poses are designed as pose measurements",
-    )
-    p.add_argument(
-        "--kpi-orientation-mm",
-        type=float,
-        default=0.0,
-        metavar="L",
-        help="data with orientations: the TCP's orientation counts in the KPI as L x angle: tr(Cs)/3 = "
-        "position variance + L^2 x orientation variance [rad^2] (0: the position alone)",
-    )
+    use = "where the data's rows give none (0.01); the next poses are designed as pose measurements"
+    cli.add_sigma_deg(p, default=0.01, use=use)
+    cli.add_kpi_orientation(p, default=0.0, use="data with orientations")
     cli.add_optional(
         p,
         "--target-deg",
