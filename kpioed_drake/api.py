@@ -392,17 +392,9 @@ def evaluate(
     """KPI variance, standard criterion, feasibility and certified efficiency of a design file
     (``kpioed evaluate``): :func:`kpioed_drake.design.evaluate_file`, whose docstring details the
     arguments and the returned record (mm^2, mm, deg)."""
-    return evaluate_file(
-        robot,
-        design,
-        sigma_mm=sigma_mm,
-        q_work_deg=q_work_deg,
-        extend=extend,
-        json_path=json_path,
-        html=html,
-        cell_path=cell_path,
-        certify=certify,
-    )
+    setup = dict(sigma_mm=sigma_mm, q_work_deg=q_work_deg, extend=extend, certify=certify)
+    files = dict(json_path=json_path, html=html, cell_path=cell_path)
+    return evaluate_file(robot, design, **setup, **files)  # type: ignore[arg-type]
 
 
 def validate(
@@ -451,20 +443,11 @@ def study(
     """Run (or resume) the paper's study (``kpioed study``) into ``out_dir``: Tables 6-8, the report
     and Figures 7-8 (:func:`kpioed_drake.study.workflow.run_study`, whose docstring details the
     arguments)."""
-    return run_study(
-        out_dir,
-        quick=quick,
-        jobs=jobs,
-        scheduler=scheduler,
-        progress=progress,
-        robots=robots,
-        n=n,
-        heuristic_draws=heuristic_draws,
-        seed=seed,
-        figures=figures,
-        variant=variant,
-        bounds=bounds,
+    run = dict(quick=quick, jobs=jobs, scheduler=scheduler, progress=progress, figures=figures)
+    designs = dict(
+        robots=robots, n=n, heuristic_draws=heuristic_draws, seed=seed, variant=variant, bounds=bounds
     )
+    return run_study(out_dir, **run, **designs)  # type: ignore[arg-type]
 
 
 def compensate(

@@ -43,7 +43,7 @@ from kpioed_drake.tracker.feasibility import FeasibilityChecker
 SEARCH = {"pool": 1000, "starts": 48, "verify": 2000}
 """The design's search (:func:`contact_design`'s settings): candidates, local searches a round, fresh
 poses verified."""
-ROUNDS = {"plane": 40, "ballbar": 120}
+SYSTEM_ROUNDS = {"plane": 40, "ballbar": 120}
 """Most column-generation rounds by default, per system: a ballbar's one row a pose needs more (kr16:
 largest g still 1.53 after 40 rounds, efficiency 0.597; converged after 130 with 120, 0.954)."""
 PLANE_SIGMA_MM = 0.01
@@ -253,7 +253,7 @@ def contact_design_file(
         n: poses; sigma_mm: the row's noise [mm] (default 0.01: a touch probe; a ballbar at the
             robot's repeatability); seed: the search's seed; collision: avoid collisions.
         q_work_deg: the working pose [deg] (``"q1,...,qN"`` or numbers; default the model's).
-        rounds: most column-generation rounds (default :data:`ROUNDS` of the system).
+        rounds: most column-generation rounds (default :data:`SYSTEM_ROUNDS` of the system).
         out: the design CSV; json_path: the JSON record.
 
     Raises:
@@ -277,7 +277,7 @@ def contact_design_file(
         pivot_mm=pivot_mm,
         bar_length_mm=bar_length_mm,
     )
-    search = SEARCH | {"rounds": ROUNDS[measure] if rounds is None else rounds}
+    search = SEARCH | {"rounds": SYSTEM_ROUNDS[measure] if rounds is None else rounds}
     des = contact_design(problem, n, seed=seed, collision=collision, **search)
     clearance, pair = _clearances(problem, des.q, des.surface)
     report = ContactDesignReport(des, problem, clearance, pair, search, seed, collision)
