@@ -52,7 +52,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent, ordered
 from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
@@ -315,18 +315,21 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
             f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
             return f0, competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds, beside=beside)
 
-        every = independent(alternatives, len(ext.effects), size=ext.J.size)  # each cause's, at once
-        for i, a in enumerate(ext.effects):
-            f0, found = every[i]
-            lr_a = max(f0.cost - ext.cost, 0.0)
-            if found and len(sel.swaps) < MAX_SWAPS:
-                ev = found[0][2]
-                c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))  # if A is the truth: LR(B | A) ~ chi2(k_B)
-                better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
-                if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
-                    swap = (a, f0, *found[0])
-                    break
-            out[a.name] = (f0, found)
+        # each cause's in order (workers running ahead): a swap ends the round, the causes after it
+        # are looked at again in the next one
+        with ordered(alternatives, len(ext.effects), size=ext.J.size) as every:
+            for a, (f0, found) in zip(ext.effects, every, strict=False):
+                lr_a = max(f0.cost - ext.cost, 0.0)
+                if found and len(sel.swaps) < MAX_SWAPS:
+                    ev = found[0][2]
+                    c = float(
+                        scipy.stats.chi2.isf(alpha, ev["dof"])
+                    )  # if A is the truth: LR(B | A) ~ chi2(k_B)
+                    better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
+                    if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
+                        swap = (a, f0, *found[0])
+                        break
+                out[a.name] = (f0, found)
         if swap is None:
             return sel, out
         sel = _swap(sel, *swap, pool, k_folds=k_folds)
