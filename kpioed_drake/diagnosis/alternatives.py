@@ -30,7 +30,8 @@ first-harmonic gear error of joint 2 when joint 2 turns over part of a circle): 
 non-centrality beside A is at most 1 % of its signal.
 
 Evidence of each alternative: ``lr_stat`` (``LR_B``), ``lr_stat_cause`` (``LR_A``), ``dof``,
-``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B), and
+``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B; computed only for
+the alternatives a swap test or a cause's record asks for, :func:`held_out`), and
 ``canonical_correlation`` (largest canonical correlation between A's and B's columns after projecting
 out the geometry and R: near 1 when the poses make the two signatures alike).
 
@@ -53,7 +54,13 @@ import numpy as np
 import scipy.stats
 
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent, ordered
-from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
+from kpioed_drake.diagnosis.options import (
+    K_FOLDS,
+    MAX_ALTERNATIVES,
+    MAX_SWAPS,
+    NESTED_REMAINING,
+    NESTED_SHARE,
+)
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp
@@ -179,7 +186,7 @@ def _refit(
 
 
 def competing(
-    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence, *, alpha: float, k_folds: int, beside=None
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence, *, alpha: float, beside=None
 ) -> list[tuple[object, Fit, dict]]:
     """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
 
@@ -189,13 +196,13 @@ def competing(
         i: index of A in ``ext.effects``.
         f0: the fit of ``ext``'s other effects without A (started from ``ext``).
         pool: the candidate effects (those already in ``ext`` are skipped).
-        alpha: the test level; k_folds: folds of the held-out error.
+        alpha: the test level.
         beside: the :class:`_Beside` of ``ext`` and the candidates not in it, shared by its causes
             (computed once); None: made here.
 
     Returns:
         Up to ``MAX_ALTERNATIVES`` tuples ``(effect B with its fitted values, fit of R + B, evidence)``,
-        largest ``LR_B`` first.
+        largest ``LR_B`` first; the evidence's ``holdout_rms_mm`` is added by :func:`held_out`.
     """
     a = ext.effects[i]
     lr_a = max(f0.cost - ext.cost, 0.0)
@@ -212,10 +219,17 @@ def competing(
     beside = _Beside(prob, ext, others) if beside is None else beside
     keep = _screen(Q, r, others, cols[1:], lr_a, c, alpha, beside)
     found = [_refit(prob, f0, t, U_a, Q, lr_a, c, alpha=alpha, beside=beside) for t in keep]
-    found = sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
-    for _, f, ev in found:
-        ev["holdout_rms_mm"] = rms(prob.holdout(f, k=k_folds))
-    return found
+    return sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
+
+
+def held_out(prob: FitProblem, fit: Fit, ev: dict, *, k_folds: int) -> float:
+    """``ev["holdout_rms_mm"]``, the K-fold held-out RMS of an alternative's model R + B (``fit``) [mm],
+    computed at the first ask (the swap test of :func:`settle`, the causes' records of
+    :func:`name_causes`): a round that ends at a swap, or whose causes are replaced, never asks for
+    most of them."""
+    if "holdout_rms_mm" not in ev:
+        ev["holdout_rms_mm"] = rms(prob.holdout(fit, k=k_folds))
+    return ev["holdout_rms_mm"]
 
 
 def _swap_evidence(prob: FitProblem, f0: Fit, b, fb: Fit, ev: dict, hold, m: int, replaced: str) -> dict:
@@ -302,7 +316,8 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
 
     Returns:
         (selection, settled): the selection after the swaps and, per final cause's name,
-        ``(f0, alternatives)``: the fit without the cause and :func:`competing`'s list.
+        ``(f0, alternatives)``: the fit without the cause and :func:`competing`'s list (their held-out
+        RMS as :func:`held_out` adds it).
     """
     prob = sel.problem
     ln_n = np.log(3 * prob.data.n)
@@ -313,7 +328,7 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
 
         def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list]:
             f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
-            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds, beside=beside)
+            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, beside=beside)
 
         # each cause's in order (workers running ahead): a swap ends the round, the causes after it
         # are looked at again in the next one
@@ -322,11 +337,11 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
                 lr_a = max(f0.cost - ext.cost, 0.0)
                 if found and len(sel.swaps) < MAX_SWAPS:
                     ev = found[0][2]
-                    c = float(
-                        scipy.stats.chi2.isf(alpha, ev["dof"])
-                    )  # if A is the truth: LR(B | A) ~ chi2(k_B)
+                    # if A is the truth: LR(B | A) ~ chi2(k_B)
+                    c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))
                     better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
-                    if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
+                    hold = better and held_out(prob, found[0][1], ev, k_folds=k_folds) < rms(sel.holdout)
+                    if hold and _plausible(prob, *found[0][:2]):
                         swap = (a, f0, *found[0])
                         break
                 out[a.name] = (f0, found)
@@ -374,11 +389,12 @@ def replace_implausible(
     return sel, settled, notes
 
 
-def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
+def name_causes(sel: Selection, settled: dict, more: dict, *, k_folds: int = K_FOLDS) -> tuple[Cause, ...]:
     """The effects of the extended model as causes: values and standard deviations (display units),
     the evidence (the step's statistics, the final LR given all other effects, the size at the
     reflector), plausibility (:mod:`~kpioed_drake.effects.physical`) and the alternatives: those of
-    ``settled`` (:func:`settle`'s) and then ``more`` (``{name: [Alternative]}``)."""
+    ``settled`` (:func:`settle`'s, with their held-out RMS over ``k_folds`` folds) and then ``more``
+    (``{name: [Alternative]}``)."""
     prob, ext = sel.problem, sel.fit
     std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
     starts = np.cumsum([ext.layout.effects.start] + [e.n_params for e in ext.effects])
@@ -394,6 +410,7 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
         }
         alts = []
         for b, fb, ev_b in found:
+            held_out(prob, fb, ev_b, k_folds=k_folds)
             ok, why = judged(prob, fb, len(fb.effects) - 1)
             alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
         ok, why = judged(prob, ext, i)
