@@ -18,7 +18,8 @@ may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > 
 k_B)`` (if A is the truth, ``LR_B - LR_A <= LR(B | A) ~ chi2(k_B)``) and B also wins
 by the penalised likelihood (``LR - k ln(3 n)``) and the held-out RMS, and B's value is physically
 plausible (:mod:`.physical`), :func:`settle` swaps B in for A (recorded as a step with ``swapped``)
-and looks again, at most ``MAX_SWAPS`` swaps.
+and looks again, at most ``MAX_SWAPS`` swaps (a round looks at the causes in order and ends at its
+first swap: the causes after it are looked at with the swapped model).
 
 A *nested* alternative (``evidence.nested``) explains less than A alone (``LR_B < LR_A - c``) but is
 significant alone and lies within A's signature: beside every cause, no direction of its weighted
@@ -76,8 +77,9 @@ from kpioed_drake.tracker.measurement import reflector_world
 
 ALTERNATIVE_MAX_ITER = 25
 """Levenberg-Marquardt iterations of an alternative's refit from the fit without the cause (most take
-6-12; the few that crawl along a direction the geometry nearly takes are within their last digits
-of the converged cost by then, and took 100 each)."""
+4-6; the few that crawl along a direction the geometry nearly takes took 100 each; on the two-arm
+stand-in those that reach the cap, lateral bases, are still descending there, and 100 iterations
+give the same named causes and alternatives: docs/diagnosis-structure.md)."""
 REFIT_MARGIN = 2
 """Candidates refitted beyond the alternatives a cause lists (:data:`MAX_ALTERNATIVES`), by score."""
 
