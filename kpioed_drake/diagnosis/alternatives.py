@@ -54,6 +54,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.stats
 
+from kpioed_drake.diagnosis.elastic_basis import basis_size
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent, ordered
 from kpioed_drake.diagnosis.options import (
     K_FOLDS,
@@ -68,12 +69,11 @@ from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.model import Effect
-from kpioed_drake.effects.physical import BasisSize, plausibility
+from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
 from kpioed_drake.robot.drivetrain import follower_factor
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.tracker.measurement import reflector_world
 
 ALTERNATIVE_MAX_ITER = 25
 """Levenberg-Marquardt iterations of an alternative's refit from the fit without the cause (most take
@@ -258,42 +258,13 @@ def _plausible(prob: FitProblem, b, fb: Fit) -> bool:
 
 def judged(prob: FitProblem, fit: Fit, i: int) -> tuple[bool, str | None]:
     """:func:`~kpioed_drake.effects.physical.plausibility` of effect ``i`` of ``fit``: the bounds of
-    its joint's drive, a mass-free basis by the rotation it causes (:func:`basis_size`)."""
+    its joint's drive, a mass-free basis by the rotation it causes (:func:`~.elastic_basis.basis_size`)."""
     e = fit.effects[i]
     c = fit.layout.effects.start + sum(x.n_params for x in fit.effects[:i])
     cov = fit.Cp[c : c + e.n_params, c : c + e.n_params]
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     size = basis_size(prob, fit, i, cov) if e.family in (gb.FAMILY, lb.FAMILY) else None
     return plausibility(e, std, tau=prob.tau, time_s=prob.data.time_s, robot=prob.robot, size=size)
-
-
-def basis_size(prob: FitProblem, fit: Fit, i: int, cov: np.ndarray) -> BasisSize | None:
-    """How far the mass-free basis ``i`` of ``fit`` (covariance ``cov`` of its values) turns what its
-    joint carries: the largest displacement at the reflector that no geometric parameter takes (its
-    signal beside the span of the geometric columns: a level the joint's offset or a frame's tilt
-    absorbs is no deflection the data show) over the reflector's distance from the joint (poses at
-    least 10 mm from it), a lower bound of the angle; None for a zero effect."""
-    e, q, n = fit.effects[i], prob.data.q, prob.data.n
-    v = e.value_array()
-    vv = float(v @ v)
-    if vv == 0.0:
-        return None
-    _, H, E = prob.response(fit.model, fit.effects, np.arange(n))
-    Q = np.linalg.qr(H[:, :, fit.free].reshape(3 * n, -1))[0]
-    c = sum(x.n_params for x in fit.effects[:i])
-    sig = (E[:, :, c : c + e.n_params] @ v).reshape(-1)
-    size = np.linalg.norm((sig - Q @ (Q.T @ sig)).reshape(n, 3), axis=1)
-    p_W = reflector_world(fit.model, q, prob.data.target)
-    lever = np.linalg.norm(p_W - fit.model.frames(q).joint_points[:, e.joint - 1], axis=1)
-    ratio = np.where(lever > 10.0, size / np.maximum(lever, 10.0), 0.0)
-    k = int(np.argmax(ratio))
-    return BasisSize(
-        angle=float(ratio[k]),
-        relative_std=float(np.sqrt(max(float(v @ cov @ v), 0.0)) / vv),
-        max_mm=float(size[k]),
-        lever_mm=float(lever[k]),
-        reach_mm=float(prob.robot.reach),
-    )
 
 
 def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: int) -> Selection:
