@@ -294,27 +294,35 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
     """
     prob = sel.problem
     ln_n = np.log(3 * prob.data.n)
+
+    def better(a: Effect, f0: Fit, ext: Fit, found: list) -> bool:
+        """Whether the best alternative B explains the data significantly better than A (LR and BIC);
+        then its held-out RMS is computed (in the worker that found it)."""
+        if not found or len(sel.swaps) >= MAX_SWAPS:
+            return False
+        lr_a, (_, fb, ev) = max(f0.cost - ext.cost, 0.0), found[0]
+        c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))  # if A is the truth: LR(B | A) ~ chi2(k_B)
+        if not (ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n):
+            return False
+        held_out(prob, fb, ev, k_folds=k_folds)  # the swap test's next question, asked here
+        return True
+
     for _ in range(MAX_SWAPS + 1):
         ext, out, swap = sel.fit, {}, None
         # what the candidates keep beside all causes: the same for every cause, computed once
         beside = _Beside(prob, ext, [b for b in pool if b.name not in {e.name for e in ext.effects}])
 
-        def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list]:
+        def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list, bool]:
             f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
-            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, beside=beside)
+            found = competing(prob, ext, i, f0, pool, alpha=alpha, beside=beside)
+            return f0, found, better(ext.effects[i], f0, ext, found)
 
         # each cause's in order (workers running ahead): a swap ends the round, the causes after it
         # are looked at again in the next one
         with ordered(alternatives, len(ext.effects), size=ext.J.size) as every:
-            for a, (f0, found) in zip(ext.effects, every, strict=False):
-                lr_a = max(f0.cost - ext.cost, 0.0)
-                if found and len(sel.swaps) < MAX_SWAPS:
-                    ev = found[0][2]
-                    # if A is the truth: LR(B | A) ~ chi2(k_B)
-                    c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))
-                    better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
-                    hold = better and held_out(prob, found[0][1], ev, k_folds=k_folds) < rms(sel.holdout)
-                    if hold and _plausible(prob, *found[0][:2]):
+            for a, (f0, found, wins) in zip(ext.effects, every, strict=False):
+                if wins and found[0][2]["holdout_rms_mm"] < rms(sel.holdout):
+                    if _plausible(prob, *found[0][:2]):
                         swap = (a, f0, *found[0])
                         break
                 out[a.name] = (f0, found)
