@@ -3,7 +3,9 @@
 The package's hot loops are numpy on small arrays and SNOPT, single-threaded by design (one BLAS
 thread, ``kpioed_drake/__init__.py``); where a job splits into independent pieces of equal kind (the
 certificate search's SNOPT batches, a diagnosis step's candidate refits) the pieces run in
-processes. Forked, not spawned: a worker inherits the loaded modules and the task's data (robot,
+processes. Where a loop over the pieces may stop early (the first piece that settles a question),
+:func:`ordered` hands the results over one at a time while the workers run ahead, and ends them
+when the loop stops. Forked, not spawned: a worker inherits the loaded modules and the task's data (robot,
 problem, arrays) without pickling them, and starts in milliseconds. Results come back in order,
 so a run gives the same numbers with any number of workers.
 
@@ -85,5 +87,28 @@ def pool(
     try:
         with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
             yield lambda args: workers_pool.map(_run, args, chunksize=1)
+    finally:
+        _TASKS.pop()
+
+
+@contextlib.contextmanager
+def ordered(task: Callable[[int], T], n: int, *, parallel: bool = True) -> Iterator[Iterator[T]]:
+    """Within the block, an iterator over ``task(0), ..., task(n - 1)`` in order, each computed when
+    the loop asks for it (in this process), or ahead of it in worker processes forked at entry (with
+    ``parallel`` and two tasks or more; at most :func:`workers` and ``n``), which take the next
+    task as they finish one. Leaving the block ends the workers, so a loop that stops at the first
+    result that settles its question pays for that result and for those the workers had started.
+
+    ``task`` as :func:`independent`'s; the results are those of the loop here with any number of
+    workers.
+    """
+    k = min(workers(), n) if parallel else 1
+    if k <= 1:
+        yield (task(i) for i in range(n))
+        return
+    _TASKS.append(task)
+    try:
+        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
+            yield workers_pool.imap(_run, range(n), chunksize=1)
     finally:
         _TASKS.pop()

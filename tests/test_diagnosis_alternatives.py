@@ -7,6 +7,7 @@ the effect library. Unit checks of the plausibility bounds and of the rest's str
 
 from __future__ import annotations
 
+import contextlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,6 +16,7 @@ from numpy.testing import assert_allclose
 
 from kpioed_drake import diagnosis as D
 from kpioed_drake import effects as fx
+from kpioed_drake.diagnosis import alternatives as alt
 from kpioed_drake.diagnosis.alternatives import settle
 from kpioed_drake.diagnosis.fit import held_out_gain, pose_groups
 from kpioed_drake.diagnosis.records import Selection
@@ -66,6 +68,38 @@ def test_a_cause_beaten_by_a_candidate_is_swapped(kr16):
     assert set(out) == {"joint_scale:2"}
     assert sel.evidence["joint_scale:2"]["replaced"] == "gear_cyclic:2:1"
     assert before.fit is wrong and before.swaps == () and before.steps == ()  # a new selection
+
+
+def test_settle_stops_a_round_at_its_swap_with_the_eager_rounds_results(kr16, monkeypatch):
+    """A round of :func:`settle` ends at its first swap: the causes after it are looked at in the next
+    round only. The reference computes every cause's alternatives first (the rounds before this
+    ordering): the same swaps, fits and alternatives, with fewer competing explanations looked for."""
+    case = syn.synthetic_case(
+        kr16, np.random.default_rng(11), ["joint_scale:2=400", "joint_elasticity:3=2e-6"], n_poses=70
+    )
+    prob = D.FitProblem(kr16, case.data, case.sigma)
+    wrong = prob.fit([fx.parse_effect("gear_cyclic:2:1"), fx.parse_effect("joint_elasticity:3")])
+    before = Selection(problem=prob, fit=wrong, holdout=prob.holdout(wrong))
+    cands, _ = D.candidate_effects(case.data, prob.tau)
+    looked_for, real = [], alt.competing
+    monkeypatch.setattr(alt, "competing", lambda *a, **k: looked_for.append(a[2]) or real(*a, **k))
+    lazy, lazy_out = settle(before, cands, alpha=0.01, k_folds=5)
+    n_lazy = len(looked_for)
+
+    @contextlib.contextmanager
+    def eager(task, n, *, size):
+        yield iter([task(i) for i in range(n)])
+
+    monkeypatch.setattr(alt, "ordered", eager)
+    ref, ref_out = settle(before, cands, alpha=0.01, k_folds=5)
+    assert [s.replaced for s in ref.swaps] == [s.replaced for s in lazy.swaps] == ["gear_cyclic:2:1"]
+    assert [e.name for e in lazy.fit.effects] == [e.name for e in ref.fit.effects]
+    np.testing.assert_array_equal(lazy.fit.model.p, ref.fit.model.p)
+    assert lazy.fit.cost == ref.fit.cost and set(lazy_out) == set(ref_out)
+    for name, (f0, found) in ref_out.items():
+        assert lazy_out[name][0].cost == f0.cost
+        assert [(b.name, ev) for b, _, ev in lazy_out[name][1]] == [(b.name, ev) for b, _, ev in found]
+    assert n_lazy < len(looked_for) - n_lazy  # the round with the swap skipped the cause after it
 
 
 def test_indistinguishable_pair_is_reported_together(kr16):

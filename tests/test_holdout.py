@@ -6,10 +6,13 @@
   with the same fit run to a tolerance a thousand times tighter.
 - ``fit.independent``: a step's independent fits in forked worker processes (issue 46); the
   diagnosis with them gives the report of the loop in one process, number for number.
+- ``FitProblem.holdout`` takes the fit's own Jacobian at its solution (the estimator's last) instead
+  of evaluating it again: the same held-out residuals, bit for bit.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -53,6 +56,20 @@ def test_one_step_holdout_equals_refits(problem, effects):
     rms = lambda r: np.sqrt(np.mean(r**2))  # noqa: E731
     assert abs(rms(cheap) - rms(exact)) < 1e-5 * rms(exact)
     assert rms(cheap) > rms(full.residuals)  # held out is worse than fitted: it is not the fit itself
+
+
+@pytest.mark.parametrize("idx", [None, np.arange(100)])
+def test_holdout_with_the_fits_own_jacobian_is_the_same(problem, idx):
+    """The weighted residuals and Jacobian the holdout steps from: the fit's own (its rows, weights
+    and sigma) equal those evaluated again at its solution, and so do the held-out residuals."""
+    full = problem.fit([parse_effect("joint_elasticity:2"), parse_effect("gear_cyclic:3:1")], idx=idx)
+    again = dataclasses.replace(full, q=full.q.copy())  # not the problem's poses: evaluated again
+    r_own, J_own = problem._weighted_solution(full)
+    r_new, J_new = problem._weighted_solution(again)
+    assert J_own.shape == (full.n_used, 3, full.J.shape[1])
+    np.testing.assert_array_equal(J_own, J_new)
+    np.testing.assert_allclose(r_own, r_new, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(problem.holdout(full), problem.holdout(again), rtol=0, atol=1e-12)
 
 
 def test_predicted_decrease_stop_is_converged(problem):

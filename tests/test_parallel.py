@@ -58,3 +58,26 @@ def test_pool_maps_in_order(monkeypatch):
     with parallel.pool(lambda x: float(base[x] + 1.0)) as run:
         assert run([5, 0, 3]) == [6.0, 1.0, 4.0]
         assert run([1]) == [2.0]
+
+
+def test_ordered_runs_ahead_in_order_and_stops(monkeypatch):
+    """``parallel.ordered``: the results in order from two workers; a loop that stops early ends them."""
+    monkeypatch.setenv(parallel.WORKERS_ENV, "2")
+    data = np.arange(8.0)
+    with parallel.ordered(
+        lambda i: (float(data[i] ** 2), parallel.mp.current_process().daemon), 8
+    ) as results:
+        got = [next(results) for _ in range(3)]  # the rest is never asked for
+    assert [v for v, _ in got] == [0.0, 1.0, 4.0] and all(daemon for _, daemon in got)
+    with parallel.ordered(lambda i: float(data[i]), 8) as results:
+        assert list(results) == list(data)
+
+
+def test_ordered_in_one_process_runs_only_what_the_loop_asks(monkeypatch):
+    monkeypatch.setenv(parallel.WORKERS_ENV, "1")
+    seen = []
+    with parallel.ordered(lambda i: seen.append(i) or i, 5) as results:
+        for i in results:
+            if i == 2:
+                break
+    assert seen == [0, 1, 2]

@@ -9,7 +9,8 @@ One module per concern (method and JSON contract: docs/diagnosis.md):
   step's independent fits in worker processes (:func:`~.fit.independent`);
 - :mod:`.selection`: candidates, identifiability, score tests, stepwise selection; :mod:`.pairs`:
   pairs of candidates that cancel; :mod:`.sides`: the side of a backlash under the mass prior;
-- :mod:`.elastic_basis`: elasticity (and backlash) with other link masses than the file's;
+- :mod:`.elastic_basis`: elasticity (and backlash) with other link masses than the file's, and how
+  far a mass-free basis turns what its joint carries;
 - :mod:`.alternatives`: competing explanations of each cause, the named causes;
 - :mod:`.records`: the frozen records passed between them (a candidate's test, a step, the
   selection, a cause);

@@ -18,7 +18,8 @@ may explain the data *better* than a cause chosen earlier: when ``LR_B - LR_A > 
 k_B)`` (if A is the truth, ``LR_B - LR_A <= LR(B | A) ~ chi2(k_B)``) and B also wins
 by the penalised likelihood (``LR - k ln(3 n)``) and the held-out RMS, and B's value is physically
 plausible (:mod:`.physical`), :func:`settle` swaps B in for A (recorded as a step with ``swapped``)
-and looks again, at most ``MAX_SWAPS`` swaps.
+and looks again, at most ``MAX_SWAPS`` swaps (a round looks at the causes in order and ends at its
+first swap: the causes after it are looked at with the swapped model).
 
 A *nested* alternative (``evidence.nested``) explains less than A alone (``LR_B < LR_A - c``) but is
 significant alone and lies within A's signature: beside every cause, no direction of its weighted
@@ -30,7 +31,8 @@ first-harmonic gear error of joint 2 when joint 2 turns over part of a circle): 
 non-centrality beside A is at most 1 % of its signal.
 
 Evidence of each alternative: ``lr_stat`` (``LR_B``), ``lr_stat_cause`` (``LR_A``), ``dof``,
-``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B), and
+``delta_bic`` (``LR_B - k ln(3 n)``), ``holdout_rms_mm`` (K-fold, the model R + B; computed only for
+the alternatives a swap test or a cause's record asks for, :func:`held_out`), and
 ``canonical_correlation`` (largest canonical correlation between A's and B's columns after projecting
 out the geometry and R: near 1 when the poses make the two signatures alike).
 
@@ -52,25 +54,32 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
-from kpioed_drake.diagnosis.options import MAX_ALTERNATIVES, MAX_SWAPS, NESTED_REMAINING, NESTED_SHARE
+from kpioed_drake.diagnosis.elastic_basis import basis_size
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent, ordered
+from kpioed_drake.diagnosis.options import (
+    K_FOLDS,
+    MAX_ALTERNATIVES,
+    MAX_SWAPS,
+    NESTED_REMAINING,
+    NESTED_SHARE,
+)
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
 from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.model import Effect
-from kpioed_drake.effects.physical import BasisSize, plausibility
+from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
 from kpioed_drake.robot.drivetrain import follower_factor
 from kpioed_drake.robot.models import Robot
-from kpioed_drake.tracker.measurement import reflector_world
 
 ALTERNATIVE_MAX_ITER = 25
 """Levenberg-Marquardt iterations of an alternative's refit from the fit without the cause (most take
-6-12; the few that crawl along a direction the geometry nearly takes are within their last digits
-of the converged cost by then, and took 100 each)."""
+4-6; the few that crawl along a direction the geometry nearly takes took 100 each; on the two-arm
+stand-in those that reach the cap, lateral bases, are still descending there, and 100 iterations
+give the same named causes and alternatives: docs/diagnosis-structure.md)."""
 REFIT_MARGIN = 2
 """Candidates refitted beyond the alternatives a cause lists (:data:`MAX_ALTERNATIVES`), by score."""
 
@@ -179,7 +188,7 @@ def _refit(
 
 
 def competing(
-    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence, *, alpha: float, k_folds: int, beside=None
+    prob: FitProblem, ext: Fit, i: int, f0: Fit, pool: Sequence, *, alpha: float, beside=None
 ) -> list[tuple[object, Fit, dict]]:
     """The alternatives to cause ``i`` of ``ext`` among the candidates ``pool``.
 
@@ -189,13 +198,13 @@ def competing(
         i: index of A in ``ext.effects``.
         f0: the fit of ``ext``'s other effects without A (started from ``ext``).
         pool: the candidate effects (those already in ``ext`` are skipped).
-        alpha: the test level; k_folds: folds of the held-out error.
+        alpha: the test level.
         beside: the :class:`_Beside` of ``ext`` and the candidates not in it, shared by its causes
             (computed once); None: made here.
 
     Returns:
         Up to ``MAX_ALTERNATIVES`` tuples ``(effect B with its fitted values, fit of R + B, evidence)``,
-        largest ``LR_B`` first.
+        largest ``LR_B`` first; the evidence's ``holdout_rms_mm`` is added by :func:`held_out`.
     """
     a = ext.effects[i]
     lr_a = max(f0.cost - ext.cost, 0.0)
@@ -212,10 +221,17 @@ def competing(
     beside = _Beside(prob, ext, others) if beside is None else beside
     keep = _screen(Q, r, others, cols[1:], lr_a, c, alpha, beside)
     found = [_refit(prob, f0, t, U_a, Q, lr_a, c, alpha=alpha, beside=beside) for t in keep]
-    found = sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
-    for _, f, ev in found:
-        ev["holdout_rms_mm"] = rms(prob.holdout(f, k=k_folds))
-    return found
+    return sorted((t for t in found if t is not None), key=lambda t: -t[2]["lr_stat"])[:MAX_ALTERNATIVES]
+
+
+def held_out(prob: FitProblem, fit: Fit, ev: dict, *, k_folds: int) -> float:
+    """``ev["holdout_rms_mm"]``, the K-fold held-out RMS of an alternative's model R + B (``fit``) [mm],
+    computed at the first ask (the swap test of :func:`settle`, the causes' records of
+    :func:`name_causes`): a round that ends at a swap, or whose causes are replaced, never asks for
+    most of them."""
+    if "holdout_rms_mm" not in ev:
+        ev["holdout_rms_mm"] = rms(prob.holdout(fit, k=k_folds))
+    return ev["holdout_rms_mm"]
 
 
 def _swap_evidence(prob: FitProblem, f0: Fit, b, fb: Fit, ev: dict, hold, m: int, replaced: str) -> dict:
@@ -242,42 +258,13 @@ def _plausible(prob: FitProblem, b, fb: Fit) -> bool:
 
 def judged(prob: FitProblem, fit: Fit, i: int) -> tuple[bool, str | None]:
     """:func:`~kpioed_drake.effects.physical.plausibility` of effect ``i`` of ``fit``: the bounds of
-    its joint's drive, a mass-free basis by the rotation it causes (:func:`basis_size`)."""
+    its joint's drive, a mass-free basis by the rotation it causes (:func:`~.elastic_basis.basis_size`)."""
     e = fit.effects[i]
     c = fit.layout.effects.start + sum(x.n_params for x in fit.effects[:i])
     cov = fit.Cp[c : c + e.n_params, c : c + e.n_params]
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     size = basis_size(prob, fit, i, cov) if e.family in (gb.FAMILY, lb.FAMILY) else None
     return plausibility(e, std, tau=prob.tau, time_s=prob.data.time_s, robot=prob.robot, size=size)
-
-
-def basis_size(prob: FitProblem, fit: Fit, i: int, cov: np.ndarray) -> BasisSize | None:
-    """How far the mass-free basis ``i`` of ``fit`` (covariance ``cov`` of its values) turns what its
-    joint carries: the largest displacement at the reflector that no geometric parameter takes (its
-    signal beside the span of the geometric columns: a level the joint's offset or a frame's tilt
-    absorbs is no deflection the data show) over the reflector's distance from the joint (poses at
-    least 10 mm from it), a lower bound of the angle; None for a zero effect."""
-    e, q, n = fit.effects[i], prob.data.q, prob.data.n
-    v = e.value_array()
-    vv = float(v @ v)
-    if vv == 0.0:
-        return None
-    _, H, E = prob.response(fit.model, fit.effects, np.arange(n))
-    Q = np.linalg.qr(H[:, :, fit.free].reshape(3 * n, -1))[0]
-    c = sum(x.n_params for x in fit.effects[:i])
-    sig = (E[:, :, c : c + e.n_params] @ v).reshape(-1)
-    size = np.linalg.norm((sig - Q @ (Q.T @ sig)).reshape(n, 3), axis=1)
-    p_W = reflector_world(fit.model, q, prob.data.target)
-    lever = np.linalg.norm(p_W - fit.model.frames(q).joint_points[:, e.joint - 1], axis=1)
-    ratio = np.where(lever > 10.0, size / np.maximum(lever, 10.0), 0.0)
-    k = int(np.argmax(ratio))
-    return BasisSize(
-        angle=float(ratio[k]),
-        relative_std=float(np.sqrt(max(float(v @ cov @ v), 0.0)) / vv),
-        max_mm=float(size[k]),
-        lever_mm=float(lever[k]),
-        reach_mm=float(prob.robot.reach),
-    )
 
 
 def _swap(sel: Selection, a, f0: Fit, b, fb: Fit, ev: dict, pool, *, k_folds: int) -> Selection:
@@ -302,31 +289,43 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
 
     Returns:
         (selection, settled): the selection after the swaps and, per final cause's name,
-        ``(f0, alternatives)``: the fit without the cause and :func:`competing`'s list.
+        ``(f0, alternatives)``: the fit without the cause and :func:`competing`'s list (their held-out
+        RMS as :func:`held_out` adds it).
     """
     prob = sel.problem
     ln_n = np.log(3 * prob.data.n)
+
+    def better(a: Effect, f0: Fit, ext: Fit, found: list) -> bool:
+        """Whether the best alternative B explains the data significantly better than A (LR and BIC);
+        then its held-out RMS is computed (in the worker that found it)."""
+        if not found or len(sel.swaps) >= MAX_SWAPS:
+            return False
+        lr_a, (_, fb, ev) = max(f0.cost - ext.cost, 0.0), found[0]
+        c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))  # if A is the truth: LR(B | A) ~ chi2(k_B)
+        if not (ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n):
+            return False
+        held_out(prob, fb, ev, k_folds=k_folds)  # the swap test's next question, asked here
+        return True
+
     for _ in range(MAX_SWAPS + 1):
         ext, out, swap = sel.fit, {}, None
         # what the candidates keep beside all causes: the same for every cause, computed once
         beside = _Beside(prob, ext, [b for b in pool if b.name not in {e.name for e in ext.effects}])
 
-        def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list]:
+        def alternatives(i: int, ext=ext, beside=beside) -> tuple[Fit, list, bool]:
             f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
-            return f0, competing(prob, ext, i, f0, pool, alpha=alpha, k_folds=k_folds, beside=beside)
+            found = competing(prob, ext, i, f0, pool, alpha=alpha, beside=beside)
+            return f0, found, better(ext.effects[i], f0, ext, found)
 
-        every = independent(alternatives, len(ext.effects), size=ext.J.size)  # each cause's, at once
-        for i, a in enumerate(ext.effects):
-            f0, found = every[i]
-            lr_a = max(f0.cost - ext.cost, 0.0)
-            if found and len(sel.swaps) < MAX_SWAPS:
-                ev = found[0][2]
-                c = float(scipy.stats.chi2.isf(alpha, ev["dof"]))  # if A is the truth: LR(B | A) ~ chi2(k_B)
-                better = ev["lr_stat"] - lr_a > c and ev["delta_bic"] > lr_a - a.n_params * ln_n
-                if better and ev["holdout_rms_mm"] < rms(sel.holdout) and _plausible(prob, *found[0][:2]):
-                    swap = (a, f0, *found[0])
-                    break
-            out[a.name] = (f0, found)
+        # each cause's in order (workers running ahead): a swap ends the round, the causes after it
+        # are looked at again in the next one
+        with ordered(alternatives, len(ext.effects), size=ext.J.size) as every:
+            for a, (f0, found, wins) in zip(ext.effects, every, strict=False):
+                if wins and found[0][2]["holdout_rms_mm"] < rms(sel.holdout):
+                    if _plausible(prob, *found[0][:2]):
+                        swap = (a, f0, *found[0])
+                        break
+                out[a.name] = (f0, found)
         if swap is None:
             return sel, out
         sel = _swap(sel, *swap, pool, k_folds=k_folds)
@@ -371,11 +370,12 @@ def replace_implausible(
     return sel, settled, notes
 
 
-def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
+def name_causes(sel: Selection, settled: dict, more: dict, *, k_folds: int = K_FOLDS) -> tuple[Cause, ...]:
     """The effects of the extended model as causes: values and standard deviations (display units),
     the evidence (the step's statistics, the final LR given all other effects, the size at the
     reflector), plausibility (:mod:`~kpioed_drake.effects.physical`) and the alternatives: those of
-    ``settled`` (:func:`settle`'s) and then ``more`` (``{name: [Alternative]}``)."""
+    ``settled`` (:func:`settle`'s, with their held-out RMS over ``k_folds`` folds) and then ``more``
+    (``{name: [Alternative]}``)."""
     prob, ext = sel.problem, sel.fit
     std = np.sqrt(np.clip(np.diag(ext.Cp), 0, None))
     starts = np.cumsum([ext.layout.effects.start] + [e.n_params for e in ext.effects])
@@ -391,6 +391,7 @@ def name_causes(sel: Selection, settled: dict, more: dict) -> tuple[Cause, ...]:
         }
         alts = []
         for b, fb, ev_b in found:
+            held_out(prob, fb, ev_b, k_folds=k_folds)
             ok, why = judged(prob, fb, len(fb.effects) - 1)
             alts.append(Alternative(effect=b, evidence=ev_b, plausible=ok, plausible_reason=why))
         ok, why = judged(prob, ext, i)

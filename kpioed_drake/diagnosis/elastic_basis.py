@@ -17,6 +17,9 @@ the backward step removed effects (the basis explains them together with the ela
 effects" from "other masses": each removed effect's cause gets the basis as an ``alternative``.
 When the model then still fails the goodness-of-fit test, the basis of every joint without an
 elasticity is a further candidate (:func:`_add_basis_if_unexplained`).
+
+:func:`basis_size`: how far a fitted mass-free basis turns what its joint carries (the rotation a
+plausibility bound judges, :mod:`~kpioed_drake.effects.physical`).
 """
 
 from __future__ import annotations
@@ -33,8 +36,10 @@ from kpioed_drake.diagnosis.options import BACKLASH_MIN_SIDE, MIN_REMAINING
 from kpioed_drake.diagnosis.records import Alternative, Selection
 from kpioed_drake.diagnosis.selection import backward_step, columns
 from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.effects.physical import BasisSize
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import model_factors
+from kpioed_drake.tracker.measurement import reflector_world
 
 
 def basis_for(prob: FitProblem, joint: int) -> fx.Effect:
@@ -452,3 +457,32 @@ def basis_alternatives(sel: Selection, alternatives: dict, *, alpha: float) -> d
     for name, found in _stand_in_alternatives(sel, alpha=alpha).items():
         out.setdefault(name, []).extend(found)
     return out
+
+
+def basis_size(prob: FitProblem, fit: Fit, i: int, cov: np.ndarray) -> BasisSize | None:
+    """How far the mass-free basis ``i`` of ``fit`` (covariance ``cov`` of its values) turns what its
+    joint carries: the largest displacement at the reflector that no geometric parameter takes (its
+    signal beside the span of the geometric columns: a level the joint's offset or a frame's tilt
+    absorbs is no deflection the data show) over the reflector's distance from the joint (poses at
+    least 10 mm from it), a lower bound of the angle; None for a zero effect."""
+    e, q, n = fit.effects[i], prob.data.q, prob.data.n
+    v = e.value_array()
+    vv = float(v @ v)
+    if vv == 0.0:
+        return None
+    _, H, E = prob.response(fit.model, fit.effects, np.arange(n))
+    Q = np.linalg.qr(H[:, :, fit.free].reshape(3 * n, -1))[0]
+    c = sum(x.n_params for x in fit.effects[:i])
+    sig = (E[:, :, c : c + e.n_params] @ v).reshape(-1)
+    size = np.linalg.norm((sig - Q @ (Q.T @ sig)).reshape(n, 3), axis=1)
+    p_W = reflector_world(fit.model, q, prob.data.target)
+    lever = np.linalg.norm(p_W - fit.model.frames(q).joint_points[:, e.joint - 1], axis=1)
+    ratio = np.where(lever > 10.0, size / np.maximum(lever, 10.0), 0.0)
+    k = int(np.argmax(ratio))
+    return BasisSize(
+        angle=float(ratio[k]),
+        relative_std=float(np.sqrt(max(float(v @ cov @ v), 0.0)) / vv),
+        max_mm=float(size[k]),
+        lever_mm=float(lever[k]),
+        reach_mm=float(prob.robot.reach),
+    )

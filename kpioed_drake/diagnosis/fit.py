@@ -19,7 +19,8 @@ is not taken for one.
 :func:`stop_reason` words why the selection stopped (:data:`STOPS`).
 
 :func:`independent` runs a step's independent fits (the refits of a step's candidates, each
-cause's competing explanations) in worker processes forked from this one, when the problem is large
+cause's competing explanations) in worker processes forked from this one (:func:`ordered` for a loop
+that may stop at the first result that settles it), when the problem is large
 (:data:`~kpioed_drake.diagnosis.options.PARALLEL_MIN_ENTRIES`): the workers inherit the problem and
 every cache (nothing but the task's number and its result is pickled), run the same code on the same
 inputs with one BLAS thread, and the results come back in the tasks' order, so the numbers are
@@ -29,8 +30,9 @@ those of the loop in this process. Workers: :func:`kpioed_drake.parallel.workers
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import scipy.linalg
@@ -201,17 +203,14 @@ class FitProblem:
         fold (tests/test_holdout.py compares them) at the cost of one Jacobian instead of k fits.
         """
         n = self.data.n
-        every = np.arange(n)
-        h, H, E = self.response(full.model, full.effects, every)
-        w = np.sqrt(full.weights)[:, None] / self.sigma
-        r = (self.data.eta - h) * w  # (n, 3) weighted residuals at the solution
-        J = np.concatenate([H[:, :, full.free], E], axis=2) * w[:, :, None]  # (n, 3, k)
-        D = np.linalg.norm(J[full.mask].reshape(-1, J.shape[2]), axis=0)
+        r, J = self._weighted_solution(full)  # over the fit's poses
+        D = np.linalg.norm(J.reshape(-1, J.shape[2]), axis=0)
         D[D == 0] = 1.0
         out = np.empty((n, 3))
         for test in self.folds(k):
             train = full.mask.copy()
             train[test] = False
+            train = train[full.mask]
             A = J[train].reshape(-1, J.shape[2]) / D
             dxs = scipy.linalg.lstsq(A, r[train].reshape(-1), lapack_driver="gelsy", check_finite=False)[0]
             model, effects = estimator.apply_step(self.own(full.model), full.effects, dxs / D)
@@ -219,6 +218,25 @@ class FitProblem:
             h_test = estimator.response(model, effects, self.data.q[test], cond, jac=False)
             out[test] = self.data.eta[test] - h_test
         return out
+
+    def _weighted_solution(self, full: Fit) -> tuple[np.ndarray, np.ndarray]:
+        """(m, 3) weighted residuals and (m, 3, k) weighted Jacobian at ``full``'s solution, over the m
+        poses it was fitted to: its own Jacobian (the estimator's last, at the solution) when it was
+        fitted to this problem's poses, conditions, robot and sigma, else evaluated here."""
+        w = np.sqrt(full.weights[full.mask])[:, None] / self.sigma
+        own = (
+            full.q is self.data.q
+            and full.conditions is self.conditions
+            and full.model.robot is self.robot
+            and full.sigma == self.sigma
+            and full.R_TP is None
+            and full.contacts is None
+        )
+        if own:
+            return full.residuals[full.mask] * w, full.J.reshape(-1, 3, full.J.shape[1])
+        h, H, E = self.response(full.model, full.effects, np.flatnonzero(full.mask))
+        J = np.concatenate([H[:, :, full.free], E], axis=2) * w[:, :, None]
+        return (self.data.eta[full.mask] - h) * w, J
 
     def effect_signal(self, fit: Fit, i: int) -> np.ndarray:
         """(n, 3) contribution of effect i of ``fit`` to the measurements (linearised) [mm]."""
@@ -325,3 +343,13 @@ def independent(task: Callable[[int], object], n: int, *, size: int) -> list:
     (:func:`kpioed_drake.parallel.independent`) when ``size`` (the entries of the problem's Jacobian,
     a measure of one fit's work) reaches :data:`~.options.PARALLEL_MIN_ENTRIES` (module docstring)."""
     return parallel.independent(task, n, parallel=size >= PARALLEL_MIN_ENTRIES)
+
+
+@contextlib.contextmanager
+def ordered(task: Callable[[int], object], n: int, *, size: int) -> Iterator[Iterator]:
+    """Within the block, an iterator over ``task(0), ..., task(n - 1)`` in order
+    (:func:`kpioed_drake.parallel.ordered`: worker processes run ahead when ``size`` reaches
+    :data:`~.options.PARALLEL_MIN_ENTRIES`, as :func:`independent`); a loop that stops early skips
+    the tasks no worker had started."""
+    with parallel.ordered(task, n, parallel=size >= PARALLEL_MIN_ENTRIES) as results:
+        yield results

@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 import scipy.stats
 
-from kpioed_drake.diagnosis.fit import Fit, FitProblem
+from kpioed_drake.diagnosis.fit import Fit, FitProblem, independent
 from kpioed_drake.diagnosis.options import PAIR_CORRELATION
 from kpioed_drake.diagnosis.records import PairTest
 from kpioed_drake.effects.model import Effect
@@ -120,10 +120,13 @@ def pair_step(
     for e, side in ((a, side_a), (b, side_b)):
         if side is not None:
             trial = trial.with_side(e.joint, side)
-    f = trial.fit(list(current.effects) + [a, b], start=current)
+    added = ([a, b], [b], [a])  # the pair, then each member alone: independent fits, at once
+    f, *alone = independent(
+        lambda k: trial.fit(list(current.effects) + added[k], start=current), 3, size=current.J.size
+    )
     lr = max(current.cost - f.cost, 0.0)
     k_ab = a.n_params + b.n_params
-    given = [max(trial.fit(list(current.effects) + [x], start=current).cost - f.cost, 0.0) for x in (b, a)]
+    given = [max(x.cost - f.cost, 0.0) for x in alone]
     p_lr = float(scipy.stats.chi2.sf(lr, k_ab))
     top = dataclasses.replace(
         tests[0],

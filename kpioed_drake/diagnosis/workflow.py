@@ -178,10 +178,10 @@ def _named_causes(
     plausible alternative explains as much, each described in words; with the notes of these steps."""
     sel, notes, basis_alts = upgrade_elasticity(sel, alpha=alpha, k_folds=k_folds)  # masses off
     sel, settled = settle(sel, cands, alpha=alpha, k_folds=k_folds)
-    causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+    causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha), k_folds=k_folds)
     sel, settled, replaced = replace_implausible(sel, causes, settled, cands, alpha=alpha, k_folds=k_folds)
     if replaced:
-        causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha))
+        causes = name_causes(sel, settled, basis_alternatives(sel, basis_alts, alpha=alpha), k_folds=k_folds)
     notes += replaced + _implausible_notes(causes)
     return sel, describe_causes(causes, robot, sel.problem, sel.fit), notes
 
