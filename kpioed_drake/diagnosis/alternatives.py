@@ -36,19 +36,14 @@ the alternatives a swap test or a cause's record asks for, :func:`held_out`), an
 ``canonical_correlation`` (largest canonical correlation between A's and B's columns after projecting
 out the geometry and R: near 1 when the poses make the two signatures alike).
 
-:func:`describe_causes`: each named cause in words a calibration engineer reads: what it is
-physically, the joint and link it acts on, its size at the reflector over the data, and what a
-mass-free basis stands for.
-
-The size is that of the cause's contribution to the measurements at the fitted values (the
-linearised signal :meth:`~kpioed_drake.diagnosis.fit.FitProblem.effect_signal`, its 3-D norm per
-measured point): median and largest over the data's rows [mm].
+:func:`replace_implausible`: a named cause with an implausible value is replaced by its best
+plausible alternative; after a first replacement the next cause's alternatives are searched again
+beside the causes as they then are (the ones :func:`settle` found were beside the replaced cause).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
 import numpy as np
@@ -65,15 +60,12 @@ from kpioed_drake.diagnosis.options import (
 )
 from kpioed_drake.diagnosis.records import Alternative, Cause, Selection, SelectionStep, Swap
 from kpioed_drake.diagnosis.selection import columns
-from kpioed_drake.effects import compliance as cp
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects import lateral_basis as lb
 from kpioed_drake.effects.model import Effect
 from kpioed_drake.effects.physical import plausibility
 from kpioed_drake.estimation.estimator import rms
 from kpioed_drake.estimation.identifiability import identifiability, projected_basis
-from kpioed_drake.robot.drivetrain import follower_factor
-from kpioed_drake.robot.models import Robot
 
 ALTERNATIVE_MAX_ITER = 25
 """Levenberg-Marquardt iterations of an alternative's refit from the fit without the cause (most take
@@ -332,6 +324,18 @@ def settle(sel: Selection, pool: Sequence[Effect], *, alpha: float, k_folds: int
     return sel, out
 
 
+def _plausible_alternative(
+    sel: Selection, i: int, pool: Sequence[Effect], *, alpha: float
+) -> tuple[Fit, tuple | None]:
+    """The fit without cause ``i`` of ``sel`` and its best plausible, not nested alternative beside
+    the selection's other causes as they are now, or None."""
+    prob, ext = sel.problem, sel.fit
+    f0 = prob.fit([x for j, x in enumerate(ext.effects) if j != i], start=ext)
+    found = competing(prob, ext, i, f0, pool, alpha=alpha)
+    ok = (t for t in found if not t[2].get("nested") and _plausible(prob, t[0], t[1]))
+    return f0, next(ok, None)
+
+
 def replace_implausible(
     sel: Selection,
     causes: Sequence[Cause],
@@ -349,16 +353,20 @@ def replace_implausible(
         (selection, settled, notes): the selection after the replacements, :func:`settle`'s
         ``settled`` of it and one note per replacement.
     """
-    notes = []
+    notes: list[str] = []
     for c in causes:
-        if c.plausible or c.effect.name not in {e.name for e in sel.fit.effects}:
+        names = [e.name for e in sel.fit.effects]
+        if c.plausible or c.effect.name not in names:
             continue
-        f0, found = settled[c.effect.name]
-        ok = {a.effect.name for a in c.alternatives if a.plausible and not a.evidence.get("nested")}
-        best = next(((b, fb, ev) for b, fb, ev in found if b.name in ok), None)
+        if notes:  # an earlier replacement changed the model: the alternatives beside the causes now
+            f0, best = _plausible_alternative(sel, names.index(c.effect.name), pool, alpha=alpha)
+        else:
+            f0, found = settled[c.effect.name]
+            ok = {a.effect.name for a in c.alternatives if a.plausible and not a.evidence.get("nested")}
+            best = next(((b, fb, ev) for b, fb, ev in found if b.name in ok), None)
         if best is None:
             continue
-        a = next(e for e in sel.fit.effects if e.name == c.effect.name)
+        a = sel.fit.effects[names.index(c.effect.name)]
         sel = _swap(sel, a, f0, *best, pool, k_folds=k_folds)
         notes.append(
             f"{a.name} is implausible ({c.plausible_reason}); replaced by {best[0].name}, which explains the "
@@ -400,99 +408,3 @@ def name_causes(sel: Selection, settled: dict, more: dict, *, k_folds: int = K_F
         return Cause(e, tuple(e.display_values(e_std)), ev, ok, why, alternatives=tuple(alts))
 
     return tuple(independent(cause, len(ext.effects), size=ext.J.size))  # the causes at once
-
-
-_WHAT = {
-    "joint_elasticity": "joint {j} twists under the gravity torque it carries (a torsional compliance)",
-    gb.FAMILY: "joint {j} twists under the gravity torque of the links it carries",
-    "lateral_compliance": "the bearing of joint {j} tilts under the gravity moment across its axis",
-    lb.FAMILY: "the bearing of joint {j} tilts under the gravity moment of the links it carries, across "
-    "its axis",
-    "gear_cyclic": "the gear of joint {j} errs cyclically, {h} time(s) a turn of the joint",
-    "joint_scale": "the gear ratio (encoder scale) of joint {j} is off: an angle error growing with "
-    "the angle",
-    "joint_coupling": "joint {j} errs with the angle of joint {c}, whose axis its drive train crosses",
-    "backlash": "joint {j} has play: it rests on one flank or the other with the sign of its gravity torque",
-    "thermal_expansion": "the robot's links grow with the temperature",
-    "tracker_scale": "the tracker's distances scale with the temperature (the air's refractive index)",
-    "tracker_drift": "the tracker's frame drifts with the time",
-    cp.COLUMN: "the lifting column bends with the carriage height under the gravity moment above joint {j}",
-    cp.BASE: "the base (or floor) tilts under the robot's gravity moment",
-    cp.LATERAL: "the bearing of joint {j} tilts under the gravity moment across its axis",
-}
-"""What each effect family is, physically (``{j}``: joint, ``{h}``: harmonic, ``{c}``: coupled joint)."""
-
-_BASIS = (
-    "The model file gives no masses, so the torque is fitted as {n} combination(s) of the carried "
-    "links' mass moments (m, m c): the basis stands for the unknown masses and centres of mass times "
-    "the joint's compliance; it predicts the deflection at other poses, not the masses themselves"
-)
-
-
-def child_links(robot: Robot) -> tuple[str, ...]:
-    """The link each joint moves (its child link): a URDF robot's link names, else ``link i``."""
-    names = tuple(f"link {i}" for i in range(1, robot.n_joints + 1))
-    if robot.urdf is None:
-        return names
-    try:
-        root = ET.fromstring(robot.urdf.text)
-    except ET.ParseError:
-        return names
-    child = {
-        j.get("name"): j.find("child").get("link")
-        for j in root.findall("joint")
-        if j.find("child") is not None
-    }
-    return (
-        tuple(child.get(n, d) for n, d in zip(robot.urdf.joints, names, strict=False))
-        + names[len(robot.urdf.joints) :]
-    )
-
-
-def describe(
-    effect: Effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None
-) -> dict:
-    """The words and sizes of one named cause.
-
-    Args:
-        effect: the cause (:class:`~kpioed_drake.effects.Effect`, fitted).
-        robot: the robot (joint and link names).
-        signal: (n, 3) its contribution to the measured points [mm].
-        links: :func:`child_links` of ``robot`` (computed when None).
-
-    Returns:
-        ``{"text", "median_mm", "max_mm", "joint_name", "link"}`` (the last two for a joint's effect).
-    """
-    size = np.linalg.norm(np.asarray(signal, dtype=float), axis=1)
-    med, top = (float(np.median(size)), float(np.max(size))) if size.size else (0.0, 0.0)
-    out = {"median_mm": med, "max_mm": top}
-    j = effect.joint
-    what = _WHAT.get(effect.family, effect.family).format(j=j, h=effect.harmonic, c=effect.coupled)
-    factor = follower_factor(robot, j, effect.coupled) if effect.family == "joint_coupling" else None
-    if factor is not None:
-        what = (
-            f"joint {j} follows joint {effect.coupled} by a ratio other than the joint map's factor "
-            f"({factor:g} in size): the coupling's mechanism"
-        )
-    where = ""
-    if j is not None and 1 <= j <= robot.n_joints:
-        links = child_links(robot) if links is None else links
-        out["joint_name"], out["link"] = robot.joint_names[j - 1], links[j - 1]
-        where = f" (joint {j} is '{out['joint_name']}', moving link '{out['link']}')"
-    text = f"{what}{where}; at the reflector {med:.3g} mm median, {top:.3g} mm at most over the {size.size} "
-    text += "points"
-    if effect.family in (gb.FAMILY, lb.FAMILY):
-        text += ". " + _BASIS.format(n=effect.n_params)
-    return out | {"text": text}
-
-
-def describe_causes(causes: Sequence[Cause], robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
-    """``causes`` (:class:`~kpioed_drake.diagnosis.records.Cause`, the effects of ``fit`` in order)
-    with their ``description``: each one's contribution at ``fit`` on every row of ``prob``."""
-    _, _, E = prob.response(fit.model, fit.effects, np.arange(prob.data.n))
-    links, out, c = child_links(robot), [], 0
-    for cause, e in zip(causes, fit.effects, strict=True):
-        signal = E[:, :, c : c + e.n_params] @ e.value_array()
-        c += e.n_params
-        out.append(dataclasses.replace(cause, description=describe(cause.effect, robot, signal, links=links)))
-    return tuple(out)

@@ -6,17 +6,30 @@ in place. Each holds the numbers the report shows (JSON built from them by
 candidate's projected basis, its fit and held-out residuals). Effects are named by their canonical
 text (:attr:`kpioed_drake.effects.Effect.name`, e.g. ``gear_cyclic:4:2``) throughout: the keys of
 ``evidence`` and the names in ``removed``, ``added_with`` and the steps.
+
+:func:`describe_causes`: each named cause in words a calibration engineer reads: what it is
+physically, the joint and link it acts on, its size at the reflector over the data, and what a
+mass-free basis stands for. The size is that of the cause's contribution to the measurements at the
+fitted values (the linearised signal, its 3-D norm per measured point): median and largest over the
+data's rows [mm].
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from kpioed_drake import effects as fx
 from kpioed_drake.diagnosis.fit import Fit, FitProblem, HeldOutGain
+from kpioed_drake.effects import compliance as cp
+from kpioed_drake.effects import gravity_basis as gb
+from kpioed_drake.effects import lateral_basis as lb
+from kpioed_drake.effects.model import Effect
+from kpioed_drake.robot.drivetrain import follower_factor
+from kpioed_drake.robot.models import Robot
 
 
 def _statistics(test) -> dict:
@@ -289,3 +302,99 @@ class Cause:
     plausible_reason: str | None
     alternatives: tuple[Alternative, ...] = ()
     description: dict = dataclasses.field(default_factory=dict)
+
+
+_WHAT = {
+    "joint_elasticity": "joint {j} twists under the gravity torque it carries (a torsional compliance)",
+    gb.FAMILY: "joint {j} twists under the gravity torque of the links it carries",
+    "lateral_compliance": "the bearing of joint {j} tilts under the gravity moment across its axis",
+    lb.FAMILY: "the bearing of joint {j} tilts under the gravity moment of the links it carries, across "
+    "its axis",
+    "gear_cyclic": "the gear of joint {j} errs cyclically, {h} time(s) a turn of the joint",
+    "joint_scale": "the gear ratio (encoder scale) of joint {j} is off: an angle error growing with "
+    "the angle",
+    "joint_coupling": "joint {j} errs with the angle of joint {c}, whose axis its drive train crosses",
+    "backlash": "joint {j} has play: it rests on one flank or the other with the sign of its gravity torque",
+    "thermal_expansion": "the robot's links grow with the temperature",
+    "tracker_scale": "the tracker's distances scale with the temperature (the air's refractive index)",
+    "tracker_drift": "the tracker's frame drifts with the time",
+    cp.COLUMN: "the lifting column bends with the carriage height under the gravity moment above joint {j}",
+    cp.BASE: "the base (or floor) tilts under the robot's gravity moment",
+    cp.LATERAL: "the bearing of joint {j} tilts under the gravity moment across its axis",
+}
+"""What each effect family is, physically (``{j}``: joint, ``{h}``: harmonic, ``{c}``: coupled joint)."""
+
+_BASIS = (
+    "The model file gives no masses, so the torque is fitted as {n} combination(s) of the carried "
+    "links' mass moments (m, m c): the basis stands for the unknown masses and centres of mass times "
+    "the joint's compliance; it predicts the deflection at other poses, not the masses themselves"
+)
+
+
+def child_links(robot: Robot) -> tuple[str, ...]:
+    """The link each joint moves (its child link): a URDF robot's link names, else ``link i``."""
+    names = tuple(f"link {i}" for i in range(1, robot.n_joints + 1))
+    if robot.urdf is None:
+        return names
+    try:
+        root = ET.fromstring(robot.urdf.text)
+    except ET.ParseError:
+        return names
+    child = {
+        j.get("name"): j.find("child").get("link")
+        for j in root.findall("joint")
+        if j.find("child") is not None
+    }
+    return (
+        tuple(child.get(n, d) for n, d in zip(robot.urdf.joints, names, strict=False))
+        + names[len(robot.urdf.joints) :]
+    )
+
+
+def describe(
+    effect: Effect, robot: Robot, signal: np.ndarray, *, links: tuple[str, ...] | None = None
+) -> dict:
+    """The words and sizes of one named cause.
+
+    Args:
+        effect: the cause (:class:`~kpioed_drake.effects.Effect`, fitted).
+        robot: the robot (joint and link names).
+        signal: (n, 3) its contribution to the measured points [mm].
+        links: :func:`child_links` of ``robot`` (computed when None).
+
+    Returns:
+        ``{"text", "median_mm", "max_mm", "joint_name", "link"}`` (the last two for a joint's effect).
+    """
+    size = np.linalg.norm(np.asarray(signal, dtype=float), axis=1)
+    med, top = (float(np.median(size)), float(np.max(size))) if size.size else (0.0, 0.0)
+    out = {"median_mm": med, "max_mm": top}
+    j = effect.joint
+    what = _WHAT.get(effect.family, effect.family).format(j=j, h=effect.harmonic, c=effect.coupled)
+    factor = follower_factor(robot, j, effect.coupled) if effect.family == "joint_coupling" else None
+    if factor is not None:
+        what = (
+            f"joint {j} follows joint {effect.coupled} by a ratio other than the joint map's factor "
+            f"({factor:g} in size): the coupling's mechanism"
+        )
+    where = ""
+    if j is not None and 1 <= j <= robot.n_joints:
+        links = child_links(robot) if links is None else links
+        out["joint_name"], out["link"] = robot.joint_names[j - 1], links[j - 1]
+        where = f" (joint {j} is '{out['joint_name']}', moving link '{out['link']}')"
+    text = f"{what}{where}; at the reflector {med:.3g} mm median, {top:.3g} mm at most over the {size.size} "
+    text += "points"
+    if effect.family in (gb.FAMILY, lb.FAMILY):
+        text += ". " + _BASIS.format(n=effect.n_params)
+    return out | {"text": text}
+
+
+def describe_causes(causes: Sequence[Cause], robot: Robot, prob: FitProblem, fit: Fit) -> tuple:
+    """``causes`` (:class:`~kpioed_drake.diagnosis.records.Cause`, the effects of ``fit`` in order)
+    with their ``description``: each one's contribution at ``fit`` on every row of ``prob``."""
+    _, _, E = prob.response(fit.model, fit.effects, np.arange(prob.data.n))
+    links, out, c = child_links(robot), [], 0
+    for cause, e in zip(causes, fit.effects, strict=True):
+        signal = E[:, :, c : c + e.n_params] @ e.value_array()
+        c += e.n_params
+        out.append(dataclasses.replace(cause, description=describe(cause.effect, robot, signal, links=links)))
+    return tuple(out)

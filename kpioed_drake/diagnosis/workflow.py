@@ -34,7 +34,7 @@ from kpioed_drake.calibration.options import CalibrationOptions
 from kpioed_drake.calibration.report import CalibrationReport
 from kpioed_drake.calibration.workflow import stage_model
 from kpioed_drake.diagnosis import report as rp
-from kpioed_drake.diagnosis.alternatives import describe_causes, name_causes, replace_implausible, settle
+from kpioed_drake.diagnosis.alternatives import name_causes, replace_implausible, settle
 from kpioed_drake.diagnosis.elastic_basis import (
     basis_alternatives,
     basis_for,
@@ -44,7 +44,7 @@ from kpioed_drake.diagnosis.elastic_basis import (
 from kpioed_drake.diagnosis.fit import Fit, FitProblem
 from kpioed_drake.diagnosis.options import DEFAULT_SIGMA_MM, DiagnosisOptions
 from kpioed_drake.diagnosis.plots import write_plots
-from kpioed_drake.diagnosis.records import Selection
+from kpioed_drake.diagnosis.records import Selection, describe_causes
 from kpioed_drake.diagnosis.selection import candidate_effects, columns, score_tests, select_effects
 from kpioed_drake.diagnosis.sides import side_patterns, with_expected_sides
 from kpioed_drake.effects import gravity_basis as gb
