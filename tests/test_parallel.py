@@ -32,7 +32,7 @@ def test_bad_worker_counts_mean_one(monkeypatch, value):
 def test_search_batches_same_with_two_workers(monkeypatch):
     """The certificate search's local maxima: bitwise the same poses in worker processes as here."""
     problem = make_problem("kr16")
-    q0 = heuristic_design(problem, n=2 * search.SEARCH_BATCH + 3, seed=4)
+    q0 = heuristic_design(problem, n=2 * search.search_batch(problem.robot.n_joints) + 3, seed=4)
     Y = np.random.default_rng(4).normal(size=(problem.n_params, 3))
     out = {}
     for k in ("1", "2"):

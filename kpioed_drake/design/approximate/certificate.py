@@ -41,7 +41,8 @@ import threading
 import numpy as np
 
 from kpioed_drake import progress
-from kpioed_drake.design.approximate import certcache
+from kpioed_drake.design.approximate import certcache, search
+from kpioed_drake.design.approximate import design as column_generation
 from kpioed_drake.design.approximate.design import (
     ROUND_TOL,
     ApproximateDesign,
@@ -264,7 +265,8 @@ def with_noise(approx: ApproximateDesign, sigma: float) -> ApproximateDesign:
 
 
 def search_settings() -> dict:
-    """The settings of the search behind :func:`certified_design` (part of its disk-cache key)."""
+    """The settings of the search behind :func:`certified_design` (part of its disk-cache key): this
+    module's, the column generation's and the local maximisation's."""
     names = (
         "CERTIFY_ROUNDS",
         "VERIFY_ROUNDS",
@@ -273,7 +275,20 @@ def search_settings() -> dict:
         "PERTURB_RAD",
         "VERIFY_STARTS",
     )
-    return {name: globals()[name] for name in names}
+    generation = (
+        "POOL_POSES",
+        "SEARCH_STARTS",
+        "RANDOM_STARTS",
+        "FIRST_WORKING",
+        "WORKING_POSES",
+        "ROUND_TOL",
+    )
+    return {
+        **{name: globals()[name] for name in names},
+        **{name: getattr(column_generation, name) for name in (*generation, "CLARABEL_TOL")},
+        "SEARCH_VARIABLES": search.SEARCH_VARIABLES,
+        "SEARCH_OPTIONS": sorted(search.SEARCH_OPTIONS.items()),
+    }
 
 
 def _search(
