@@ -267,27 +267,12 @@ def with_noise(approx: ApproximateDesign, sigma: float) -> ApproximateDesign:
 def search_settings() -> dict:
     """The settings of the search behind :func:`certified_design` (part of its disk-cache key): this
     module's, the column generation's and the local maximisation's."""
-    names = (
-        "CERTIFY_ROUNDS",
-        "VERIFY_ROUNDS",
-        "VERIFY_POOL",
-        "CORNER_VARIANTS",
-        "PERTURB_RAD",
-        "VERIFY_STARTS",
-    )
-    generation = (
-        "POOL_POSES",
-        "SEARCH_STARTS",
-        "RANDOM_STARTS",
-        "FIRST_WORKING",
-        "WORKING_POSES",
-        "ROUND_TOL",
-    )
+    own = ("CERTIFY_ROUNDS", "VERIFY_ROUNDS", "VERIFY_POOL", "CORNER_VARIANTS", "PERTURB_RAD")
+    generation = ("POOL_POSES", "SEARCH_STARTS", "RANDOM_STARTS", "FIRST_WORKING", "WORKING_POSES")
     return {
-        **{name: globals()[name] for name in names},
-        **{name: getattr(column_generation, name) for name in (*generation, "CLARABEL_TOL")},
-        "SEARCH_VARIABLES": search.SEARCH_VARIABLES,
-        "SEARCH_OPTIONS": sorted(search.SEARCH_OPTIONS.items()),
+        **{name: globals()[name] for name in (*own, "VERIFY_STARTS")},
+        **{name: getattr(column_generation, name) for name in (*generation, "ROUND_TOL", "CLARABEL_TOL")},
+        **search.settings(),
     }
 
 

@@ -48,6 +48,11 @@ SEARCH_OPTIONS = {
 deep in incidence violation)."""
 
 
+def settings() -> dict:
+    """The local maximisation's settings (part of the certificate cache key)."""
+    return {"SEARCH_VARIABLES": SEARCH_VARIABLES, "SEARCH_OPTIONS": sorted(SEARCH_OPTIONS.items())}
+
+
 def search_batch(n_joints: int) -> int:
     """Starts per SNOPT solve of :func:`maximize_dual` on a robot of ``n_joints`` joints:
     :data:`SEARCH_VARIABLES` joint variables, at least one start."""
