@@ -310,11 +310,14 @@ def test_exchange_never_raises_the_criterion_and_its_updates_are_exact(kr16, sma
 def test_local_searches_per_solve_and_the_settings_in_the_cache_key(monkeypatch):
     """About 48 joint variables per SNOPT solve: 8 starts of a six-joint robot, 2 of the twin."""
     assert [search_batch(nj) for nj in (6, 7, 11, 18, 60)] == [8, 6, 4, 2, 1]
+    # per column-generation round: 24 starts of six joints (8 random), 12 of the twin (4 random)
+    assert [search.round_starts(nj) for nj in (6, 7, 18)] == [(24, 8), (20, 6), (12, 4)]
     base = certificate.search_settings()
     for module, name, value in (
         (search, "SEARCH_VARIABLES", 24),
         (search, "SEARCH_OPTIONS", {**search.SEARCH_OPTIONS, "Major optimality tolerance": 1e-4}),
-        (column_generation, "SEARCH_STARTS", 12),
+        (search, "ROUND_VARIABLES", 72),
+        (column_generation, "WORKING_POSES", 100),
         (certificate, "VERIFY_POOL", 100),
     ):
         with monkeypatch.context() as m:

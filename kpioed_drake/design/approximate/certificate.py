@@ -268,7 +268,7 @@ def search_settings() -> dict:
     """The settings of the search behind :func:`certified_design` (part of its disk-cache key): this
     module's, the column generation's and the local maximisation's."""
     own = ("CERTIFY_ROUNDS", "VERIFY_ROUNDS", "VERIFY_POOL", "CORNER_VARIANTS", "PERTURB_RAD")
-    generation = ("POOL_POSES", "SEARCH_STARTS", "RANDOM_STARTS", "FIRST_WORKING", "WORKING_POSES")
+    generation = ("POOL_POSES", "FIRST_WORKING", "WORKING_POSES")
     return {
         **{name: globals()[name] for name in (*own, "VERIFY_STARTS")},
         **{name: getattr(column_generation, name) for name in (*generation, "ROUND_TOL", "CLARABEL_TOL")},

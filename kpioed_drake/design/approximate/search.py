@@ -48,9 +48,26 @@ SEARCH_OPTIONS = {
 deep in incidence violation)."""
 
 
+ROUND_VARIABLES = 144
+"""Joint variables of the column generation's local maximisations per round (:func:`round_starts`):
+24 starts on a six-joint robot. On many joints a start costs more, while the rounds (cone programs),
+not the starts per round, set how fast the column generation converges (docs/certificate.md)."""
+ROUND_STARTS_MIN = 12
+"""Fewest local maximisations per round (:func:`round_starts`)."""
+
+
+def round_starts(n_joints: int) -> tuple[int, int]:
+    """Local maximisations of ``g`` per column-generation round on a robot of ``n_joints`` joints
+    (:data:`ROUND_VARIABLES` joint variables, at least :data:`ROUND_STARTS_MIN`) and how many of
+    them start from random candidates (a third; the rest from the candidates of largest ``g``)."""
+    starts = max(ROUND_STARTS_MIN, ROUND_VARIABLES // int(n_joints))
+    return starts, starts // 3
+
+
 def settings() -> dict:
-    """The local maximisation's settings (part of the certificate cache key)."""
-    return {"SEARCH_VARIABLES": SEARCH_VARIABLES, "SEARCH_OPTIONS": sorted(SEARCH_OPTIONS.items())}
+    """The local maximisations' settings (part of the certificate cache key)."""
+    local = ("SEARCH_VARIABLES", "ROUND_VARIABLES", "ROUND_STARTS_MIN")
+    return {**{name: globals()[name] for name in local}, "SEARCH_OPTIONS": sorted(SEARCH_OPTIONS.items())}
 
 
 def search_batch(n_joints: int) -> int:
