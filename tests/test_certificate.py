@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from kpioed_drake.design import check_design, heuristic_design, settings
-from kpioed_drake.design.approximate import certcache, certificate
+from kpioed_drake.design.approximate import certcache, certificate, search
+from kpioed_drake.design.approximate import design as column_generation
 from kpioed_drake.design.approximate.certificate import (
     certified_design,
     certify,
@@ -31,6 +32,7 @@ from kpioed_drake.design.approximate.search import (
     dual_values,
     maximize_dual,
     pose_rows,
+    search_batch,
 )
 from kpioed_drake.estimation.problem import make_problem
 
@@ -303,6 +305,25 @@ def test_exchange_never_raises_the_criterion_and_its_updates_are_exact(kr16, sma
     q0 = approximate_start(kr16, n=60, approx=a)
     c1 = exchange_counts(F, K, efficient_rounding(a.w, 60))
     assert _kpi(kr16, q0) == pytest.approx(np.sum(K * np.linalg.solve(np.einsum("i,ikl->kl", c1, G), K)))
+
+
+def test_local_searches_per_solve_and_the_settings_in_the_cache_key(monkeypatch):
+    """About 48 joint variables per SNOPT solve: 8 starts of a six-joint robot, 2 of the twin."""
+    assert [search_batch(nj) for nj in (6, 7, 11, 18, 60)] == [8, 6, 4, 2, 1]
+    # per column-generation round: 24 starts of six joints (8 random), 12 of the twin (4 random)
+    assert [search.round_starts(nj) for nj in (6, 7, 18)] == [(24, 8), (20, 6), (12, 4)]
+    base = certificate.search_settings()
+    for module, name, value in (
+        (search, "SEARCH_VARIABLES", 24),
+        (search, "SEARCH_OPTIONS", {**search.SEARCH_OPTIONS, "Major optimality tolerance": 1e-4}),
+        (search, "ROUND_VARIABLES", 72),
+        (column_generation, "WORKING_POSES", 100),
+        (certificate, "VERIFY_POOL", 100),
+    ):
+        with monkeypatch.context() as m:
+            m.setattr(module, name, value)
+            assert certificate.search_settings() != base, name
+    assert certificate.search_settings() == base
 
 
 def test_disk_cache_of_the_certificate_search(kr16, small_approx, tmp_path, monkeypatch):

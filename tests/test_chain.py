@@ -14,10 +14,15 @@ from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.estimation.problem import make_problem
 from kpioed_drake.robot.geometry import ClearanceModel
-from kpioed_drake.robot.kinematics import forward_kinematics, point_jacobian, point_velocity_jacobian
+from kpioed_drake.robot.kinematics import (
+    forward_kinematics,
+    link_frames,
+    point_jacobian,
+    point_velocity_jacobian,
+)
 from kpioed_drake.robot.models import MODELS_DIR, load_cell, load_robot
 from kpioed_drake.robot.plant import MM, build_scene
-from kpioed_drake.tracker.measurement import measure, measurement_jacobian, nominal_model
+from kpioed_drake.tracker.measurement import incidence_cosines, measure, measurement_jacobian, nominal_model
 
 UR5_URDF = str(MODELS_DIR / "robots" / "ur5.urdf")
 
@@ -228,3 +233,19 @@ def test_a_rounded_right_angle_keeps_the_gauge(tmp_path):
     assert rounded.gauge == exact.gauge
     rep = check_identifiability(rounded, load_cell(robot=rounded), seed=3)
     assert rep.identifiable and rep.rank == rep.n_candidates == 29
+
+
+@pytest.mark.parametrize("name", ["lift7", "models/robots/humanoid18.urdf", "kr16"])
+def test_link_frames_are_those_of_the_forward_kinematics_bit_for_bit(name):
+    """The random pools' feasibility check uses the link frames alone: the same numbers."""
+    robot = load_robot(name)
+    q = _poses(robot, 300, 11)
+    full, links = forward_kinematics(robot, q), link_frames(robot, q)
+    np.testing.assert_array_equal(links.R, full.R)
+    np.testing.assert_array_equal(links.o, full.o)
+    model = nominal_model(robot, load_cell(robot=robot))
+    np.testing.assert_array_equal(
+        incidence_cosines(model, q, frames=links), incidence_cosines(model, q, frames=full)
+    )
+    if robot.chain is not None:  # no elements: these frames serve no Jacobian
+        assert links.elem_u.shape[1] == 0 and links.joint_axes.shape[1] == 0

@@ -29,10 +29,12 @@ def test_bad_worker_counts_mean_one(monkeypatch, value):
     assert parallel.workers() == 1
 
 
-def test_search_batches_same_with_two_workers(monkeypatch):
-    """The certificate search's local maxima: bitwise the same poses in worker processes as here."""
-    problem = make_problem("kr16")
-    q0 = heuristic_design(problem, n=2 * search.SEARCH_BATCH + 3, seed=4)
+@pytest.mark.parametrize("robot", ["kr16", "models/robots/humanoid18.urdf"])
+def test_search_batches_same_with_two_workers(monkeypatch, robot):
+    """The certificate search's local maxima: bitwise the same poses in worker processes as here
+    (8 starts per solve on six joints, 2 on the 18-joint twin)."""
+    problem = make_problem(robot)
+    q0 = heuristic_design(problem, n=2 * search.search_batch(problem.robot.n_joints) + 3, seed=4)
     Y = np.random.default_rng(4).normal(size=(problem.n_params, 3))
     out = {}
     for k in ("1", "2"):

@@ -20,7 +20,7 @@ from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.jointmap import commandable_projection
-from kpioed_drake.robot.kinematics import forward_kinematics
+from kpioed_drake.robot.kinematics import link_frames
 from kpioed_drake.tracker.measurement import incidence_cosines
 
 PARALLEL_POSES = 1000
@@ -72,7 +72,7 @@ def heuristic_design(
 
     def feasible(q: np.ndarray) -> np.ndarray:
         """(b,) bool: the poses ``q`` (b, n_joints) within the incidence limit, the box and the margin."""
-        frames = forward_kinematics(robot, q)
+        frames = link_frames(robot, q)  # the link frames alone: most draws fail the incidence
         ok = np.all(incidence_cosines(problem.model, q, frames=frames) >= cos_max, axis=1)
         ok &= np.all((q >= robot.lower) & (q <= robot.upper), axis=1)  # a coupling may leave the box
         if cm is not None and ok.any():

@@ -41,7 +41,8 @@ import threading
 import numpy as np
 
 from kpioed_drake import progress
-from kpioed_drake.design.approximate import certcache
+from kpioed_drake.design.approximate import certcache, search
+from kpioed_drake.design.approximate import design as column_generation
 from kpioed_drake.design.approximate.design import (
     ROUND_TOL,
     ApproximateDesign,
@@ -264,16 +265,15 @@ def with_noise(approx: ApproximateDesign, sigma: float) -> ApproximateDesign:
 
 
 def search_settings() -> dict:
-    """The settings of the search behind :func:`certified_design` (part of its disk-cache key)."""
-    names = (
-        "CERTIFY_ROUNDS",
-        "VERIFY_ROUNDS",
-        "VERIFY_POOL",
-        "CORNER_VARIANTS",
-        "PERTURB_RAD",
-        "VERIFY_STARTS",
-    )
-    return {name: globals()[name] for name in names}
+    """The settings of the search behind :func:`certified_design` (part of its disk-cache key): this
+    module's, the column generation's and the local maximisation's."""
+    own = ("CERTIFY_ROUNDS", "VERIFY_ROUNDS", "VERIFY_POOL", "CORNER_VARIANTS", "PERTURB_RAD")
+    generation = ("POOL_POSES", "FIRST_WORKING", "WORKING_POSES")
+    return {
+        **{name: globals()[name] for name in (*own, "VERIFY_STARTS")},
+        **{name: getattr(column_generation, name) for name in (*generation, "ROUND_TOL", "CLARABEL_TOL")},
+        **search.settings(),
+    }
 
 
 def _search(

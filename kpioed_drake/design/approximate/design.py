@@ -41,6 +41,7 @@ import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
 
 from kpioed_drake import progress
+from kpioed_drake.design.approximate import search
 from kpioed_drake.design.approximate.search import corner_poses, dual_values, maximize_dual, pose_rows
 from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.errors import InputError
@@ -48,10 +49,6 @@ from kpioed_drake.estimation.problem import Problem
 
 POOL_POSES = 2000
 """Random feasible poses the column generation starts from."""
-SEARCH_STARTS = 24
-"""Local maximisations of ``g`` per round."""
-RANDOM_STARTS = 8
-"""Of those, started from random candidates (the rest from the candidates of largest ``g``)."""
 ROUNDS = 6
 """Column-generation rounds of :func:`approximate_design` by default."""
 START_POOL = 1000
@@ -62,7 +59,7 @@ START_ROUNDS = 4
 START_SEARCHES = 12
 """Its local maximisations of ``g`` per round, :data:`START_RANDOM` of them from random candidates.
 With :data:`START_POOL` and :data:`START_ROUNDS`, the start's column generation costs about half of
-one with :data:`POOL_POSES`, :data:`ROUNDS` and :data:`SEARCH_STARTS`; less work gives a poorer
+one with :data:`POOL_POSES`, :data:`ROUNDS` and 24 searches; less work gives a poorer
 start, from which SNOPT ends higher and often takes longer (docs/certificate.md, design notes)."""
 START_RANDOM = 4
 EXCHANGE_ITER = 200
@@ -275,8 +272,8 @@ def approximate_design(
     seed: int = 0,
     max_rounds: int = ROUNDS,
     pool: int = POOL_POSES,
-    starts: int = SEARCH_STARTS,
-    random_starts: int = RANDOM_STARTS,
+    starts: int | None = None,
+    random_starts: int | None = None,
     tol: float = ROUND_TOL,
     warm: ApproximateDesign | None = None,
     first_working: int = FIRST_WORKING,
@@ -292,7 +289,8 @@ def approximate_design(
         max_rounds: most rounds (in all, with those of ``warm``).
         pool: random feasible poses to start from (:func:`heuristic_design`, zero margin); their
             feasible variants with joints at limits (:func:`corner_poses`) join them.
-        starts: local maximisations per round, ``random_starts`` of them from random candidates.
+        starts: local maximisations per round, ``random_starts`` of them from random candidates
+            (None: :func:`.search.round_starts` of the robot).
         tol: stop when nothing searched has ``g > 1 + tol``.
         warm: continue from this design's candidates (same problem and ``collision``).
         first_working: pool poses in the first cone program; working: candidates of largest ``g``
@@ -303,6 +301,8 @@ def approximate_design(
         :class:`ApproximateDesign`.
     """
     t0 = time.perf_counter()
+    s0, r0 = search.round_starts(problem.robot.n_joints)
+    starts, random_starts = s0 if starts is None else starts, r0 if random_starts is None else random_starts
     rng = np.random.default_rng(seed)
     K = kpi_factor(problem)
     q, F, done, n_searched, before_s, work = _first_pool(

@@ -34,9 +34,11 @@ from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.kinematics import Frames
 
-SEARCH_BATCH = 8
-"""Starts per SNOPT solve of the local maximisation: faster than one start per solve or all starts in
-one, which mostly ends infeasible (docs/certificate.md, design notes)."""
+SEARCH_VARIABLES = 48
+"""Joint variables per SNOPT solve of the local maximisation: :func:`search_batch` starts per solve
+(8 on a six-joint robot, 2 on the 18-joint twin). Independent starts share the solver's steps, so a
+solve takes the iterations of its slowest start; few starts per solve pay Python's overhead per
+evaluation instead (docs/certificate.md, design notes)."""
 SEARCH_OPTIONS = {
     "Major optimality tolerance": 1e-5,
     "Major feasibility tolerance": 1e-7,
@@ -44,6 +46,34 @@ SEARCH_OPTIONS = {
 }
 """SNOPT options of the local maximisation (step limit as in the design: long first steps left poses
 deep in incidence violation)."""
+
+
+ROUND_VARIABLES = 144
+"""Joint variables of the column generation's local maximisations per round (:func:`round_starts`):
+24 starts on a six-joint robot. On many joints a start costs more, while the rounds (cone programs),
+not the starts per round, set how fast the column generation converges (docs/certificate.md)."""
+ROUND_STARTS_MIN = 12
+"""Fewest local maximisations per round (:func:`round_starts`)."""
+
+
+def round_starts(n_joints: int) -> tuple[int, int]:
+    """Local maximisations of ``g`` per column-generation round on a robot of ``n_joints`` joints
+    (:data:`ROUND_VARIABLES` joint variables, at least :data:`ROUND_STARTS_MIN`) and how many of
+    them start from random candidates (a third; the rest from the candidates of largest ``g``)."""
+    starts = max(ROUND_STARTS_MIN, ROUND_VARIABLES // int(n_joints))
+    return starts, starts // 3
+
+
+def settings() -> dict:
+    """The local maximisations' settings (part of the certificate cache key)."""
+    local = ("SEARCH_VARIABLES", "ROUND_VARIABLES", "ROUND_STARTS_MIN")
+    return {**{name: globals()[name] for name in local}, "SEARCH_OPTIONS": sorted(SEARCH_OPTIONS.items())}
+
+
+def search_batch(n_joints: int) -> int:
+    """Starts per SNOPT solve of :func:`maximize_dual` on a robot of ``n_joints`` joints:
+    :data:`SEARCH_VARIABLES` joint variables, at least one start."""
+    return max(1, SEARCH_VARIABLES // int(n_joints))
 
 
 def pose_rows(problem: Problem, q: np.ndarray) -> np.ndarray:
@@ -88,7 +118,7 @@ def maximize_dual(
     """Local maxima of ``g(x) = ||F_x Y||_F^2`` over the feasible poses, one from each start.
 
     SNOPT solves the separable problem ``max sum_i g(x_i)`` (independent problems solved together)
-    for :data:`SEARCH_BATCH` starts at a time (the batches in worker processes,
+    for :func:`search_batch` starts at a time (the batches in worker processes,
     :func:`kpioed_drake.parallel.independent`: the same poses with any number of workers), under
     the design's constraint rows (joint limits, incidence, with ``collision`` the clearances;
     :class:`DesignProgram` with its margins).
@@ -103,7 +133,8 @@ def maximize_dual(
     """
     if problem.worst_case:  # the constraint rows without the worst case's epigraph variable
         problem = dataclasses.replace(problem, kpi_aggregate="mean")
-    batches = [q_start[k0 : k0 + SEARCH_BATCH] for k0 in range(0, q_start.shape[0], SEARCH_BATCH)]
+    b = search_batch(problem.robot.n_joints)
+    batches = [q_start[k0 : k0 + b] for k0 in range(0, q_start.shape[0], b)]
     out = parallel.independent(
         lambda i: _local_maxima(problem, batches[i], Y, collision=collision), len(batches)
     )
@@ -170,12 +201,17 @@ def perturbed_poses(
 
 COLD_SEARCH_UNITS = 45_000.0
 """CPU time of a cold :func:`certified_design` of a six-joint robot in units of one evaluation of
-``F1`` and ``dF1/dq`` at :data:`~kpioed_drake.design.approximate.search.SEARCH_BATCH` poses
-(measured: kr16, 60 poses, 44,900 units; the 18-joint twin with two targets about 160,000, hence
-the growth :data:`COLD_SEARCH_GROWTH` with the joints): a rough estimate, to tell a user before a
-run of minutes."""
-COLD_SEARCH_GROWTH = 1.15
+``F1`` and ``dF1/dq`` at :data:`ESTIMATE_POSES` poses
+(measured: kr16, 60 poses, 44,900 units; the 18-joint twin with two targets about 160,000 before
+its local searches took 2 starts per solve and 12 per round, about 80,000 since, hence the growth
+:data:`COLD_SEARCH_GROWTH` with the joints): a rough estimate, to tell a user before a run of
+minutes."""
+COLD_SEARCH_GROWTH = 0.5
 """Exponent of the joint count in :func:`cold_search_estimate_s`."""
+
+
+ESTIMATE_POSES = 8
+"""Poses of the timed evaluation that is the unit of :data:`COLD_SEARCH_UNITS`."""
 
 
 def cold_search_estimate_s(problem: Problem, *, evaluations: int = 5) -> float:
@@ -183,7 +219,7 @@ def cold_search_estimate_s(problem: Problem, *, evaluations: int = 5) -> float:
     evaluations of ``F1`` with ``dF1/dq`` at seeded poses in the limits, times
     :data:`COLD_SEARCH_UNITS` grown with the joint count."""
     robot = problem.robot
-    q = np.random.default_rng(0).uniform(robot.lower, robot.upper, size=(SEARCH_BATCH, robot.n_joints))
+    q = np.random.default_rng(0).uniform(robot.lower, robot.upper, size=(ESTIMATE_POSES, robot.n_joints))
     problem.F1(q, with_dq=True)
     t0 = time.process_time()
     for _ in range(evaluations):
