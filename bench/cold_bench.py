@@ -54,7 +54,10 @@ def _run(cmd: list[str], env: dict) -> tuple[float, float, int]:
 
 
 def _env(cache: Path, workers: str | None) -> dict:
-    env = dict(os.environ, KPIOED_CACHE=str(cache), KPIOED_PROGRESS="0")
+    # one BLAS thread as the package sets on import (the diagnosis rows import numpy before it, and
+    # multi-threaded BLAS in forked workers oversubscribes the cores: 164 s instead of 45 s measured)
+    blas = {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    env = dict(os.environ, KPIOED_CACHE=str(cache), KPIOED_PROGRESS="0", **blas)
     env.pop("KPIOED_WORKERS", None)
     if workers is not None:
         env["KPIOED_WORKERS"] = workers
@@ -62,6 +65,14 @@ def _env(cache: Path, workers: str | None) -> dict:
 
 
 WORKERS = (("one process", "1"), ("default workers", None))
+
+BEFORE = (
+    "Before (commit e097aba, this bench then, alone on the 2-core machine; the diagnosis rows then ran",
+    "with the BLAS threads numpy starts by default): kr16 cold 23.2 s one process, 21.5 s default",
+    "workers, efficiency 0.987; twin cold 360.5 s and 286.2 s, efficiency 0.981; two-arm diagnosis",
+    "stand-in 94.6 s and 62.8 s.",
+)
+"""The rows of the previous revision, for the before/after the targets ask for (not re-run here)."""
 
 
 def design_rows(tmp: Path) -> tuple[list[str], dict]:
@@ -146,6 +157,8 @@ def main() -> int:
         *g_rows,
         "",
         *target_lines(designs, diagnosis),
+        "",
+        *BEFORE,
         "",
         f"`bench/cold_bench.py`, each job in a fresh process with an empty certificate cache; cores: "
         f"{os.cpu_count()}; load average after the rows: {load:.2f}.",
