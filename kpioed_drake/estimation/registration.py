@@ -53,12 +53,7 @@ def register_tracker(p_W: np.ndarray, p_T: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def registered_model(
-    model: TrackerModel,
-    q: np.ndarray,
-    eta: np.ndarray,
-    *,
-    target: np.ndarray | None = None,
-    R_TP: np.ndarray | None = None,
+    model: TrackerModel, q: np.ndarray, eta: np.ndarray, *, target: np.ndarray | None, R_TP: np.ndarray | None
 ) -> TrackerModel:
     """``model`` with the tracker pose replaced by the registration of its reflector points to ``eta``.
 

@@ -75,6 +75,7 @@ REFINEMENTS = 3
 """Most times the polished design's poses, beyond the search, join the candidates and the column
 generation continues (for :data:`REFINE_ROUNDS` more rounds at most)."""
 REFINE_ROUNDS = 10
+"""Most column-generation rounds after each refinement."""
 POLISH_STEPS = 200
 """Most steps of :func:`polish_on_surfaces`."""
 VERIFY_POOL = 2000
