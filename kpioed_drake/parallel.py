@@ -56,6 +56,21 @@ def _run(arg: Any) -> object:
     return _TASKS[-1](arg)
 
 
+@contextlib.contextmanager
+def _forked(task: Callable[[Any], object], k: int) -> Iterator[Any]:
+    """Within the block, ``k`` worker processes forked now that run ``task`` (by :func:`_run`), ended
+    on leaving it; None for ``k`` <= 1 (the caller's loop runs here)."""
+    if k <= 1:
+        yield None
+        return
+    _TASKS.append(task)
+    try:
+        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as forked:
+            yield forked
+    finally:
+        _TASKS.pop()
+
+
 def independent(task: Callable[[int], T], n: int, *, parallel: bool = True) -> list[T]:
     """``[task(0), ..., task(n - 1)]``; with ``parallel`` and two tasks or more, in worker processes
     forked from this one (at most :func:`workers`, at most ``n``), each task whole in one worker, in
@@ -80,15 +95,11 @@ def pool(
     inherit ``task``'s data at the fork, and each round sends only its arguments (pickled).
     """
     k = min(workers(), most if most is not None else workers()) if parallel else 1
-    if k <= 1:
-        yield lambda args: [task(a) for a in args]
-        return
-    _TASKS.append(task)
-    try:
-        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
-            yield lambda args: workers_pool.map(_run, args, chunksize=1)
-    finally:
-        _TASKS.pop()
+    with _forked(task, k) as forked:
+        if forked is None:
+            yield lambda args: [task(a) for a in args]
+        else:
+            yield lambda args: forked.map(_run, args, chunksize=1)
 
 
 @contextlib.contextmanager
@@ -103,12 +114,5 @@ def ordered(task: Callable[[int], T], n: int, *, parallel: bool = True) -> Itera
     workers.
     """
     k = min(workers(), n) if parallel else 1
-    if k <= 1:
-        yield (task(i) for i in range(n))
-        return
-    _TASKS.append(task)
-    try:
-        with mp.get_context("fork").Pool(k, initializer=_quiet_worker) as workers_pool:
-            yield workers_pool.imap(_run, range(n), chunksize=1)
-    finally:
-        _TASKS.pop()
+    with _forked(task, k) as forked:
+        yield (task(i) for i in range(n)) if forked is None else forked.imap(_run, range(n), chunksize=1)

@@ -277,6 +277,13 @@ def _renumbered(ids: np.ndarray) -> np.ndarray:
     return out
 
 
+def _row_fields(f: dict, robot) -> dict:
+    """The ``from_arrays`` arguments every contact file gives alike (sigmas, targets, source, rows),
+    from a file reader's dict, and the robot's joint count."""
+    keys = {"sigma_mm": "sigma", "target": "target", "source": "source", "rows": "rows"}
+    return {name: f[key] for name, key in keys.items()} | {"n_joints": robot.n_joints}
+
+
 def read_planes(path, robot, *, n_planes: int | None = None, renumber: bool = False) -> PlaneData:
     """A plane-contact file (:func:`kpioed_drake.files.contacts.read_plane_file`) as :class:`PlaneData`:
     checked as a fit needs its rows (``n_planes`` None), or held-out rows of ``n_planes`` known planes
@@ -287,16 +294,7 @@ def read_planes(path, robot, *, n_planes: int | None = None, renumber: bool = Fa
         return PlaneData(**f)
     if renumber:
         f["plane"] = _renumbered(f["plane"])
-    return PlaneData.from_arrays(
-        f["q"],
-        f["plane"],
-        distance_mm=f["distance"],
-        sigma_mm=f["sigma"],
-        target=f["target"],
-        n_joints=robot.n_joints,
-        source=f["source"],
-        rows=f["rows"],
-    )
+    return PlaneData.from_arrays(f["q"], f["plane"], distance_mm=f["distance"], **_row_fields(f, robot))
 
 
 def read_distances(
@@ -317,9 +315,5 @@ def read_distances(
         q_other=f["q_other"] if pair.any() else None,
         pivot=f["pivot"],
         bar=f["bar"],
-        sigma_mm=f["sigma"],
-        target=f["target"],
-        n_joints=robot.n_joints,
-        source=f["source"],
-        rows=f["rows"],
+        **_row_fields(f, robot),
     )
