@@ -2,6 +2,7 @@
 (revolute and prismatic joints), the automatic gauge and the UR5's URDF twin."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -9,11 +10,14 @@ from fd import central_fd
 from numpy.testing import assert_allclose
 
 from kpioed_drake.design.exact.constraints import incidence_rows
+from kpioed_drake.design.heuristic import heuristic_design
 from kpioed_drake.effects import gravity_basis as gb
 from kpioed_drake.effects.gravity import gravity_model, gravity_torques
 from kpioed_drake.estimation.identifiability import check_identifiability
 from kpioed_drake.estimation.problem import make_problem
+from kpioed_drake.robot.chain import chain_links
 from kpioed_drake.robot.geometry import ClearanceModel
+from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.kinematics import (
     forward_kinematics,
     link_frames,
@@ -249,3 +253,52 @@ def test_link_frames_are_those_of_the_forward_kinematics_bit_for_bit(name):
     )
     if robot.chain is not None:  # no elements: these frames serve no Jacobian
         assert links.elem_u.shape[1] == 0 and links.joint_axes.shape[1] == 0
+
+
+@pytest.mark.parametrize(("name", "skipped"), [("models/robots/humanoid18.urdf", 7), ("lift7", 0)])
+def test_frames_on_a_path_are_those_of_all_links_bit_for_bit(name, skipped):
+    """The pools compute a target's incidence from the links on its path alone: the same numbers,
+    for all poses or a subset of them, and NaN off the path (the twin's other arm: 7 joints)."""
+    robot = load_robot(name)
+    q = _poses(robot, 300, 12)
+    R, o = chain_links(robot.chain, q, robot.geometry)
+    for link in robot.target_frames:
+        on = np.flatnonzero(robot.chain.paths[link]) + 1
+        off = np.setdiff1d(np.arange(1, robot.n_joints + 1), on)
+        assert off.size == skipped
+        for rows in (slice(None), slice(5, None, 7)):
+            R_path, o_path = chain_links(robot.chain, q[rows], robot.geometry, path_to=int(link))
+            np.testing.assert_array_equal(R_path[:, on], R[rows][:, on])
+            np.testing.assert_array_equal(o_path[:, on], o[rows][:, on])
+            np.testing.assert_array_equal(R_path[:, 0], R[rows][:, 0])
+            assert np.isnan(R_path[:, off]).all() and np.isnan(o_path[:, off]).all()
+
+
+def _all_frames_design(problem, n, seed, batch=4096):
+    """The heuristic the earlier way: every link frame, every target's incidence of every draw."""
+    robot = problem.robot
+    rng = np.random.default_rng(seed)
+    cm = ClearanceModel(robot, problem.cell)
+    kept, n_kept = [], 0
+    while n_kept < n:
+        q = commandable_projection(robot, rng.uniform(robot.lower, robot.upper, size=(batch, robot.n_joints)))
+        cos = incidence_cosines(problem.model, q, frames=link_frames(robot, q))
+        ok = np.all(cos >= math.cos(problem.cell.max_incidence), axis=1)
+        ok &= np.all((q >= robot.lower) & (q <= robot.upper), axis=1)
+        ok[ok] = np.all(cm.values(q[ok]) >= 0.0, axis=1)
+        kept.append(q[ok])
+        n_kept += int(ok.sum())
+    return np.concatenate(kept)[:n]
+
+
+@pytest.mark.parametrize(
+    ("name", "n"),
+    [("models/robots/humanoid18.urdf", 300), ("kr16", 300), ("models/robots/column8.urdf", 200)],
+)
+def test_heuristic_keeps_the_poses_of_all_frames_and_all_targets(name, n):
+    """Checked target by target on the links of each target's path (the twin: two hands, a coupled
+    torso; column8: a mimic joint; kr16: DH), the heuristic keeps the same poses, bit for bit."""
+    robot = load_robot(name)
+    problem = make_problem(robot, q_work=np.zeros(robot.n_joints) if robot.q_work is None else None)
+    q = heuristic_design(problem, n=n, seed=5, collision=True, margin_mm=0.0, max_draws=10**7)
+    np.testing.assert_array_equal(q, _all_frames_design(problem, n, 5))

@@ -21,7 +21,7 @@ from kpioed_drake.estimation.problem import Problem
 from kpioed_drake.robot.geometry import ClearanceModel
 from kpioed_drake.robot.jointmap import commandable_projection
 from kpioed_drake.robot.kinematics import link_frames
-from kpioed_drake.tracker.measurement import incidence_cosines
+from kpioed_drake.tracker.measurement import target_incidence
 
 PARALLEL_POSES = 1000
 """Designs of this many poses or more (the certificate's pools of random poses) check their batches of
@@ -58,7 +58,7 @@ def heuristic_design(
         batch: poses drawn per vectorised feasibility evaluation.
 
     Returns:
-        q: (n, 6) [rad].
+        q: (n, n_joints) [rad, mm].
 
     Raises:
         InputError: fewer than ``n`` feasible poses in ``max_draws`` draws.
@@ -72,9 +72,10 @@ def heuristic_design(
 
     def feasible(q: np.ndarray) -> np.ndarray:
         """(b,) bool: the poses ``q`` (b, n_joints) within the incidence limit, the box and the margin."""
-        frames = link_frames(robot, q)  # the link frames alone: most draws fail the incidence
-        ok = np.all(incidence_cosines(problem.model, q, frames=frames) >= cos_max, axis=1)
-        ok &= np.all((q >= robot.lower) & (q <= robot.upper), axis=1)  # a coupling may leave the box
+        ok = np.all((q >= robot.lower) & (q <= robot.upper), axis=1)  # a coupling may leave the box
+        for t in range(problem.model.layout.n_targets):  # most draws fail the first target's incidence
+            if ok.any():
+                ok[ok] = _within_incidence(problem, q[ok], t, cos_max)
         if cm is not None and ok.any():
             ok[ok] = np.all(cm.values(q[ok]) >= margin_mm, axis=1)
         return ok
@@ -111,3 +112,12 @@ def heuristic_design(
             "incidence limit) and the robot's joint limits"
         )
     return q
+
+
+def _within_incidence(problem: Problem, q: np.ndarray, target: int, cos_max: float) -> np.ndarray:
+    """(b,) bool: the poses ``q`` (b, n_joints) [rad, mm] whose incidence cosine to ``target``
+    (0-based) is at least ``cos_max``, from the link frames on the path to the target's link alone
+    (a tree's other arms are not computed)."""
+    link = int(problem.model.robot.target_frames[target])
+    frames = link_frames(problem.robot, q, path_to=link)
+    return target_incidence(problem.model, q, target, frames=frames) >= cos_max

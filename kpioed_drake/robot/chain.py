@@ -196,13 +196,17 @@ def joint_constants(chain: Chain, errors: np.ndarray) -> np.ndarray:
     return G
 
 
-def _link_loop(chain: Chain, q: np.ndarray, errors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _link_loop(
+    chain: Chain, q: np.ndarray, errors: np.ndarray, joints: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The joint loop of :func:`chain_frames`: link rotations ``R`` (nj+1, n, 3, 3) and origins
     ``o`` (nj+1, n, 3) [mm], joint-major, and every product ``G`` (nj, n, 3, 16) of a parent's
     rotation with a joint's constants.
 
     The loop does only what the next joint needs (one ``(3 n, 3) @ (3, 16)`` product of the
-    parent's rotation with the joint's constants, and the joint's frame)."""
+    parent's rotation with the joint's constants, and the joint's frame). ``joints`` (k,): the
+    0-based joints it visits, ascending, each with its parent (None: all); the other joints' links
+    and products are left unset (``numpy.empty``)."""
     n, nj = q.shape
     parent = chain.parents
     constants = joint_constants(chain, errors)
@@ -213,7 +217,7 @@ def _link_loop(chain: Chain, q: np.ndarray, errors: np.ndarray) -> tuple[np.ndar
     o = np.empty((nj + 1, n, 3))
     R[0], o[0] = np.eye(3), 0.0
     G = np.empty((nj, n, 3, 16))  # every product of the parent's rotation with a constant
-    for i in range(nj):
+    for i in range(nj) if joints is None else joints:
         f = parent[i] + 1
         np.matmul(R[f].reshape(3 * n, 3), constants[i], out=G[i].reshape(3 * n, 16))
         Gi = G[i]
@@ -227,11 +231,22 @@ def _link_loop(chain: Chain, q: np.ndarray, errors: np.ndarray) -> tuple[np.ndar
     return R, o, G
 
 
-def chain_links(chain: Chain, q: np.ndarray, errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def chain_links(
+    chain: Chain, q: np.ndarray, errors: np.ndarray, *, path_to: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The link frames of :func:`chain_frames` alone (the same numbers, bit for bit, about a third
     of its time on many poses): rotations (n, nj+1, 3, 3) and origins (n, nj+1, 3) [mm] of ``q``
-    (n, nj) [rad or mm] with placement errors ``errors`` (nj, 7)."""
-    R, o, _ = _link_loop(chain, q, errors)
+    (n, nj) [rad or mm] with placement errors ``errors`` (nj, 7).
+
+    ``path_to``: a link frame (0..nj) whose path from W alone is computed (the joints that move it,
+    :attr:`Chain.paths`; another arm of a tree is skipped): the frames of W and of those joints'
+    links are the same numbers, the others NaN. None: all frames."""
+    joints = None if path_to is None else np.flatnonzero(chain.paths[path_to])
+    R, o, _ = _link_loop(chain, q, errors, joints)
+    if joints is not None:
+        off = np.ones(chain.n_joints + 1, dtype=bool)
+        off[0], off[joints + 1] = False, False
+        R[off], o[off] = np.nan, np.nan
     return np.ascontiguousarray(R.transpose(1, 0, 2, 3)), np.ascontiguousarray(o.transpose(1, 0, 2))
 
 

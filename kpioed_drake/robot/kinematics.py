@@ -275,7 +275,7 @@ def forward_kinematics(robot: Robot, q: np.ndarray, geometry: np.ndarray | None 
     return Frames(R, o, eu, eo, erot, R[:, :nj, :, 2], o[:, :nj], np.zeros(nj, dtype=bool), moved)
 
 
-def link_frames(robot: Robot, q: np.ndarray) -> Frames:
+def link_frames(robot: Robot, q: np.ndarray, *, path_to: int | None = None) -> Frames:
     """The link frames of :func:`forward_kinematics` (nominal geometry) for tests of where links
     are (incidence, feasibility of many random poses): on a chain robot the same ``R`` and ``o``,
     bit for bit, in about a third of the time, without the identification elements and joint axes
@@ -284,11 +284,13 @@ def link_frames(robot: Robot, q: np.ndarray) -> Frames:
 
     Args:
         robot: the robot; q: (n, nj) or (nj,) joint angles [rad] (prismatic joints [mm]).
+        path_to: on a chain robot, only the frames on the path from W to this link frame
+            (0..nj; the others NaN: :func:`kpioed_drake.robot.chain.chain_links`); None: all.
     """
     q = _as_poses(q, robot.n_joints)
     if robot.chain is None:
         return forward_kinematics(robot, q)
-    R, o = chain_links(robot.chain, q, robot.geometry)
+    R, o = chain_links(robot.chain, q, robot.geometry, path_to=path_to)
     n, nj = q.shape
     none = np.zeros((n, 0, 3))
     return Frames(

@@ -359,18 +359,23 @@ def incidence_cosine(
     return np.einsum("ni,ni->n", frames.at_link(link)[0][..., 2], g)
 
 
+def target_incidence(
+    model: TrackerModel, q: np.ndarray, target: int, *, frames: Frames | None = None
+) -> np.ndarray:
+    """(n,) :func:`incidence_cosine` of every pose ``q`` (n, nj) to the target ``target`` (0-based);
+    ``frames`` need to hold only the frame of the target's link
+    (:attr:`~kpioed_drake.robot.models.Robot.target_frames`)."""
+    frames = model.frames(q) if frames is None else frames
+    if model.layout.n_targets == 1:
+        return incidence_cosine(model, q, frames=frames)
+    return incidence_cosine(model, q, frames=frames, target=np.full(frames.o.shape[0], target))
+
+
 def incidence_cosines(model: TrackerModel, q: np.ndarray, *, frames: Frames | None = None) -> np.ndarray:
     """(n, T) :func:`incidence_cosine` of every pose to each of the model's T targets."""
     frames = model.frames(q) if frames is None else frames
-    if model.layout.n_targets == 1:
-        return incidence_cosine(model, q, frames=frames)[:, None]
-    n = frames.o.shape[0]
     return np.stack(
-        [
-            incidence_cosine(model, q, frames=frames, target=np.full(n, t))
-            for t in range(model.layout.n_targets)
-        ],
-        axis=1,
+        [target_incidence(model, q, t, frames=frames) for t in range(model.layout.n_targets)], axis=1
     )
 
 
