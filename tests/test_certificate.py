@@ -22,10 +22,10 @@ from kpioed_drake.design.approximate.design import (
     efficient_rounding,
     exchange_counts,
     kpi_factor,
-    l_criterion,
     rank3_changes,
     replicate_poses,
 )
+from kpioed_drake.design.approximate.pool import l_criterion
 from kpioed_drake.design.approximate.search import (
     DualObjective,
     corner_poses,

@@ -9,7 +9,8 @@ from contact_helpers import drake_tool_points
 from fd import central_fd
 from numpy.testing import assert_allclose
 
-from kpioed_drake.design.approximate.design import kpi_factor, solve_pool
+from kpioed_drake.design.approximate.design import kpi_factor
+from kpioed_drake.design.approximate.pool import solve_pool
 from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.design.contact import design as plane_opt
 from kpioed_drake.design.contact.poses import ON_SURFACE_TOL_MM, contact_poses

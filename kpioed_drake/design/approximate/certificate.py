@@ -41,7 +41,7 @@ import threading
 import numpy as np
 
 from kpioed_drake import progress
-from kpioed_drake.design.approximate import certcache, search
+from kpioed_drake.design.approximate import certcache, pool, search
 from kpioed_drake.design.approximate import design as column_generation
 from kpioed_drake.design.approximate.design import (
     ROUND_TOL,
@@ -49,10 +49,9 @@ from kpioed_drake.design.approximate.design import (
     approximate_design,
     distinct_rows,
     kpi_factor,
-    l_criterion,
-    solve_pool,
 )
 from kpioed_drake.design.approximate.given import bound_of, given_design
+from kpioed_drake.design.approximate.pool import l_criterion, solve_pool
 from kpioed_drake.design.approximate.search import (
     announce_cold_search,
     corner_poses,
@@ -271,7 +270,8 @@ def search_settings() -> dict:
     generation = ("POOL_POSES", "FIRST_WORKING", "WORKING_POSES")
     return {
         **{name: globals()[name] for name in (*own, "VERIFY_STARTS")},
-        **{name: getattr(column_generation, name) for name in (*generation, "ROUND_TOL", "CLARABEL_TOL")},
+        **{name: getattr(column_generation, name) for name in (*generation, "ROUND_TOL")},
+        **pool.settings(),
         **search.settings(),
     }
 

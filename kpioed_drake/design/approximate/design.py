@@ -12,8 +12,8 @@ Over finitely many candidates the optimum is a second-order-cone program (Sagnol
 
     sqrt(Phi*) = max_Y tr(K^T Y)   s.t.  ||F_i Y||_F <= 1  for every candidate i
 
-is solved with Drake's ``MathematicalProgram`` and Clarabel; the cones' multipliers ``lambda_i`` give
-the weights ``w = lambda / sum(lambda)``. At the optimum ``Y`` is proportional to ``M(w)^-1 K``, so
+is solved by :func:`.pool.solve_pool`; the cones' multipliers ``lambda_i`` give the weights
+``w = lambda / sum(lambda)``. At the optimum ``Y`` is proportional to ``M(w)^-1 K``, so
 ``g(x) = ||F_x Y||_F^2`` is proportional to ``d(x, w) = tr(A M^-1 M_x M^-1)`` (equivalence theorem).
 
 Candidates from the continuous feasible set (paper eq. 24b) come by column generation: random
@@ -30,21 +30,17 @@ Units: millimetres and radians; ``Phi`` in mm^2 (a variance times a number of po
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import logging
 import math
 import time
-from collections.abc import Iterator
 
 import numpy as np
-from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
 
 from kpioed_drake import progress
 from kpioed_drake.design.approximate import search
+from kpioed_drake.design.approximate.pool import CONE_TOL, solve_pool
 from kpioed_drake.design.approximate.search import corner_poses, dual_values, maximize_dual, pose_rows
 from kpioed_drake.design.heuristic import heuristic_design
-from kpioed_drake.errors import InputError
 from kpioed_drake.estimation.problem import Problem
 
 POOL_POSES = 2000
@@ -77,30 +73,10 @@ SUPPORT_WEIGHT = 1e-5
 """Weights below this count as zero (interior-point round-off) in support and rounding."""
 SAME_POSE_TOL = 1e-6
 """A new pose with rows within this (relative) of a candidate's is not added."""
-CLARABEL_TOL = 1e-11
-"""Clarabel's gap and feasibility tolerances (its default 1e-8 left the equivalence-theorem gap at
-the pool optimum near 1e-6)."""
-RETRY_TOLS = (1e-9, 1e-7)
-"""Looser tolerances tried in turn when Clarabel stops short of the asked one ("insufficient
-progress", on a few robots at 1e-11, docs/studies.md). The bound stays rigorous (``phi`` and ``dual`` are
-evaluated in numpy); only its tightness depends on the tolerance."""
 START_CONE_TOL = 1e-8
-"""Clarabel's tolerances in the optimiser's start (Clarabel's default; it needs no certificate): a
-little faster than :data:`CLARABEL_TOL` for a start of the same value to a few 1e-4
-(docs/certificate.md, design notes)."""
-
-
-@contextlib.contextmanager
-def quiet_solver_notes() -> Iterator[None]:
-    """Drake's log at WARNING within: Clarabel's "returns InsufficientProgress" notes (INFO) are
-    expected where a tight tolerance is tried before a looser one, and would reach the user."""
-    log = logging.getLogger("drake")
-    level = log.level
-    log.setLevel(logging.WARNING)
-    try:
-        yield
-    finally:
-        log.setLevel(level)
+"""The cone programs' gap in the optimiser's start (it needs no certificate): a little faster than
+:data:`~.pool.CONE_TOL` for a start of the same value to a few 1e-4 (docs/certificate.md, design
+notes)."""
 
 
 def kpi_factor(problem: Problem) -> np.ndarray:
@@ -108,72 +84,6 @@ def kpi_factor(problem: Problem) -> np.ndarray:
     from the weighted stack :meth:`Problem.Js` (their weighted mean; every ``Y`` below is then
     (k, 3K))."""
     return problem.Js().T / math.sqrt(3.0)
-
-
-def l_criterion(F: np.ndarray, w: np.ndarray, K: np.ndarray) -> tuple[float, np.ndarray]:
-    """``Phi(w) = tr(K^T M(w)^-1 K)`` [mm^2] and ``M(w)^-1 K`` (k, 3) of rows ``F`` (m, 3, k)
-    (numpy.linalg.LinAlgError if ``M(w)`` is singular)."""
-    X = np.linalg.solve(np.einsum("i,iak,ial->kl", w, F, F), K)
-    return float(np.sum(K * X)), X
-
-
-@dataclasses.dataclass
-class PoolSolution:
-    """Optimum approximate design over a finite set of candidates (the cone program above).
-
-    Attributes:
-        w: (m,) weights (sum 1), from the cones' multipliers.
-        Y: (k, 3) dual matrix, scaled so that ``max_i g_i = 1`` over the candidates.
-        phi: ``Phi(w)`` evaluated in numpy [mm^2], an upper bound on the pool optimum.
-        dual: ``tr(K^T Y)^2`` [mm^2], a lower bound on it (as ``max_i g_i = 1``).
-    """
-
-    w: np.ndarray
-    Y: np.ndarray
-    phi: float
-    dual: float
-
-
-def solve_pool(F: np.ndarray, K: np.ndarray, *, tol: float = CLARABEL_TOL) -> PoolSolution:
-    """The optimum approximate design over the candidates with rows ``F`` (m, 3, k).
-
-    ``phi`` and ``dual`` are evaluated in numpy from ``w`` and ``Y``: ``dual <= Phi*_pool <= phi``
-    holds whatever the solver's accuracy (``tol``: Clarabel's gap and feasibility tolerances).
-
-    Raises:
-        InputError: if the solver fails or the weighted candidates do not determine the parameters.
-    """
-    m, r, k = F.shape  # r: 3 rows per pose, 3 T with T targets
-    nc = K.shape[1]  # 3; several working poses: 3 K
-    prog = MathematicalProgram()
-    y = prog.NewContinuousVariables(nc * k, "y")  # Y[j, c] = y[nc j + c]
-    A = np.zeros((m, 1 + r * nc, nc * k))  # cone i: (1, vec(F_i Y)) with vec row-major
-    for a in range(r):
-        for c in range(nc):
-            A[:, 1 + nc * a + c, c::nc] = F[:, a]
-    b = np.eye(1 + r * nc)[0]
-    cones = [prog.AddLorentzConeConstraint(A[i], b, y) for i in range(m)]
-    prog.AddLinearCost(-K.reshape(-1), 0.0, y)
-    solver = ClarabelSolver()
-    for t in (tol, *(x for x in RETRY_TOLS if x > tol)):
-        opts = SolverOptions()
-        for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
-            opts.SetOption(solver.solver_id(), name, t)
-        with quiet_solver_notes():
-            result = solver.Solve(prog, None, opts)
-        if result.is_success():
-            break
-    else:
-        raise InputError(f"the approximate design's cone program failed: {result.get_solution_result()}")
-    lam = np.maximum([result.GetDualSolution(c)[0] for c in cones], 0.0)
-    w = lam / lam.sum()
-    Y = np.asarray(result.GetSolution(y)).reshape(k, nc)
-    Y = Y / math.sqrt(dual_values(F, Y).max())
-    try:
-        phi, _ = l_criterion(F, w, K)
-    except np.linalg.LinAlgError:
-        raise InputError("the candidate poses do not determine the parameters") from None
-    return PoolSolution(w=w, Y=Y, phi=phi, dual=float(np.sum(K * Y)) ** 2)
 
 
 @dataclasses.dataclass
@@ -278,7 +188,7 @@ def approximate_design(
     warm: ApproximateDesign | None = None,
     first_working: int = FIRST_WORKING,
     working: int = WORKING_POSES,
-    cone_tol: float = CLARABEL_TOL,
+    cone_tol: float = CONE_TOL,
 ) -> ApproximateDesign:
     """The approximate KPI design over the feasible poses, by column generation (module docstring).
 
@@ -314,17 +224,9 @@ def approximate_design(
         sol = solve_pool(F[work], K, tol=cone_tol)
         w = np.zeros(len(q))
         w[work] = sol.w
-        g = dual_values(F, sol.Y)
-        first = np.concatenate(
-            [np.argsort(-g)[: starts - random_starts], rng.choice(len(q), size=random_starts, replace=False)]
-        )
-        q_max, g_found, ok = maximize_dual(problem, q[first], sol.Y, collision=collision)
-        n_searched += len(first)
-        g_max = max(float(g.max()), float(g_found[ok].max(initial=0.0)))
+        g_max, q, F, w = _price(problem, q, F, w, sol.Y, rng, starts, random_starts, collision=collision)
+        n_searched += starts
         progress.step(g_max=g_max)
-        new = ok & (g_found > 1.0)
-        if new.any():
-            q, F, w = _with_found(problem, q, F, w, q_max[new])
         converged = g_max <= 1.0 + tol
         if converged:
             break
@@ -344,6 +246,33 @@ def approximate_design(
         solve_s=before_s + time.perf_counter() - t0,
         n_checked=0 if warm is None else warm.n_checked,
     )
+
+
+def _price(
+    problem: Problem,
+    q: np.ndarray,
+    F: np.ndarray,
+    w: np.ndarray,
+    Y: np.ndarray,
+    rng: np.random.Generator,
+    starts: int,
+    random_starts: int,
+    *,
+    collision: bool,
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """The pricing of a round: ``g`` under ``Y`` on every candidate and at the local maxima from the
+    ``starts - random_starts`` candidates of largest ``g`` and ``random_starts`` random ones; the
+    largest ``g`` and the candidates ``q``, rows ``F`` and weights ``w`` with the maxima of
+    ``g > 1`` added (weight 0)."""
+    g = dual_values(F, Y)
+    first = np.concatenate(
+        [np.argsort(-g)[: starts - random_starts], rng.choice(len(q), size=random_starts, replace=False)]
+    )
+    q_max, g_found, ok = maximize_dual(problem, q[first], Y, collision=collision)
+    new = ok & (g_found > 1.0)
+    if new.any():
+        q, F, w = _with_found(problem, q, F, w, q_max[new])
+    return max(float(g.max()), float(g_found[ok].max(initial=0.0))), q, F, w
 
 
 def efficient_rounding(w: np.ndarray, n: int) -> np.ndarray:

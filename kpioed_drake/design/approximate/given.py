@@ -41,8 +41,8 @@ from kpioed_drake.design.approximate.design import (
     ApproximateDesign,
     distinct_rows,
     kpi_factor,
-    quiet_solver_notes,
 )
+from kpioed_drake.design.approximate.pool import quiet_solver_notes
 from kpioed_drake.design.approximate.search import dual_values, maximize_dual, pose_rows
 from kpioed_drake.estimation.problem import Problem
 

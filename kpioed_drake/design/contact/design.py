@@ -4,7 +4,7 @@ The contact systems (:mod:`.surfaces`): touches of planes, or a pivot ballbar's 
 sphere about its pivot. The approximate design (paper eq. 24 with weights on poses;
 :mod:`kpioed_drake.design.approximate`) over a candidate set ``X`` of feasible poses on the surfaces
 (:mod:`kpioed_drake.design.contact.poses`): the cone program
-:func:`~kpioed_drake.design.approximate.design.solve_pool` over the candidates gives weights ``w``
+:func:`~kpioed_drake.design.approximate.pool.solve_pool` over the candidates gives weights ``w``
 and the dual ``Y`` (k, 3) with ``max g = 1`` over them, ``g(x) = ||F_x Y||^2``; a local search for
 larger ``g`` (:func:`maximize_on_surfaces`) adds the poses it finds and the program is solved again,
 until no search finds ``g > 1 + tol`` or :data:`ROUNDS` rounds are done.
@@ -41,14 +41,13 @@ from typing import Any
 import numpy as np
 
 from kpioed_drake.design.approximate.design import (
-    PoolSolution,
     distinct_rows,
     efficient_rounding,
     exchange_counts,
     kpi_factor,
     replicate_poses,
-    solve_pool,
 )
+from kpioed_drake.design.approximate.pool import PoolSolution, solve_pool
 from kpioed_drake.design.approximate.search import dual_values, pose_rows
 from kpioed_drake.design.contact.poses import (
     contact_clearance,
