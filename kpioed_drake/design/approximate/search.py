@@ -199,14 +199,12 @@ def perturbed_poses(
     return qp[feasible(problem, qp, collision=collision)]
 
 
-COLD_SEARCH_UNITS = 45_000.0
+COLD_SEARCH_UNITS = 30_000.0
 """CPU time of a cold :func:`certified_design` of a six-joint robot in units of one evaluation of
-``F1`` and ``dF1/dq`` at :data:`ESTIMATE_POSES` poses
-(measured: kr16, 60 poses, 44,900 units; the 18-joint twin with two targets about 160,000 before
-its local searches took 2 starts per solve and 12 per round, about 80,000 since, hence the growth
-:data:`COLD_SEARCH_GROWTH` with the joints): a rough estimate, to tell a user before a run of
-minutes."""
-COLD_SEARCH_GROWTH = 0.5
+``F1`` and ``dF1/dq`` at :data:`ESTIMATE_POSES` poses (measured in one process: kr16 30,100 units,
+the 18-joint twin with two targets 60,400, hence the growth :data:`COLD_SEARCH_GROWTH` with the
+joints): a rough estimate, to tell a user before a run of minutes."""
+COLD_SEARCH_GROWTH = 0.64
 """Exponent of the joint count in :func:`cold_search_estimate_s`."""
 
 
