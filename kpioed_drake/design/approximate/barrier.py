@@ -11,8 +11,9 @@ function: damped steps keep every ``g_i < 1`` and converge), each ``mu`` started
 central path's tangent. At a minimiser ``K = sum_i lambda_i F_i^T F_i Y`` with
 ``lambda_i = 2 mu / (1 - g_i)`` and the duality gap is ``m mu``. Those multipliers lose digits where
 a cone is active (``1 - g_i`` about 1e-12), so the barrier stops at a gap of 1e-8 and Newton's
-method on the weights of its support (:func:`polish_weights`) gives ``w``; ``Y = M(w)^-1 K`` then
-meets ``Phi(w)`` to about 1e-11 (measured 1e-13 to 3e-11).
+method on the weights of its support (:func:`polish_weights`) gives ``w``; ``Y = M(w)^-1 K``
+(:func:`.pool.solve_pool` takes it where its bound is larger) then meets ``Phi(w)`` to about 1e-11
+(measured 1e-13 to 3e-11).
 
 Why not a general conic solver: the Newton matrix has the structure
 ``(sum_i c_i F_i^T F_i) kron I + U diag(d) U^T`` (``U``: the columns ``vec(F_i^T F_i Y)``), which
@@ -77,7 +78,7 @@ def _max_step(B: np.ndarray, D: np.ndarray, s: np.ndarray) -> float:
 
 
 class _Barrier:
-    """The barrier function of one pool: its value, Newton step, centring, dual bound and support."""
+    """The barrier function of one pool: its value, Newton step, centring and support."""
 
     def __init__(self, F: np.ndarray, K: np.ndarray):
         self.m, self.r, self.k = F.shape
@@ -121,11 +122,6 @@ class _Barrier:
             Y = Y + a * step
         return Y, H
 
-    def dual(self, Y: np.ndarray) -> float:
-        """``tr(K^T Y)^2 / max_i g_i(Y)``: the lower bound on the pool optimum ``Y`` gives."""
-        _, s = _rows(self.Fs, Y, self.m)
-        return float(np.sum(self.K * Y)) ** 2 / float(np.max(1.0 - s))
-
     def support(self, Y: np.ndarray, mu: float) -> tuple[np.ndarray, np.ndarray]:
         """The candidates whose barrier multipliers ``2 mu / (1 - g_i)`` are not negligible
         (:data:`SUPPORT_LAMBDA`) and their multipliers normalised to sum 1."""
@@ -146,7 +142,7 @@ def polish_weights(F: np.ndarray, K: np.ndarray, w: np.ndarray) -> np.ndarray:
     Returns:
         (s,) weights (sum 1, zeros where they left).
     """
-    s_, r, k = F.shape
+    _, r, k = F.shape
     w = np.asarray(w, dtype=float).copy()
     for _ in range(POLISH_STEPS):
         on = np.flatnonzero(w > 0.0)
@@ -181,9 +177,8 @@ def barrier_dual(F: np.ndarray, K: np.ndarray, *, rtol: float) -> tuple[np.ndarr
     ``mu = 2 tr(K^T Y) / m``.
 
     Returns:
-        w: (m,) weights (sum 1, :func:`polish_weights` on the barrier's support); Y: (k, c), of the
-        barrier's last ``Y`` and ``M(w)^-1 K`` the one of larger :meth:`_Barrier.dual` (not scaled
-        to ``max g = 1``).
+        w: (m,) weights (sum 1, :func:`polish_weights` on the barrier's support); Y: (k, c) the
+        barrier's last (every ``g_i < 1``, not scaled to ``max g = 1``).
 
     Raises:
         numpy.linalg.LinAlgError: the candidates do not determine the parameters.
@@ -209,8 +204,7 @@ def _path(bar: _Barrier, F: np.ndarray, K: np.ndarray, rtol: float) -> tuple[np.
             on, lam = bar.support(Y, mu)
             w = np.zeros(bar.m)
             w[on] = polish_weights(F[on], K, lam)
-            X = np.linalg.solve(np.einsum("i,iak,ial->kl", w, F, F), K)  # the dual of the weights
-            return w, max((Y, X), key=bar.dual)
+            return w, Y
         new = mu / SHRINK  # a step along the central path's tangent: H dY = K (1/new - 1/mu)
         tangent = np.linalg.solve(H, bar.Kv * (1.0 / new - 1.0 / mu)).reshape(bar.k, bar.nc)
         Y = Y + bar.feasible_step(Y, tangent, 0.9) * tangent

@@ -88,33 +88,39 @@ class PoolSolution:
     dual: float
 
 
-def _solution(F: np.ndarray, K: np.ndarray, w: np.ndarray, Y: np.ndarray) -> PoolSolution:
-    """:class:`PoolSolution` of weights ``w`` and a dual direction ``Y``, both evaluated here.
+def _solution(
+    F: np.ndarray, K: np.ndarray, w: np.ndarray, Y: np.ndarray, *, equivalence: bool = False
+) -> PoolSolution:
+    """:class:`PoolSolution` of weights ``w`` and a dual direction ``Y``, both evaluated here; with
+    ``equivalence`` also of ``M(w)^-1 K`` (the equivalence theorem's ``Y`` of ``w``), the one of
+    the two with the larger bound kept.
 
     Raises:
         InputError: the weighted candidates do not determine the parameters.
     """
-    Y = Y / math.sqrt(dual_values(F, Y).max())
     try:
-        phi, _ = l_criterion(F, w, K)
+        phi, X = l_criterion(F, w, K)
     except np.linalg.LinAlgError:
         raise InputError("the candidate poses do not determine the parameters") from None
+    scaled = [Z / math.sqrt(dual_values(F, Z).max()) for Z in ((Y, X) if equivalence else (Y,))]
+    Y = max(scaled, key=lambda Z: float(np.sum(K * Z)) ** 2)
     return PoolSolution(w=w, Y=Y, phi=phi, dual=float(np.sum(K * Y)) ** 2)
 
 
 def solve_pool(F: np.ndarray, K: np.ndarray, *, tol: float = CONE_TOL) -> PoolSolution:
     """The optimum approximate design over the candidates with rows ``F`` (m, 3, k).
 
-    The barrier method (:func:`.barrier.barrier_dual`) to the relative duality gap ``tol``; its
-    result is kept if ``1 - dual / phi`` is at most :data:`BARRIER_ACCEPT` or ``100 tol``, else
-    Clarabel solves the same program (gap and feasibility tolerances ``tol``, then :data:`RETRY_TOLS`).
+    The barrier method (:func:`.barrier.barrier_dual`) to the relative duality gap ``tol``, with
+    the better of its ``Y`` and ``M(w)^-1 K``; its result is kept if ``1 - dual / phi`` is at most
+    :data:`BARRIER_ACCEPT` or ``100 tol``, else Clarabel solves the same program (gap and
+    feasibility tolerances ``tol``, then :data:`RETRY_TOLS`).
 
     Raises:
         InputError: if the solver fails or the weighted candidates do not determine the parameters.
     """
     try:
         w, Y = barrier_dual(F, K, rtol=tol)
-        sol = _solution(F, K, w, Y)
+        sol = _solution(F, K, w, Y, equivalence=True)
         if sol.dual >= sol.phi * (1.0 - max(BARRIER_ACCEPT, 100.0 * tol)):
             return sol
     except (np.linalg.LinAlgError, InputError, FloatingPointError):
